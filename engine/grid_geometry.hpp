@@ -1,0 +1,72 @@
+#pragma once
+// All world <-> cell <-> tile arithmetic of the occupancy grid lives here.
+//
+// The grid is unbounded: cell (i, j) covers [i*r, (i+1)*r) x [j*r, (j+1)*r) in metres, r being
+// the resolution, with cell (0, 0) touching the world origin. Cells are grouped in square tiles of
+// kTileSize x kTileSize; tile (u, v) holds cells i in [u*kTileSize, (u+1)*kTileSize).
+
+#include <cmath>
+#include <cstdint>
+#include <functional>
+
+#include "engine/pose.hpp"
+
+namespace slam {
+
+inline constexpr int kTileSizeLog2 = 6;
+inline constexpr int kTileSize = 1 << kTileSizeLog2;  // 64 cells
+inline constexpr int kTileCells = kTileSize * kTileSize;
+
+/// Integer coordinates of a cell.
+struct CellIndex {
+  int32_t x = 0;
+  int32_t y = 0;
+  friend bool operator==(const CellIndex&, const CellIndex&) = default;
+};
+
+/// Integer coordinates of a tile.
+struct TileIndex {
+  int32_t x = 0;
+  int32_t y = 0;
+  friend bool operator==(const TileIndex&, const TileIndex&) = default;
+};
+
+/// Resolution and the conversions between metres, cells and tiles.
+class GridGeometry {
+ public:
+  /// Precondition: resolution_m > 0 (validated by GridConfig::Validate).
+  explicit GridGeometry(double resolution_m) : resolution_(resolution_m), inv_(1.0 / resolution_m) {}
+
+  double resolution() const { return resolution_; }
+
+  /// Continuous grid coordinates (cells as unit squares) of a world point.
+  Vec2 ToGrid(const Vec2& p) const { return p * inv_; }
+  /// The cell containing a world point.
+  CellIndex CellOf(const Vec2& p) const {
+    return {static_cast<int32_t>(std::floor(p.x() * inv_)),
+            static_cast<int32_t>(std::floor(p.y() * inv_))};
+  }
+  /// The world position of a cell's centre.
+  Vec2 CellCenter(CellIndex c) const {
+    return {(c.x + 0.5) * resolution_, (c.y + 0.5) * resolution_};
+  }
+  /// The world position of a cell's lower-left corner.
+  Vec2 CellCorner(CellIndex c) const { return {c.x * resolution_, c.y * resolution_}; }
+
+  /// The tile holding a cell (floor division, correct for negative cells).
+  static TileIndex TileOf(CellIndex c) { return {c.x >> kTileSizeLog2, c.y >> kTileSizeLog2}; }
+  /// The first (lower-left) cell of a tile.
+  static CellIndex TileOrigin(TileIndex t) {
+    return {t.x * kTileSize, t.y * kTileSize};
+  }
+  /// Index of a cell inside its tile's row-major array (row = y).
+  static int OffsetInTile(CellIndex c) {
+    return ((c.y & (kTileSize - 1)) << kTileSizeLog2) | (c.x & (kTileSize - 1));
+  }
+
+ private:
+  double resolution_;
+  double inv_;
+};
+
+}  // namespace slam

@@ -1,0 +1,33 @@
+#pragma once
+// SLAM parameters (paper Table II, DESIGN section 3) <-> JSON: files, and merge patches
+// (RFC 7396) as the HTTP API's PATCH /api/v1/params sends them.
+
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+
+#include "engine/io/result.hpp"
+#include "engine/params.hpp"
+
+namespace slam::io {
+
+/// Reads parameters from a JSON object (every key optional, defaults from SlamParams; unknown
+/// keys, wrong types and non-integral integers are errors) and validates them.
+Result<SlamParams> ParamsFromJson(const nlohmann::json& json);
+
+/// Reads and validates a parameters file; errors name the path (syntax errors with line/column).
+Result<SlamParams> LoadParams(const std::string& path);
+
+/// The JSON object of the parameters (every key written).
+nlohmann::json ParamsToJson(const SlamParams& params);
+
+/// Validates and writes `params` to `path` atomically (temporary file in the same directory,
+/// then rename); nullopt on success, else why nothing was written.
+[[nodiscard]] std::optional<std::string> SaveParams(const std::string& path,
+                                                    const SlamParams& params);
+
+/// Applies an RFC 7396 merge patch to `base` and validates the result; a null member resets
+/// that parameter to its default.
+Result<SlamParams> ApplyParamsPatch(const SlamParams& base, const nlohmann::json& merge_patch);
+
+}  // namespace slam::io

@@ -1,0 +1,104 @@
+#include "engine/occupancy_grid.hpp"
+
+#include <algorithm>
+
+namespace slam {
+
+OccupancyGrid::OccupancyGrid(const GridGeometry& geometry, int limit,
+                             std::shared_ptr<VersionClock> clock)
+    : geometry_(geometry), limit_(std::clamp(limit, 1, kLogOddsLimit)), clock_(std::move(clock)) {}
+
+// A copy shares tiles and the clock, but starts its own write epoch so that its changes get
+// versions distinct from the original's.
+OccupancyGrid::OccupancyGrid(const OccupancyGrid& other)
+    : geometry_(other.geometry_),
+      limit_(other.limit_),
+      clock_(other.clock_),
+      origin_(other.origin_),
+      width_(other.width_),
+      height_(other.height_),
+      slots_(other.slots_) {}
+
+OccupancyGrid& OccupancyGrid::operator=(const OccupancyGrid& other) {
+  if (this != &other) {
+    OccupancyGrid copy(other);
+    *this = std::move(copy);
+  }
+  return *this;
+}
+
+void OccupancyGrid::BeginWrite() { write_version_ = clock_->fetch_add(1) + 1; }
+
+Tile& OccupancyGrid::MutableTile(TileIndex t) {
+  EnsureCovers(t);
+  auto& slot = slots_[static_cast<size_t>((t.y - origin_.y) * width_ + (t.x - origin_.x))];
+  if (write_version_ == 0) BeginWrite();
+  if (!slot) {
+    slot = std::make_shared<Tile>();
+  } else if (slot.use_count() > 1) {
+    slot = std::make_shared<Tile>(*slot);  // copy on write
+  }
+  slot->version = write_version_;
+  return *slot;
+}
+
+void OccupancyGrid::EnsureCovers(TileIndex t) {
+  if (width_ > 0 && t.x >= origin_.x && t.y >= origin_.y && t.x < origin_.x + width_ &&
+      t.y < origin_.y + height_) {
+    return;
+  }
+  // Grow to include t with slack on the side that grew, so a robot exploring in one direction
+  // triggers O(log n) reallocations.
+  constexpr int64_t kSlack = 4;
+  int64_t x0 = width_ > 0 ? origin_.x : t.x, y0 = width_ > 0 ? origin_.y : t.y;
+  int64_t x1 = width_ > 0 ? origin_.x + width_ : t.x + 1;
+  int64_t y1 = width_ > 0 ? origin_.y + height_ : t.y + 1;
+  if (t.x < x0) x0 = t.x - std::max(kSlack, width_ / 2);
+  if (t.y < y0) y0 = t.y - std::max(kSlack, height_ / 2);
+  if (t.x >= x1) x1 = t.x + 1 + std::max(kSlack, width_ / 2);
+  if (t.y >= y1) y1 = t.y + 1 + std::max(kSlack, height_ / 2);
+  const int64_t w = x1 - x0, h = y1 - y0;
+  std::vector<std::shared_ptr<Tile>> slots(static_cast<size_t>(w * h));
+  for (int64_t v = 0; v < height_; ++v) {
+    for (int64_t u = 0; u < width_; ++u) {
+      const int64_t nu = origin_.x + u - x0, nv = origin_.y + v - y0;
+      slots[static_cast<size_t>(nv * w + nu)] = std::move(slots_[static_cast<size_t>(v * width_ + u)]);
+    }
+  }
+  slots_ = std::move(slots);
+  origin_ = {static_cast<int32_t>(x0), static_cast<int32_t>(y0)};
+  width_ = w;
+  height_ = h;
+}
+
+std::vector<TileRef> OccupancyGrid::Tiles() const {
+  std::vector<TileRef> tiles;
+  for (int64_t v = 0; v < height_; ++v) {
+    for (int64_t u = 0; u < width_; ++u) {
+      const auto& slot = slots_[static_cast<size_t>(v * width_ + u)];
+      if (slot) {
+        tiles.push_back({{static_cast<int32_t>(origin_.x + u), static_cast<int32_t>(origin_.y + v)}, slot});
+      }
+    }
+  }
+  return tiles;
+}
+
+int OccupancyGrid::TileCount() const {
+  return static_cast<int>(std::count_if(slots_.begin(), slots_.end(), [](const auto& s) { return s != nullptr; }));
+}
+
+uint64_t OccupancyGrid::Version() const {
+  uint64_t version = 0;
+  for (const auto& slot : slots_) {
+    if (slot) version = std::max(version, slot->version);
+  }
+  return version;
+}
+
+bool OccupancyGrid::SharesTileWith(const OccupancyGrid& other, TileIndex t) const {
+  const Tile* mine = FindTile(t);
+  return mine != nullptr && mine == other.FindTile(t);
+}
+
+}  // namespace slam

@@ -1,0 +1,34 @@
+#include "engine/odometry.hpp"
+
+#include <cmath>
+#include <cstdint>
+
+namespace slam {
+
+namespace {
+
+// Difference of two wrapping 32-bit counters.
+int64_t CounterDelta(int32_t now, int32_t before) {
+  return static_cast<int32_t>(static_cast<uint32_t>(now) - static_cast<uint32_t>(before));
+}
+
+}  // namespace
+
+Pose2 OdometryIntegrator::Add(const OdometryReading& reading) {
+  if (last_) {
+    const double dt = reading.t - last_->t;
+    const double left = static_cast<double>(CounterDelta(reading.left_ticks, last_->left_ticks));
+    const double right = static_cast<double>(CounterDelta(reading.right_ticks, last_->right_ticks));
+    const double trans = 0.5 * (left + right) / base_.ticks_per_m;
+    // Trapezoidal integration of the gyro's rate; out-of-order readings add no rotation.
+    const double rate_dps = 0.5 * (reading.gyro_raw + last_->gyro_raw) * base_.gyro_unit_dps;
+    const double dtheta = dt > 0 ? DegToRad(rate_dps) * dt : 0.0;
+    const double mid = pose_.theta + 0.5 * dtheta;
+    pose_ = {pose_.x + trans * std::cos(mid), pose_.y + trans * std::sin(mid),
+             NormalizeAngle(pose_.theta + dtheta)};
+  }
+  last_ = reading;
+  return pose_;
+}
+
+}  // namespace slam

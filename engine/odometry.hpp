@@ -1,0 +1,31 @@
+#pragma once
+// Dead reckoning from the base's odometry events: translation from the mean of both treels'
+// encoders, rotation from the gyroscope (paper section V-A).
+
+#include <optional>
+
+#include "engine/pose.hpp"
+#include "engine/robot.hpp"
+
+namespace slam {
+
+class OdometryIntegrator {
+ public:
+  explicit OdometryIntegrator(const BaseDescription& base) : base_(base) {}
+
+  /// Integrates one reading (in time order) and returns the dead-reckoned pose at its time.
+  /// The first reading only sets the reference. Encoder counters may wrap.
+  Pose2 Add(const OdometryReading& reading);
+
+  /// The pose after the last reading (the origin before any).
+  const Pose2& pose() const { return pose_; }
+  /// Time of the last reading, if any.
+  std::optional<double> time() const { return last_ ? std::optional<double>(last_->t) : std::nullopt; }
+
+ private:
+  BaseDescription base_;
+  std::optional<OdometryReading> last_;
+  Pose2 pose_;
+};
+
+}  // namespace slam

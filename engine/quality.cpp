@@ -1,0 +1,69 @@
+#include "engine/quality.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace slam {
+
+Vec2 RigidTransform2::Apply(const Vec2& p) const {
+  const double c = std::cos(rotation_rad), s = std::sin(rotation_rad);
+  return {c * p.x() - s * p.y() + translation.x(), s * p.x() + c * p.y() + translation.y()};
+}
+
+RigidTransform2 AlignRigid2D(const std::vector<Vec2>& source, const std::vector<Vec2>& target) {
+  const auto n = static_cast<double>(source.size());
+  Vec2 mean_s = Vec2::Zero(), mean_t = Vec2::Zero();
+  for (size_t i = 0; i < source.size(); ++i) {
+    mean_s += source[i];
+    mean_t += target[i];
+  }
+  mean_s /= n;
+  mean_t /= n;
+  // Closed-form 2D Procrustes: the angle maximising sum of <R s_i, t_i> over centred points.
+  double dot = 0.0, cross = 0.0;
+  for (size_t i = 0; i < source.size(); ++i) {
+    const Vec2 a = source[i] - mean_s, b = target[i] - mean_t;
+    dot += a.dot(b);
+    cross += a.x() * b.y() - a.y() * b.x();
+  }
+  RigidTransform2 result;
+  result.rotation_rad = std::atan2(cross, dot);
+  result.translation = mean_t - RigidTransform2{result.rotation_rad, Vec2::Zero()}.Apply(mean_s);
+  return result;
+}
+
+std::optional<Pose2> PoseAt(const std::vector<TimedPose>& trajectory, double t) {
+  if (trajectory.empty() || t < trajectory.front().t || t > trajectory.back().t) return std::nullopt;
+  const auto after = std::lower_bound(trajectory.begin(), trajectory.end(), t,
+                                      [](const TimedPose& p, double time) { return p.t < time; });
+  if (after->t == t || after == trajectory.begin()) return after->pose;
+  const auto before = std::prev(after);
+  const double span = after->t - before->t;
+  return Interpolate(before->pose, after->pose, span > 0 ? (t - before->t) / span : 0.0);
+}
+
+std::optional<TrajectoryQuality> EvaluateTrajectory(const std::vector<TimedPose>& estimate,
+                                                    const std::vector<TimedPose>& reference) {
+  std::vector<Vec2> source, target;
+  for (const TimedPose& ref : reference) {
+    if (const auto pose = PoseAt(estimate, ref.t)) {
+      source.push_back(pose->translation());
+      target.push_back(ref.pose.translation());
+    }
+  }
+  if (source.size() < 2) return std::nullopt;
+  TrajectoryQuality quality;
+  quality.alignment = AlignRigid2D(source, target);
+  double sum_sq = 0.0;
+  for (size_t i = 0; i < source.size(); ++i) {
+    sum_sq += (quality.alignment.Apply(source[i]) - target[i]).squaredNorm();
+  }
+  const double mean_sq_m2 = sum_sq / static_cast<double>(source.size());
+  quality.matched = static_cast<int>(source.size());
+  quality.q_cm2 = -mean_sq_m2 * 1e4;  // eq. 8 with positions in centimetres
+  quality.e = std::log(1.0 - quality.q_cm2);  // eq. 9
+  quality.ate_rmse_m = std::sqrt(mean_sq_m2);
+  return quality;
+}
+
+}  // namespace slam

@@ -1,0 +1,38 @@
+#pragma once
+// Trajectory quality of paper section VI-A (eq. 6-9) and ATE RMSE.
+
+#include <optional>
+#include <vector>
+
+#include "engine/pose.hpp"
+
+namespace slam {
+
+/// Rotation then translation: p -> R(rotation) p + translation.
+struct RigidTransform2 {
+  double rotation_rad = 0.0;
+  Vec2 translation = Vec2::Zero();
+  Vec2 Apply(const Vec2& p) const;
+};
+
+/// The rigid transform minimising sum |A(source_i) - target_i|^2 (closed form, eq. 7).
+/// Precondition: equal sizes, at least one point.
+RigidTransform2 AlignRigid2D(const std::vector<Vec2>& source, const std::vector<Vec2>& target);
+
+/// The pose of a time-ordered trajectory at time t (linear interpolation), nullopt outside it.
+std::optional<Pose2> PoseAt(const std::vector<TimedPose>& trajectory, double t);
+
+struct TrajectoryQuality {
+  double q_cm2 = 0.0;       // eq. 8: minus the mean squared residual, positions in centimetres
+  double e = 0.0;           // eq. 9: log(1 - q)
+  double ate_rmse_m = 0.0;  // sqrt of the mean squared residual, metres
+  int matched = 0;          // reference poses inside the estimate's time span
+  RigidTransform2 alignment;  // maps the estimate onto the reference
+};
+
+/// Associates each reference pose with the estimate at the same time (interpolated), aligns,
+/// and scores. nullopt when fewer than two reference poses fall within the estimate's span.
+std::optional<TrajectoryQuality> EvaluateTrajectory(const std::vector<TimedPose>& estimate,
+                                                    const std::vector<TimedPose>& reference);
+
+}  // namespace slam

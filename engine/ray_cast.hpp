@@ -1,0 +1,99 @@
+#pragma once
+// Ray casting on the occupancy grid: the unit of cost that the ray budget counts.
+//
+// Traversal is exact (Amanatides & Woo): a ray visits, in order, every cell whose interior it
+// crosses. Conventions, relied upon by the tests:
+//  - a ray passing exactly through a cell corner steps diagonally (neither side cell is visited);
+//  - a ray running exactly along a grid line belongs to the cells above / right of that line
+//    (cells are half-open, [i*r, (i+1)*r));
+//  - cells crossed over zero length (a ray starting on a boundary and leaving it) are not visited.
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "engine/grid_geometry.hpp"
+#include "engine/occupancy_grid.hpp"
+
+namespace slam {
+
+/// Visits the cells crossed by the segment from `origin` (metres) along the unit vector
+/// `direction` over `length_m`, calling visit(CellIndex, double enter_m, double exit_m) -> bool
+/// in order; visiting stops when it returns false. Returns the number of cells visited.
+/// Preconditions: direction has unit length; length_m >= 0 and finite.
+template <typename Visitor>
+int TraverseCells(const GridGeometry& geometry, const Vec2& origin, const Vec2& direction,
+                  double length_m, Visitor&& visit) {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  const double res = geometry.resolution();
+  const Vec2 p = geometry.ToGrid(origin);
+  const double length = length_m / res;
+  int32_t cx = static_cast<int32_t>(std::floor(p.x()));
+  int32_t cy = static_cast<int32_t>(std::floor(p.y()));
+  const double dx = direction.x(), dy = direction.y();
+  const int step_x = dx > 0 ? 1 : (dx < 0 ? -1 : 0);
+  const int step_y = dy > 0 ? 1 : (dy < 0 ? -1 : 0);
+  const double delta_x = step_x != 0 ? 1.0 / std::abs(dx) : kInf;
+  const double delta_y = step_y != 0 ? 1.0 / std::abs(dy) : kInf;
+  double next_x = step_x > 0 ? (cx + 1 - p.x()) * delta_x : step_x < 0 ? (p.x() - cx) * delta_x : kInf;
+  double next_y = step_y > 0 ? (cy + 1 - p.y()) * delta_y : step_y < 0 ? (p.y() - cy) * delta_y : kInf;
+  constexpr double kCornerEpsilon = 1e-9;
+  double t = 0.0;
+  int visited = 0;
+  while (true) {
+    const double t_next = std::min(next_x, next_y);
+    const double t_exit = std::min(t_next, length);
+    if (t_exit > t || (length == 0.0 && visited == 0)) {
+      ++visited;
+      if (!visit(CellIndex{cx, cy}, t * res, t_exit * res)) break;
+    }
+    if (t_next >= length) break;
+    if (std::abs(next_x - next_y) <= kCornerEpsilon * (1.0 + t_next)) {
+      cx += step_x;
+      cy += step_y;
+      t = t_next;
+      next_x += delta_x;
+      next_y += delta_y;
+    } else if (next_x < next_y) {
+      cx += step_x;
+      t = next_x;
+      next_x += delta_x;
+    } else {
+      cy += step_y;
+      t = next_y;
+      next_y += delta_y;
+    }
+  }
+  return visited;
+}
+
+/// The cells a segment crosses, in order (for tests and tools; the hot paths use TraverseCells).
+std::vector<CellIndex> CellsOnRay(const GridGeometry& geometry, const Vec2& from, const Vec2& to);
+
+/// What a matching ray found.
+struct RayHit {
+  double distance_m = 0.0;  // to the entry of the first occupied cell, or the maximum range
+  bool hit = false;         // false: nothing occupied within the maximum range
+  int cells = 0;            // cells visited (work done)
+};
+
+/// Matching ray: from `origin` along `angle` to the first cell whose log odds exceed
+/// `occupied_above`, up to `max_range_m`. Reads only; safe to call concurrently on one grid.
+RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,
+                      double max_range_m, LogOdds occupied_above);
+
+/// The log-odds change along an update ray, by distance from the sensor: the cell crossed at
+/// distance r (midpoint of its crossing) gets delta[floor(r / step_m)]; cells beyond the table
+/// are left untouched.
+struct UpdateProfile {
+  double step_m = 0.0;
+  std::vector<int16_t> delta;
+  double length_m() const { return step_m * static_cast<double>(delta.size()); }
+};
+
+/// Update ray: applies `profile` along the ray from `origin` in direction `angle`.
+/// Returns the number of cells changed.
+int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle, const UpdateProfile& profile);
+
+}  // namespace slam

@@ -1,0 +1,84 @@
+#pragma once
+// The plain description of a robot (robot.json, DESIGN section 5) and the robot-event types.
+// The engine uses the description it is given; reading it from JSON is engine/io's job.
+
+#include <array>
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "engine/config_error.hpp"
+
+namespace slam {
+
+/// Number of distance sensors on the scanner (the scanner event carries s0..s3).
+inline constexpr int kScannerSensors = 4;
+
+struct BaseDescription {
+  int node = 1;
+  int event = 0x10;
+  double track_width_m = 0.15;
+  double ticks_per_m = 11375.0;
+  double gyro_unit_dps = 0.01;  // degrees per second per gyro unit
+};
+
+struct ScannerSensor {
+  std::string type;        // key into RobotDescription::sensor_types
+  double angle_deg = 0.0;  // on the platform, counter-clockwise from the platform's zero
+};
+
+struct ScannerDescription {
+  int node = 2;
+  int event = 0x20;
+  double sample_rate_hz = 60.0;
+  double mount_radius_m = 0.05;
+  std::vector<ScannerSensor> sensors;  // exactly kScannerSensors, in event word order
+};
+
+/// One point of a sensor's calibration: raw 10-bit ADC value and the distance it means.
+struct CalibrationPoint {
+  int raw = 0;
+  double distance_m = 0.0;
+};
+
+struct SensorTypeDescription {
+  std::string model;
+  double range_min_m = 0.0;  // datasheet range; below the minimum the response is not injective
+  double range_max_m = 0.0;
+  double use_min_m = 0.0;  // readings outside [use_min, use_max] are not used
+  double use_max_m = 0.0;
+  std::vector<CalibrationPoint> calibration;  // raw strictly decreasing, distance increasing
+  /// Standard deviation of a reading at distance d: sigma[0] + sigma[1] d + sigma[2] d^2.
+  std::array<double, 3> sigma_m{0.003, 0.0, 0.02};
+};
+
+struct RobotDescription {
+  std::string name;
+  BaseDescription base;
+  ScannerDescription scanner;
+  std::map<std::string, SensorTypeDescription> sensor_types;
+};
+
+/// Checks a description for consistency; empty when valid.
+ConfigErrors Validate(const RobotDescription& robot);
+
+/// Odometry event of the base: cumulative treel encoder counts (wrapping int32) and gyro rate.
+struct OdometryReading {
+  double t = 0.0;  // seconds
+  uint16_t seq = 0;
+  int32_t left_ticks = 0;
+  int32_t right_ticks = 0;
+  int16_t gyro_raw = 0;  // z rate, counter-clockwise positive, in gyro units
+};
+
+/// Scanner event: platform angle and the raw readings of the four sensors.
+struct ScannerReading {
+  double t = 0.0;  // seconds
+  uint16_t seq = 0;
+  uint16_t angle_raw = 0;  // 65536 = 360 degrees, counter-clockwise from the robot's forward axis
+  std::array<uint16_t, kScannerSensors> raw{};
+  uint16_t rectifier_mv = 0;
+};
+
+}  // namespace slam

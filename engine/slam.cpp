@@ -1,0 +1,413 @@
+#include "engine/slam.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "engine/cell_encoding.hpp"
+#include "engine/random.hpp"
+#include "engine/ray_cast.hpp"
+
+namespace slam {
+
+namespace {
+
+// Random stream kinds, so that motion, candidates and resampling never share draws.
+constexpr uint64_t kStreamMotion = 0;
+constexpr uint64_t kStreamResampling = 1;
+constexpr uint64_t kStreamCandidate = 2;  // + candidate index
+
+// Runs body(i) for i in [0, n), across threads or in order; each i must be independent.
+template <typename Body>
+void ForEach(bool parallel, size_t n, const Body& body) {
+  if (parallel && n > 1) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& r) {
+      for (size_t i = r.begin(); i != r.end(); ++i) body(i);
+    });
+  } else {
+    for (size_t i = 0; i < n; ++i) body(i);
+  }
+}
+
+// Picks `cap` of `n` items spread evenly (all of them when n <= cap).
+std::vector<size_t> SpreadEvenly(size_t n, size_t cap) {
+  std::vector<size_t> picked;
+  if (n <= cap) {
+    picked.resize(n);
+    std::iota(picked.begin(), picked.end(), size_t{0});
+    return picked;
+  }
+  picked.reserve(cap);
+  for (size_t i = 0; i < cap; ++i) picked.push_back(i * n / cap);
+  return picked;
+}
+
+// The motion between two odometry poses as rotation, translation, rotation (phase A). Backward
+// motion is a negative translation, so that reversing does not look like a half-turn.
+struct MotionDelta {
+  double rot1 = 0.0;
+  double trans = 0.0;
+  double rot2 = 0.0;
+};
+
+MotionDelta Decompose(const Pose2& delta) {
+  MotionDelta m;
+  m.trans = std::hypot(delta.x, delta.y);
+  if (m.trans > 1e-9) {
+    m.rot1 = std::atan2(delta.y, delta.x);
+    if (std::abs(m.rot1) > kPi / 2) {
+      m.rot1 = NormalizeAngle(m.rot1 - kPi);
+      m.trans = -m.trans;
+    }
+  }
+  m.rot2 = NormalizeAngle(delta.theta - m.rot1);
+  return m;
+}
+
+Pose2 Recompose(const MotionDelta& m) {
+  return {m.trans * std::cos(m.rot1), m.trans * std::sin(m.rot1), NormalizeAngle(m.rot1 + m.rot2)};
+}
+
+// The robot's path through one scan for one particle: the odometry path anchored at the particle's
+// start pose, plus a correction growing linearly in time to move the end onto a chosen pose.
+class ScanPath {
+ public:
+  ScanPath(const Scan& scan, const Pose2& start) {
+    const double span = scan.t_end - scan.t_begin;
+    nominal_.reserve(scan.samples.size());
+    fraction_.reserve(scan.samples.size());
+    for (const ScanSample& s : scan.samples) {
+      nominal_.push_back(Compose(start, Between(scan.odom_begin, s.odom)));
+      fraction_.push_back(span > 0 ? std::clamp((s.t - scan.t_begin) / span, 0.0, 1.0) : 1.0);
+    }
+    nominal_end_ = Compose(start, Between(scan.odom_begin, scan.odom_end));
+  }
+
+  const Pose2& nominal_end() const { return nominal_end_; }
+
+  /// Correction that moves the nominal end onto `end`.
+  Pose2 CorrectionTo(const Pose2& end) const {
+    return {end.x - nominal_end_.x, end.y - nominal_end_.y, NormalizeAngle(end.theta - nominal_end_.theta)};
+  }
+
+  /// Pose at sample i under a correction.
+  Pose2 SamplePose(size_t i, const Pose2& correction) const {
+    const double s = fraction_[i];
+    const Pose2& n = nominal_[i];
+    return {n.x + s * correction.x, n.y + s * correction.y, NormalizeAngle(n.theta + s * correction.theta)};
+  }
+
+ private:
+  std::vector<Pose2> nominal_;
+  std::vector<double> fraction_;
+  Pose2 nominal_end_;
+};
+
+}  // namespace
+
+// A usable reading of one sensor at one sample, with its geometry in the robot's frame.
+struct Slam::Measurement {
+  size_t sample = 0;
+  int sensor = 0;
+  uint16_t raw = 0;
+  double distance_m = 0.0;
+  double sigma_m = 0.0;
+  double local_angle = 0.0;  // sensor direction relative to the robot's heading
+  Vec2 local_origin = Vec2::Zero();
+};
+
+TrajectoryChunk::~TrajectoryChunk() {
+  std::shared_ptr<const TrajectoryChunk> next = std::move(parent);
+  while (next && next.use_count() == 1) {
+    std::shared_ptr<const TrajectoryChunk> grand = std::move(next->parent);
+    next = std::move(grand);
+  }
+}
+
+ConfigErrors SlamConfig::Validate() const {
+  ConfigErrors errors;
+  auto check = [&](bool ok, const char* pointer, const char* detail) {
+    if (!ok) errors.push_back({pointer, detail});
+  };
+  check(std::isfinite(resolution_m) && resolution_m >= 0.001 && resolution_m <= 0.5, "/resolution_m",
+        "must be between 0.001 and 0.5 m");
+  check(std::isfinite(logodds_limit) && logodds_limit > 0.1 && logodds_limit * kLogOddsScale <= kLogOddsLimit,
+        "/logodds_limit", "must be above 0.1 and at most 16");
+  check(std::isfinite(occupied_above_logodds) && std::abs(occupied_above_logodds) < logodds_limit,
+        "/occupied_above_logodds", "must lie inside the clamp limits");
+  check(std::isfinite(update.free_logodds) && update.free_logodds <= 0, "/update/free_logodds",
+        "must be <= 0");
+  check(std::isfinite(update.occupied_logodds) && update.occupied_logodds > 0, "/update/occupied_logodds",
+        "must be > 0");
+  check(std::isfinite(update.occupied_sigma_factor) && update.occupied_sigma_factor >= 0,
+        "/update/occupied_sigma_factor", "must be >= 0");
+  check(std::isfinite(update.occupied_min_halfwidth_cells) && update.occupied_min_halfwidth_cells >= 0.71,
+        "/update/occupied_min_halfwidth_cells", "must be >= 0.71 (sqrt(2)/2)");
+  check(std::isfinite(match_floor) && match_floor > 0 && match_floor < 1, "/match_floor",
+        "must be in (0, 1)");
+  check(std::isfinite(match_range_sigmas) && match_range_sigmas >= 1 && match_range_sigmas <= 10,
+        "/match_range_sigmas", "must be in [1, 10]");
+  return errors;
+}
+
+Slam::Slam(const RobotDescription& robot, const SlamParams& params, const SlamConfig& config)
+    : robot_(robot), params_(params), config_(config), geometry_(config.resolution_m) {
+  for (const ScannerSensor& sensor : robot_.scanner.sensors) {
+    sensor_models_.emplace_back(robot_.sensor_types.at(sensor.type), config_.update, config_.resolution_m);
+  }
+  const auto clock = std::make_shared<VersionClock>(0);
+  const OccupancyGrid empty(geometry_, EncodeLogOdds(config_.logodds_limit), clock);
+  particles_.assign(static_cast<size_t>(std::max(1, params_.particles)), Particle{{}, 0.0, empty, nullptr});
+}
+
+void Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
+  for (Particle& p : particles_) {
+    p.map = map;
+    p.pose = pose;
+    p.log_weight = 0.0;
+    p.history = nullptr;
+  }
+}
+
+const Particle& Slam::Best() const {
+  size_t best = 0;
+  for (size_t i = 1; i < particles_.size(); ++i) {
+    if (particles_[i].log_weight > particles_[best].log_weight) best = i;
+  }
+  return particles_[best];
+}
+
+std::vector<TimedPose> Slam::Trajectory() const {
+  std::vector<const TrajectoryChunk*> chunks;
+  for (const TrajectoryChunk* c = Best().history.get(); c != nullptr; c = c->parent.get()) {
+    chunks.push_back(c);
+  }
+  std::vector<TimedPose> poses;
+  for (auto it = chunks.rbegin(); it != chunks.rend(); ++it) {
+    poses.insert(poses.end(), (*it)->poses.begin(), (*it)->poses.end());
+  }
+  return poses;
+}
+
+std::vector<Slam::Measurement> Slam::CollectMeasurements(const Scan& scan) const {
+  std::vector<Measurement> measurements;
+  const double radius = robot_.scanner.mount_radius_m;
+  for (size_t i = 0; i < scan.samples.size(); ++i) {
+    const ScanSample& sample = scan.samples[i];
+    for (int k = 0; k < kScannerSensors; ++k) {
+      const SensorModel& model = sensor_models_[static_cast<size_t>(k)];
+      const uint16_t raw = sample.raw[static_cast<size_t>(k)];
+      const std::optional<double> d = model.Distance(raw);
+      if (!d) continue;
+      Measurement m;
+      m.sample = i;
+      m.sensor = k;
+      m.raw = raw;
+      m.distance_m = *d;
+      // Reading noise plus the grid's quantisation of where a surface lies (uniform in a cell).
+      m.sigma_m = std::sqrt(model.Sigma(*d) * model.Sigma(*d) + config_.resolution_m * config_.resolution_m / 12.0);
+      m.local_angle = sample.platform_angle_rad + DegToRad(robot_.scanner.sensors[static_cast<size_t>(k)].angle_deg);
+      m.local_origin = Vec2(radius * std::cos(m.local_angle), radius * std::sin(m.local_angle));
+      measurements.push_back(m);
+    }
+  }
+  return measurements;
+}
+
+std::vector<size_t> Slam::ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable) const {
+  std::vector<size_t> kept;
+  const double min_step = DegToRad(params_.angle_between_scans_deg);
+  std::optional<double> last_angle;
+  size_t last_sample = SIZE_MAX;
+  bool keep = false;
+  for (size_t i = 0; i < usable.size(); ++i) {
+    const Measurement& m = usable[i];
+    if (m.sample != last_sample) {  // decide once per sample: all its sensors share the angle
+      last_sample = m.sample;
+      const double angle = scan.samples[m.sample].platform_angle_rad;
+      keep = !last_angle || std::abs(NormalizeAngle(angle - *last_angle)) >= min_step - 1e-12;
+      if (keep) last_angle = angle;
+    }
+    if (keep) kept.push_back(i);
+  }
+  return kept;
+}
+
+ScanSummary Slam::Summarize(const Scan& scan) const {
+  const std::vector<Measurement> usable = CollectMeasurements(scan);
+  return {static_cast<int>(usable.size()), static_cast<int>(ThinByAngle(scan, usable).size())};
+}
+
+ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
+  const uint64_t step = static_cast<uint64_t>(scans_processed_);
+  ScanReport report;
+  report.scan = scan.index;
+  for (Particle& p : particles_) {
+    if (!p.history) p.history = std::make_shared<TrajectoryChunk>(TrajectoryChunk{{{scan.t_begin, p.pose}}, nullptr});
+  }
+
+  const std::vector<Measurement> usable = CollectMeasurements(scan);
+  report.valid_measurements = static_cast<int>(usable.size());
+
+  // Matching measurements: thinned by platform angle ("angle between scans"), then capped.
+  const std::vector<size_t> thinned = ThinByAngle(scan, usable);
+  std::vector<const Measurement*> matching;
+  for (size_t i : SpreadEvenly(thinned.size(), static_cast<size_t>(std::max(0, plan.matching_measurements)))) {
+    matching.push_back(&usable[thinned[i]]);
+  }
+
+  // Phase A: sample each particle's end pose from the motion model (noise-free without phase B:
+  // odometry-only mapping).
+  const size_t n_particles = particles_.size();
+  const MotionDelta motion = Decompose(Between(scan.odom_begin, scan.odom_end));
+  const double angle_const = DegToRad(params_.angle_error_const_deg);
+  const double sigma_trans = params_.dist_error_ratio * std::abs(motion.trans) + params_.dist_error_const_m;
+  const double sigma_rot1 = params_.angle_error_ratio * std::abs(motion.rot1) + angle_const;
+  const double sigma_rot2 = params_.angle_error_ratio * std::abs(motion.rot2) + angle_const;
+  std::vector<ScanPath> paths;
+  std::vector<Pose2> predicted(n_particles);
+  paths.reserve(n_particles);
+  for (size_t p = 0; p < n_particles; ++p) {
+    paths.emplace_back(scan, particles_[p].pose);
+    if (!plan.refine) {
+      predicted[p] = paths[p].nominal_end();
+      continue;
+    }
+    Rng rng = Rng::ForStream(config_.seed, step, p, kStreamMotion);
+    MotionDelta noisy = motion;
+    noisy.rot1 += rng.Gaussian(sigma_rot1);
+    noisy.trans += rng.Gaussian(sigma_trans);
+    noisy.rot2 += rng.Gaussian(sigma_rot2);
+    predicted[p] = Compose(particles_[p].pose, Recompose(noisy));
+  }
+
+  // Phase B: eq. (2) for each candidate pose around the prediction; the best candidate wins.
+  const bool match = plan.refine && !matching.empty() && (plan.candidates > 1 || n_particles > 1);
+  const size_t n_candidates = match ? static_cast<size_t>(std::max(1, plan.candidates)) : 1;
+  std::vector<Pose2> chosen = predicted;
+  std::vector<double> chosen_ll(n_particles, 0.0);
+  if (match) {
+    const double sigma_pos = std::max(params_.min_pos_uncertainty_m, sigma_trans);
+    const double sigma_angle = std::max(DegToRad(params_.min_angle_uncertainty_deg), std::hypot(sigma_rot1, sigma_rot2));
+    const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
+    const double log_floor_weight = config_.match_floor;
+    const double half_cell = 0.5 * config_.resolution_m;
+    std::vector<Pose2> candidate_pose(n_particles * n_candidates);
+    std::vector<double> candidate_ll(n_particles * n_candidates);
+    ForEach(config_.parallel, candidate_pose.size(), [&](size_t index) {
+      const size_t p = index / n_candidates, c = index % n_candidates;
+      Pose2 end = predicted[p];
+      if (c > 0) {
+        Rng rng = Rng::ForStream(config_.seed, step, p, kStreamCandidate + c);
+        end.x += rng.Gaussian(sigma_pos);
+        end.y += rng.Gaussian(sigma_pos);
+        end.theta = NormalizeAngle(end.theta + rng.Gaussian(sigma_angle));
+      }
+      const ScanPath& path = paths[p];
+      const Pose2 correction = path.CorrectionTo(end);
+      const OccupancyGrid& map = particles_[p].map;
+      double ll = 0.0;
+      for (const Measurement* m : matching) {
+        const Pose2 robot = path.SamplePose(m->sample, correction);
+        const double range = m->distance_m + config_.match_range_sigmas * m->sigma_m;  // sigma with grid
+        const RayHit hit = CastToObstacle(map, robot.Transform(m->local_origin), robot.theta + m->local_angle,
+                                          range, occupied_above);
+        double g = 0.0;
+        if (hit.hit) {
+          // The surface lies somewhere in the first occupied cell: expect it half a cell in.
+          const double r = (m->distance_m - hit.distance_m - half_cell) / m->sigma_m;
+          g = std::exp(-0.5 * r * r);
+        }
+        ll += std::log(g + log_floor_weight);
+      }
+      candidate_pose[index] = end;
+      candidate_ll[index] = ll;
+    });
+    for (size_t p = 0; p < n_particles; ++p) {
+      size_t best = p * n_candidates;
+      for (size_t c = 1; c < n_candidates; ++c) {
+        if (candidate_ll[p * n_candidates + c] > candidate_ll[best]) best = p * n_candidates + c;
+      }
+      chosen[p] = candidate_pose[best];
+      chosen_ll[p] = candidate_ll[best];
+    }
+    report.rays.matching = static_cast<int64_t>(n_particles * n_candidates * matching.size());
+    report.matching_measurements = static_cast<int>(matching.size());
+  }
+  report.candidates = static_cast<int>(n_candidates);
+
+  // Phase C: every usable reading updates the map along its ray, from its sample's refined pose.
+  const std::vector<size_t> updates =
+      SpreadEvenly(usable.size(), static_cast<size_t>(std::max(0, plan.update_rays)));
+  for (Particle& p : particles_) p.map.BeginWrite();  // in order: versions do not depend on threads
+  ForEach(config_.parallel, n_particles, [&](size_t p) {
+    Particle& particle = particles_[p];
+    const ScanPath& path = paths[p];
+    const Pose2 correction = path.CorrectionTo(chosen[p]);
+    for (size_t u : updates) {
+      const Measurement& m = usable[u];
+      const Pose2 robot = path.SamplePose(m.sample, correction);
+      const UpdateProfile* profile = sensor_models_[static_cast<size_t>(m.sensor)].Update(m.raw);
+      ApplyUpdateRay(particle.map, robot.Transform(m.local_origin), robot.theta + m.local_angle, *profile);
+    }
+    auto chunk = std::make_shared<TrajectoryChunk>();
+    chunk->poses.reserve(scan.samples.size() + 1);
+    for (size_t i = 0; i < scan.samples.size(); ++i) {
+      chunk->poses.push_back({scan.samples[i].t, path.SamplePose(i, correction)});
+    }
+    if (chunk->poses.empty() || chunk->poses.back().t < scan.t_end) chunk->poses.push_back({scan.t_end, chosen[p]});
+    chunk->parent = std::move(particle.history);
+    particle.history = std::move(chunk);
+    particle.pose = chosen[p];
+    particle.log_weight += chosen_ll[p];
+  });
+  report.update_rays = static_cast<int>(updates.size());
+  report.rays.update = static_cast<int64_t>(updates.size() * n_particles);
+
+  // Phase D: resampling every N scans (sort by weight, draw proportionally), or when the plan
+  // changes the particle count.
+  double max_lw = -std::numeric_limits<double>::infinity();
+  for (const Particle& p : particles_) max_lw = std::max(max_lw, p.log_weight);
+  std::vector<double> weight(n_particles);
+  double total = 0.0;
+  for (size_t p = 0; p < n_particles; ++p) total += weight[p] = std::exp(particles_[p].log_weight - max_lw);
+  double sum_sq = 0.0;
+  for (double& w : weight) {
+    w /= total;
+    sum_sq += w * w;
+  }
+  report.effective_sample_size = 1.0 / sum_sq;
+  report.best_log_likelihood = chosen_ll[static_cast<size_t>(&Best() - particles_.data())];
+
+  ++scans_since_resampling_;
+  const auto wanted = static_cast<size_t>(std::max(1, plan.particles));
+  if ((n_particles > 1 && scans_since_resampling_ >= params_.resampling_period_scans) || wanted != n_particles) {
+    std::vector<size_t> order(n_particles);
+    std::iota(order.begin(), order.end(), size_t{0});
+    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return weight[a] > weight[b]; });
+    Rng rng = Rng::ForStream(config_.seed, step, 0, kStreamResampling);
+    const double u0 = rng.Uniform() / static_cast<double>(wanted);
+    std::vector<Particle> next;
+    next.reserve(wanted);
+    double cumulative = weight[order[0]];
+    size_t k = 0;
+    for (size_t j = 0; j < wanted; ++j) {
+      const double target = u0 + static_cast<double>(j) / static_cast<double>(wanted);
+      while (cumulative < target && k + 1 < n_particles) cumulative += weight[order[++k]];
+      next.push_back(particles_[order[k]]);
+      next.back().log_weight = 0.0;
+    }
+    particles_ = std::move(next);
+    scans_since_resampling_ = 0;
+    report.resampled = true;
+  }
+  report.particles = static_cast<int>(particles_.size());
+  report.pose = Best().pose;
+  ++scans_processed_;
+  return report;
+}
+
+}  // namespace slam

@@ -1,0 +1,130 @@
+#pragma once
+// FastSLAM 2.0 on a log-odds occupancy grid, adapted to the marXbot's rotating scanner
+// (paper section V): per scan, phase A motion, B matching and pose refinement, C grid update,
+// D resampling. Its cost is counted in rays and bounded by the plan given for each scan.
+
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <vector>
+
+#include "engine/occupancy_grid.hpp"
+#include "engine/params.hpp"
+#include "engine/pose.hpp"
+#include "engine/robot.hpp"
+#include "engine/scan.hpp"
+#include "engine/sensor_model.hpp"
+
+namespace slam {
+
+/// Engine settings that are not tuned by the evolution strategy.
+struct SlamConfig {
+  double resolution_m = 0.01;
+  double logodds_limit = 5.0;  // cells are clamped to [-limit, +limit]
+  double occupied_above_logodds = 0.0;  // matching rays stop at cells above this
+  UpdateModelConfig update;
+  /// Robust likelihood floor of one measurement: log(exp(-r^2 / 2 sigma^2) + floor).
+  double match_floor = 0.05;
+  /// Matching rays stop this many sigmas beyond the measured distance.
+  double match_range_sigmas = 3.0;
+  uint64_t seed = 1;
+  bool parallel = true;  // oneTBB across particles and candidates; results equal the serial path
+
+  /// Empty when valid.
+  ConfigErrors Validate() const;
+};
+
+/// What the engine may spend on one scan (produced by the scheduler).
+struct ScanPlan {
+  static constexpr int kUnlimited = std::numeric_limits<int>::max();
+  int particles = 1;                          // particle count from this scan on
+  int candidates = 1;                         // pose candidates per particle (1 = no refinement)
+  int matching_measurements = kUnlimited;     // cap on measurements matched per candidate
+  int update_rays = kUnlimited;               // cap on grid-update rays per particle
+  bool refine = true;                         // false: phase B off, odometry-only mapping
+};
+
+struct RayCounts {
+  int64_t matching = 0;
+  int64_t update = 0;
+  int64_t total() const { return matching + update; }
+};
+
+/// The numbers of a scan that a plan depends on.
+struct ScanSummary {
+  int usable_measurements = 0;    // readings inside their sensor's use window (update rays)
+  int matching_measurements = 0;  // of those, kept for matching after thinning by angle
+};
+
+/// What the engine did with one scan.
+struct ScanReport {
+  int64_t scan = 0;
+  Pose2 pose;  // best particle's pose at the end of the scan
+  RayCounts rays;
+  int particles = 0;
+  int candidates = 0;                 // per particle
+  int valid_measurements = 0;         // usable for matching (before thinning and the cap)
+  int matching_measurements = 0;      // matched per candidate
+  int update_rays = 0;                // per particle
+  bool resampled = false;
+  double effective_sample_size = 0.0;
+  double best_log_likelihood = 0.0;   // of the best particle's chosen candidate
+};
+
+/// History of a particle: one chunk per scan, shared with the ancestors it was copied from.
+struct TrajectoryChunk {
+  std::vector<TimedPose> poses;  // the scan's sample poses and its end pose, time-ordered
+  mutable std::shared_ptr<const TrajectoryChunk> parent;  // mutable: unlinked on destruction
+  ~TrajectoryChunk();  // iterative, so that long histories do not overflow the stack
+};
+
+struct Particle {
+  Pose2 pose;
+  double log_weight = 0.0;
+  OccupancyGrid map;
+  std::shared_ptr<const TrajectoryChunk> history;
+};
+
+class Slam {
+ public:
+  /// Preconditions: Validate(robot), Validate(params) and config.Validate() are empty.
+  Slam(const RobotDescription& robot, const SlamParams& params, const SlamConfig& config);
+
+  /// Runs phases A-D on one scan within `plan` and reports what was done.
+  ScanReport ProcessScan(const Scan& scan, const ScanPlan& plan);
+
+  /// Starts every particle from a known map and pose (a saved map, or a map drawn by hand);
+  /// the map's tiles are shared, not copied. Precondition: same resolution as the config.
+  void Restore(const OccupancyGrid& map, const Pose2& pose);
+
+  /// Counts what a scan offers, for the scheduler to plan with.
+  ScanSummary Summarize(const Scan& scan) const;
+
+  /// Replaces the tuned parameters from the next scan on (precondition: valid).
+  void SetParams(const SlamParams& params) { params_ = params; }
+  const SlamParams& params() const { return params_; }
+  const SlamConfig& config() const { return config_; }
+
+  const std::vector<Particle>& particles() const { return particles_; }
+  /// The particle with the largest weight (lowest index on ties).
+  const Particle& Best() const;
+  /// The best particle's trajectory, time-ordered, starting at the origin.
+  std::vector<TimedPose> Trajectory() const;
+  int64_t scans_processed() const { return scans_processed_; }
+
+ private:
+  struct Measurement;
+  std::vector<Measurement> CollectMeasurements(const Scan& scan) const;
+  std::vector<size_t> ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable) const;
+
+  RobotDescription robot_;
+  SlamParams params_;
+  SlamConfig config_;
+  GridGeometry geometry_;
+  std::vector<SensorModel> sensor_models_;  // one per scanner sensor, in event word order
+  std::vector<Particle> particles_;
+  int64_t scans_processed_ = 0;
+  int64_t scans_since_resampling_ = 0;
+};
+
+}  // namespace slam

@@ -1,0 +1,102 @@
+#include <gtest/gtest.h>
+
+#include "engine/cell_encoding.hpp"
+#include "engine/grid_geometry.hpp"
+#include "engine/occupancy_grid.hpp"
+
+namespace slam {
+namespace {
+
+TEST(GridGeometry, CellsOfPointsIncludingNegativeCoordinates) {
+  const GridGeometry g(0.01);
+  EXPECT_EQ(g.CellOf({0.0, 0.0}), (CellIndex{0, 0}));
+  EXPECT_EQ(g.CellOf({0.0099, 0.0101}), (CellIndex{0, 1}));
+  EXPECT_EQ(g.CellOf({-0.0001, -0.0101}), (CellIndex{-1, -2}));
+  EXPECT_EQ(g.CellOf({1.234, -5.678}), (CellIndex{123, -568}));
+  const Vec2 c = g.CellCenter({-1, 2});
+  EXPECT_NEAR(c.x(), -0.005, 1e-12);
+  EXPECT_NEAR(c.y(), 0.025, 1e-12);
+  EXPECT_EQ(g.CellOf(g.CellCenter({-37, 81})), (CellIndex{-37, 81}));
+}
+
+TEST(GridGeometry, TilesUseFloorDivision) {
+  EXPECT_EQ(GridGeometry::TileOf({0, 63}), (TileIndex{0, 0}));
+  EXPECT_EQ(GridGeometry::TileOf({64, -1}), (TileIndex{1, -1}));
+  EXPECT_EQ(GridGeometry::TileOf({-64, -65}), (TileIndex{-1, -2}));
+  EXPECT_EQ(GridGeometry::TileOrigin({-1, 2}), (CellIndex{-64, 128}));
+  EXPECT_EQ(GridGeometry::OffsetInTile({-1, -1}), 63 * 64 + 63);
+  EXPECT_EQ(GridGeometry::OffsetInTile({65, 130}), 2 * 64 + 1);
+}
+
+TEST(CellEncoding, RoundTripsAndClamps) {
+  EXPECT_EQ(EncodeLogOdds(0.85), 850);
+  EXPECT_NEAR(DecodeLogOdds(EncodeLogOdds(-0.4)), -0.4, 1e-12);
+  EXPECT_EQ(EncodeLogOdds(100.0), kLogOddsLimit);
+  EXPECT_EQ(AddLogOdds(4900, 850, 5000), 5000);
+  EXPECT_EQ(AddLogOdds(-4900, -850, 5000), -5000);
+  EXPECT_NEAR(OccupancyProbability(0), 0.5, 1e-12);
+}
+
+TEST(OccupancyGrid, UnknownUntilWrittenAndGrowsInEveryDirection) {
+  OccupancyGrid grid(GridGeometry(0.01), 5000);
+  EXPECT_EQ(grid.At({5, 5}), 0);
+  EXPECT_EQ(grid.TileCount(), 0);
+  const CellIndex cells[] = {{0, 0}, {-1, -1}, {1000, -2000}, {-70000, 3}, {63, 64}};
+  int delta = 100;
+  for (const CellIndex& c : cells) grid.Add(c, delta += 10);
+  delta = 100;
+  for (const CellIndex& c : cells) EXPECT_EQ(grid.At(c), delta += 10);
+  EXPECT_EQ(grid.At({1, 0}), 0);
+  EXPECT_EQ(grid.TileCount(), 5);
+  EXPECT_EQ(grid.Tiles().size(), 5u);
+}
+
+TEST(OccupancyGrid, ClampsToItsLimit) {
+  OccupancyGrid grid(GridGeometry(0.01), 1000);
+  for (int i = 0; i < 10; ++i) grid.Add({3, 4}, 400);
+  EXPECT_EQ(grid.At({3, 4}), 1000);
+  for (int i = 0; i < 10; ++i) grid.Add({3, 4}, -400);
+  EXPECT_EQ(grid.At({3, 4}), -1000);
+}
+
+TEST(OccupancyGrid, CopiesShareTilesUntilWritten) {
+  OccupancyGrid a(GridGeometry(0.01), 5000);
+  a.Add({1, 1}, 500);
+  a.Add({100, 1}, 500);
+  const OccupancyGrid b = a;  // resampling copies pointers, not maps
+  OccupancyGrid c = a;
+  EXPECT_TRUE(b.SharesTileWith(a, {0, 0}));
+  EXPECT_TRUE(c.SharesTileWith(a, {1, 0}));
+
+  c.Add({2, 2}, -300);
+  EXPECT_FALSE(c.SharesTileWith(a, {0, 0}));  // written: copied
+  EXPECT_TRUE(c.SharesTileWith(a, {1, 0}));   // untouched: still shared
+  EXPECT_EQ(c.At({2, 2}), -300);
+  EXPECT_EQ(a.At({2, 2}), 0);  // the others are intact
+  EXPECT_EQ(b.At({2, 2}), 0);
+  EXPECT_EQ(c.At({1, 1}), 500);  // the copy kept the shared contents
+}
+
+TEST(OccupancyGrid, VersionsOnlyGrowAndIdentifyContents) {
+  OccupancyGrid a(GridGeometry(0.01), 5000);
+  a.BeginWrite();
+  a.Add({1, 1}, 10);
+  const uint64_t v1 = a.FindTile({0, 0})->version;
+  EXPECT_GT(v1, 0u);
+  a.Add({2, 1}, 10);  // same epoch, same version
+  EXPECT_EQ(a.FindTile({0, 0})->version, v1);
+
+  OccupancyGrid b = a;
+  b.Add({3, 3}, 10);  // a copy writes in its own epoch
+  const uint64_t vb = b.FindTile({0, 0})->version;
+  EXPECT_GT(vb, v1);
+  a.BeginWrite();
+  a.Add({4, 4}, 10);
+  const uint64_t v2 = a.FindTile({0, 0})->version;
+  EXPECT_GT(v2, vb);  // distinct contents never share a version
+  EXPECT_EQ(a.Version(), v2);
+  EXPECT_EQ(b.Version(), vb);
+}
+
+}  // namespace
+}  // namespace slam

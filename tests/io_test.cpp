@@ -1,0 +1,608 @@
+// The JSON adapters of engine/io: every shipped config file loads, round trips are exact, and
+// every kind of bad input is reported with the JSON pointer of the culprit.
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "engine/config_error.hpp"
+#include "engine/io/params_json.hpp"
+#include "engine/io/robot_json.hpp"
+#include "engine/params.hpp"
+#include "engine/robot.hpp"
+
+namespace slam::io {
+namespace {
+
+namespace fs = std::filesystem;
+using Json = nlohmann::json;
+
+const fs::path kSourceDir = SLAM_SOURCE_DIR;
+const fs::path kConfigDir = kSourceDir / "config";
+const std::string kDefaultRobot = (kConfigDir / "marxbot.robot.json").string();
+const std::string kDefaultParams = (kConfigDir / "params.default.json").string();
+
+bool EndsWith(const std::string& text, const std::string& suffix) {
+  return text.size() >= suffix.size() &&
+         text.compare(text.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+// The pointers of a list of errors, for readable assertions.
+std::vector<std::string> Pointers(const ConfigErrors& errors) {
+  std::vector<std::string> pointers;
+  for (const ConfigError& error : errors) pointers.push_back(error.pointer);
+  return pointers;
+}
+
+bool HasPointer(const ConfigErrors& errors, const std::string& pointer) {
+  return std::any_of(errors.begin(), errors.end(),
+                     [&](const ConfigError& e) { return e.pointer == pointer; });
+}
+
+// The detail of the first error at `pointer`, or "" when there is none.
+std::string DetailAt(const ConfigErrors& errors, const std::string& pointer) {
+  for (const ConfigError& error : errors) {
+    if (error.pointer == pointer) return error.detail;
+  }
+  return "";
+}
+
+Json DefaultRobotJson() {
+  std::ifstream in(kDefaultRobot);
+  return Json::parse(in);
+}
+
+// A fresh directory for the files a test writes, removed by the destructor.
+class TempDir {
+ public:
+  explicit TempDir(const std::string& name)
+      : path_(fs::path(::testing::TempDir()) /
+              ("slam_io_test_" + std::to_string(::getpid()) + "_" + name)) {
+    fs::remove_all(path_);
+    fs::create_directories(path_);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  std::string File(const std::string& name) const { return (path_ / name).string(); }
+  const fs::path& path() const { return path_; }
+
+ private:
+  fs::path path_;
+};
+
+void WriteText(const std::string& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary);
+  out << text;
+}
+
+void ExpectSameRobot(const RobotDescription& a, const RobotDescription& b) {
+  EXPECT_EQ(a.name, b.name);
+  EXPECT_EQ(a.base.node, b.base.node);
+  EXPECT_EQ(a.base.event, b.base.event);
+  EXPECT_EQ(a.base.track_width_m, b.base.track_width_m);
+  EXPECT_EQ(a.base.ticks_per_m, b.base.ticks_per_m);
+  EXPECT_EQ(a.base.gyro_unit_dps, b.base.gyro_unit_dps);
+  EXPECT_EQ(a.scanner.node, b.scanner.node);
+  EXPECT_EQ(a.scanner.event, b.scanner.event);
+  EXPECT_EQ(a.scanner.sample_rate_hz, b.scanner.sample_rate_hz);
+  EXPECT_EQ(a.scanner.mount_radius_m, b.scanner.mount_radius_m);
+  ASSERT_EQ(a.scanner.sensors.size(), b.scanner.sensors.size());
+  for (std::size_t i = 0; i < a.scanner.sensors.size(); ++i) {
+    EXPECT_EQ(a.scanner.sensors[i].type, b.scanner.sensors[i].type) << i;
+    EXPECT_EQ(a.scanner.sensors[i].angle_deg, b.scanner.sensors[i].angle_deg) << i;
+  }
+  ASSERT_EQ(a.sensor_types.size(), b.sensor_types.size());
+  for (const auto& [name, ta] : a.sensor_types) {
+    ASSERT_EQ(b.sensor_types.count(name), 1u) << name;
+    const SensorTypeDescription& tb = b.sensor_types.at(name);
+    EXPECT_EQ(ta.model, tb.model) << name;
+    EXPECT_EQ(ta.range_min_m, tb.range_min_m) << name;
+    EXPECT_EQ(ta.range_max_m, tb.range_max_m) << name;
+    EXPECT_EQ(ta.use_min_m, tb.use_min_m) << name;
+    EXPECT_EQ(ta.use_max_m, tb.use_max_m) << name;
+    EXPECT_EQ(ta.sigma_m, tb.sigma_m) << name;
+    ASSERT_EQ(ta.calibration.size(), tb.calibration.size()) << name;
+    for (std::size_t i = 0; i < ta.calibration.size(); ++i) {
+      EXPECT_EQ(ta.calibration[i].raw, tb.calibration[i].raw) << name << " " << i;
+      EXPECT_EQ(ta.calibration[i].distance_m, tb.calibration[i].distance_m) << name << " " << i;
+    }
+  }
+}
+
+// Robot JSON with one value replaced (or removed when `value` is discarded).
+Result<RobotDescription> RobotWith(const std::string& pointer, const Json& value) {
+  Json json = DefaultRobotJson();
+  json[Json::json_pointer(pointer)] = value;
+  return RobotFromJson(json);
+}
+
+Result<RobotDescription> RobotWithout(const std::string& pointer) {
+  Json json = DefaultRobotJson();
+  const Json::json_pointer ptr(pointer);
+  json[ptr.parent_pointer()].erase(ptr.back());
+  return RobotFromJson(json);
+}
+
+// --- Shipped configuration ---------------------------------------------------------------------
+
+TEST(ShippedConfig, EveryJsonFileUnderConfigLoads) {
+  ASSERT_TRUE(fs::is_directory(kConfigDir)) << kConfigDir;
+  int robots = 0;
+  int params = 0;
+  for (const fs::directory_entry& entry : fs::recursive_directory_iterator(kConfigDir)) {
+    if (!entry.is_regular_file() || entry.path().extension() != ".json") continue;
+    const std::string path = entry.path().string();
+    const std::string name = entry.path().filename().string();
+    SCOPED_TRACE(path);
+    if (EndsWith(name, ".robot.json")) {
+      const Result<RobotDescription> robot = LoadRobot(path);
+      EXPECT_TRUE(robot.ok()) << robot.Message();
+      ++robots;
+    } else if (name.rfind("params", 0) == 0) {
+      const Result<SlamParams> loaded = LoadParams(path);
+      EXPECT_TRUE(loaded.ok()) << loaded.Message();
+      ++params;
+    } else {
+      ADD_FAILURE() << "unknown kind of config file (expected *.robot.json or params*.json)";
+    }
+  }
+  EXPECT_GE(robots, 1);
+  EXPECT_GE(params, 1);
+}
+
+TEST(ShippedConfig, DefaultRobotMatchesDesign) {
+  const Result<RobotDescription> loaded = LoadRobot(kDefaultRobot);
+  ASSERT_TRUE(loaded.ok()) << loaded.Message();
+  const RobotDescription& robot = loaded.value();
+  EXPECT_EQ(robot.name, "marxbot");
+  EXPECT_EQ(robot.base.node, 1);
+  EXPECT_EQ(robot.base.event, 0x10);
+  EXPECT_EQ(robot.scanner.node, 2);
+  EXPECT_EQ(robot.scanner.event, 0x20);
+  ASSERT_EQ(robot.scanner.sensors.size(), 4u);
+  EXPECT_EQ(robot.scanner.sensors[0].type, "short");
+  EXPECT_EQ(robot.scanner.sensors[1].type, "long");
+  EXPECT_EQ(robot.scanner.sensors[3].angle_deg, 270.0);
+
+  // DESIGN section 5: 4 cm reads 822 on the short sensor, 20 cm reads 760 on the long one.
+  const SensorTypeDescription& short_type = robot.sensor_types.at("short");
+  const SensorTypeDescription& long_type = robot.sensor_types.at("long");
+  ASSERT_FALSE(short_type.calibration.empty());
+  ASSERT_FALSE(long_type.calibration.empty());
+  EXPECT_EQ(short_type.calibration.front().raw, 822);
+  EXPECT_DOUBLE_EQ(short_type.calibration.front().distance_m, 0.04);
+  EXPECT_EQ(long_type.calibration.front().raw, 760);
+  EXPECT_DOUBLE_EQ(long_type.calibration.front().distance_m, 0.20);
+  EXPECT_DOUBLE_EQ(short_type.calibration.back().distance_m, 0.35);
+  EXPECT_DOUBLE_EQ(long_type.calibration.back().distance_m, 1.50);
+  EXPECT_EQ(short_type.sigma_m, (std::array<double, 3>{0.003, 0.0, 0.02}));
+  EXPECT_EQ(long_type.sigma_m, (std::array<double, 3>{0.005, 0.0, 0.02}));
+}
+
+TEST(ShippedConfig, DefaultParamsAreTableII) {
+  const Result<SlamParams> loaded = LoadParams(kDefaultParams);
+  ASSERT_TRUE(loaded.ok()) << loaded.Message();
+  EXPECT_EQ(loaded.value(), SlamParams{});
+  EXPECT_EQ(ParamsToJson(loaded.value()), Json::parse(std::ifstream(kDefaultParams)));
+}
+
+// --- Robot: round trip and errors --------------------------------------------------------------
+
+TEST(RobotJson, RoundTripIsExact) {
+  const Result<RobotDescription> loaded = LoadRobot(kDefaultRobot);
+  ASSERT_TRUE(loaded.ok()) << loaded.Message();
+  RobotDescription robot = loaded.value();
+  robot.name = "edited";
+  robot.scanner.mount_radius_m = 0.1 + 0.2;  // a double whose shortest text is long
+  robot.sensor_types.at("long").sigma_m = {0.004, 0.001, 0.03};
+  robot.sensor_types.at("short").calibration.back().distance_m = std::nextafter(0.35, 1.0);
+
+  const Json json = RobotToJson(robot);
+  const Result<RobotDescription> again = RobotFromJson(Json::parse(json.dump()));
+  ASSERT_TRUE(again.ok()) << again.Message();
+  ExpectSameRobot(robot, again.value());
+  EXPECT_EQ(RobotToJson(again.value()), json);
+}
+
+TEST(RobotJson, ShippedFileEqualsItsRoundTrip) {
+  // The shipped file states every key that RobotToJson writes: nothing is hidden in defaults.
+  EXPECT_EQ(RobotToJson(LoadRobot(kDefaultRobot).value()), DefaultRobotJson());
+}
+
+TEST(RobotJson, SigmaIsOptional) {
+  Json json = DefaultRobotJson();
+  json["sensor_types"]["long"].erase("sigma_m");
+  const Result<RobotDescription> robot = RobotFromJson(json);
+  ASSERT_TRUE(robot.ok()) << robot.Message();
+  EXPECT_EQ(robot.value().sensor_types.at("long").sigma_m, SensorTypeDescription{}.sigma_m);
+}
+
+TEST(RobotJson, UnknownKeysAreReportedWithTheirPointer) {
+  Json json = DefaultRobotJson();
+  json["base"]["tick_per_m"] = 11375;
+  json["sensor_types"]["short"]["calibraton"] = Json::array();
+  json["scanner"]["sensors"][2]["angle"] = 180;
+  json["colour"] = "red";
+  const Result<RobotDescription> robot = RobotFromJson(json);
+  ASSERT_FALSE(robot.ok());
+  EXPECT_EQ(Pointers(robot.errors()),
+            (std::vector<std::string>{"/base/tick_per_m", "/scanner/sensors/2/angle",
+                                      "/sensor_types/short/calibraton", "/colour"}));
+  EXPECT_EQ(DetailAt(robot.errors(), "/colour"), "unknown key");
+}
+
+TEST(RobotJson, WrongTypesAreReportedWithTheirPointer) {
+  const Result<RobotDescription> text_node = RobotWith("/scanner/node", "two");
+  ASSERT_FALSE(text_node.ok());
+  EXPECT_EQ(Pointers(text_node.errors()), std::vector<std::string>{"/scanner/node"});
+  EXPECT_NE(DetailAt(text_node.errors(), "/scanner/node").find("string"), std::string::npos);
+
+  const Result<RobotDescription> fraction = RobotWith("/base/node", 1.5);
+  ASSERT_FALSE(fraction.ok());
+  EXPECT_EQ(Pointers(fraction.errors()), std::vector<std::string>{"/base/node"});
+
+  EXPECT_TRUE(RobotWith("/base/node", 1.0).ok()) << "an integral number is an integer";
+  EXPECT_TRUE(HasPointer(RobotWith("/base/node", 1e12).errors(), "/base/node"));
+  EXPECT_TRUE(HasPointer(RobotWith("/base/track_width_m", true).errors(), "/base/track_width_m"));
+  EXPECT_TRUE(HasPointer(RobotWith("/base", Json::array()).errors(), "/base"));
+  EXPECT_TRUE(HasPointer(RobotWith("/name", 7).errors(), "/name"));
+  EXPECT_TRUE(
+      HasPointer(RobotWith("/scanner/sensors", Json::object()).errors(), "/scanner/sensors"));
+  EXPECT_TRUE(HasPointer(RobotWith("/scanner/sensors/1", 90).errors(), "/scanner/sensors/1"));
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/long/range_m", Json::array({0.2})).errors(),
+                         "/sensor_types/long/range_m"));
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/long/use_m/1", "far").errors(),
+                         "/sensor_types/long/use_m/1"));
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/short/calibration/5", 603).errors(),
+                         "/sensor_types/short/calibration/5"));
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/short/calibration/5/0", 602.5).errors(),
+                         "/sensor_types/short/calibration/5/0"));
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/short/sigma_m", Json::array({0.1, 0.2})).errors(),
+                         "/sensor_types/short/sigma_m"));
+  EXPECT_FALSE(RobotFromJson(Json::array()).ok());
+}
+
+TEST(RobotJson, MissingKeysAreReported) {
+  const Result<RobotDescription> robot = RobotWithout("/base/track_width_m");
+  ASSERT_FALSE(robot.ok());
+  EXPECT_EQ(Pointers(robot.errors()), std::vector<std::string>{"/base/track_width_m"});
+  EXPECT_EQ(DetailAt(robot.errors(), "/base/track_width_m"), "missing required key");
+  EXPECT_TRUE(HasPointer(RobotWithout("/sensor_types/long/calibration").errors(),
+                         "/sensor_types/long/calibration"));
+  EXPECT_TRUE(
+      HasPointer(RobotWithout("/scanner/sensors/0/type").errors(), "/scanner/sensors/0/type"));
+  EXPECT_TRUE(HasPointer(RobotWithout("/name").errors(), "/name"));
+}
+
+TEST(RobotJson, OutOfRangeValuesAreReported) {
+  EXPECT_EQ(Pointers(RobotWith("/base/node", 256).errors()),
+            std::vector<std::string>{"/base/node"});
+  EXPECT_TRUE(RobotWith("/base/node", 255).ok());
+  EXPECT_TRUE(HasPointer(RobotWith("/scanner/event", 0x8000).errors(), "/scanner/event"));
+  EXPECT_TRUE(HasPointer(RobotWith("/base/ticks_per_m", 0).errors(), "/base/ticks_per_m"));
+  EXPECT_TRUE(HasPointer(RobotWith("/base/gyro_unit_dps", -0.01).errors(), "/base/gyro_unit_dps"));
+  EXPECT_TRUE(
+      HasPointer(RobotWith("/scanner/sample_rate_hz", 0).errors(), "/scanner/sample_rate_hz"));
+  EXPECT_TRUE(
+      HasPointer(RobotWith("/scanner/mount_radius_m", -0.01).errors(), "/scanner/mount_radius_m"));
+  EXPECT_TRUE(RobotWith("/scanner/mount_radius_m", 0).ok());
+  EXPECT_TRUE(HasPointer(RobotWith("/scanner/sensors/2/type", "medium").errors(),
+                         "/scanner/sensors/2/type"));
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/long/range_m", Json::array({1.5, 0.2})).errors(),
+                         "/sensor_types/long/range_m"));
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/long/use_m", Json::array({1.0, 1.0})).errors(),
+                         "/sensor_types/long/use_m"));
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/long/sigma_m/2", -0.1).errors(),
+                         "/sensor_types/long/sigma_m/2"));
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/short/sigma_m/0", 0.0).errors(),
+                         "/sensor_types/short/sigma_m"))
+      << "short's use window starts at 0 m, where sigma would be 0";
+  EXPECT_TRUE(RobotWith("/sensor_types/long/sigma_m/0", 0.0).ok())
+      << "long's use window starts at 0.35 m, where sigma is still > 0";
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/short/calibration/0/0", 1024).errors(),
+                         "/sensor_types/short/calibration/0"));
+
+  Json three_sensors = DefaultRobotJson();
+  three_sensors["scanner"]["sensors"].erase(3);
+  EXPECT_EQ(Pointers(RobotFromJson(three_sensors).errors()),
+            std::vector<std::string>{"/scanner/sensors"});
+}
+
+TEST(RobotJson, NonMonotonicCalibrationIsReported) {
+  // Point 3 reads more than point 2: raw must strictly decrease as distance grows.
+  const Result<RobotDescription> raw = RobotWith("/sensor_types/long/calibration/3/0", 700);
+  ASSERT_FALSE(raw.ok());
+  EXPECT_EQ(Pointers(raw.errors()), std::vector<std::string>{"/sensor_types/long/calibration/3"});
+  EXPECT_NE(DetailAt(raw.errors(), "/sensor_types/long/calibration/3").find("decreasing"),
+            std::string::npos);
+
+  const Result<RobotDescription> distance = RobotWith("/sensor_types/long/calibration/3/1", 0.2);
+  ASSERT_FALSE(distance.ok());
+  EXPECT_EQ(Pointers(distance.errors()),
+            std::vector<std::string>{"/sensor_types/long/calibration/3"});
+
+  EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/short/calibration/0/1", -0.04).errors(),
+                         "/sensor_types/short/calibration/0"));
+  EXPECT_TRUE(HasPointer(
+      RobotWith("/sensor_types/short/calibration", Json::array({Json::array({822, 0.04})}))
+          .errors(),
+      "/sensor_types/short/calibration"));
+}
+
+TEST(RobotJson, DuplicateKeysInTextAreReported) {
+  TempDir dir("duplicate");
+  const std::string path = dir.File("dup.robot.json");
+  std::string text = DefaultRobotJson().dump();
+  const std::string key = "\"gyro_unit_dps\":0.01";
+  const std::size_t at = text.find(key);
+  ASSERT_NE(at, std::string::npos);
+  text.insert(at, "\"gyro_unit_dps\":0.02,");
+  WriteText(path, text);
+  const Result<RobotDescription> robot = LoadRobot(path);
+  ASSERT_FALSE(robot.ok());
+  EXPECT_EQ(Pointers(robot.errors()), std::vector<std::string>{"/base/gyro_unit_dps"});
+  EXPECT_EQ(DetailAt(robot.errors(), "/base/gyro_unit_dps"), "duplicate key");
+}
+
+TEST(RobotJson, SensorTypeNamesAreEscapedInPointers) {
+  Json json = DefaultRobotJson();
+  json["sensor_types"]["a/b"] = json["sensor_types"]["long"];
+  json["sensor_types"]["a/b"]["range_m"] = Json::array({0.5, 0.1});
+  json["sensor_types"]["a/b"]["extra"] = 1;
+  const Result<RobotDescription> robot = RobotFromJson(json);
+  ASSERT_FALSE(robot.ok());
+  EXPECT_EQ(Pointers(robot.errors()), std::vector<std::string>{"/sensor_types/a~1b/extra"});
+  json["sensor_types"]["a/b"].erase("extra");
+  EXPECT_EQ(Pointers(RobotFromJson(json).errors()),
+            std::vector<std::string>{"/sensor_types/a~1b/range_m"});
+}
+
+TEST(RobotJson, MissingFileNamesThePath) {
+  const std::string path = (kSourceDir / "config" / "no_such_file.robot.json").string();
+  const Result<RobotDescription> robot = LoadRobot(path);
+  ASSERT_FALSE(robot.ok());
+  EXPECT_EQ(robot.error_context(), path);
+  EXPECT_NE(robot.Message().find(path), std::string::npos) << robot.Message();
+  EXPECT_NE(robot.Message().find("cannot open"), std::string::npos) << robot.Message();
+}
+
+TEST(RobotJson, MalformedJsonNamesThePathAndLine) {
+  TempDir dir("malformed");
+  const std::string path = dir.File("broken.robot.json");
+  WriteText(path, "{\n  \"name\": \"marxbot\",\n  \"base\": {\"node\": 1,}\n}\n");
+  const Result<RobotDescription> robot = LoadRobot(path);
+  ASSERT_FALSE(robot.ok());
+  const std::string message = robot.Message();
+  EXPECT_NE(message.find(path), std::string::npos) << message;
+  EXPECT_NE(message.find("line 3"), std::string::npos) << message;
+  EXPECT_EQ(message.find("[json.exception"), std::string::npos) << message;
+
+  WriteText(path, "");
+  EXPECT_NE(LoadRobot(path).Message().find("line"), std::string::npos);
+  EXPECT_FALSE(LoadRobot(dir.path().string()).ok()) << "a directory is not a file";
+}
+
+TEST(RobotJson, ValidationErrorsOfAFileCarryItsPath) {
+  TempDir dir("invalid");
+  const std::string path = dir.File("bad.robot.json");
+  Json json = DefaultRobotJson();
+  json["base"]["node"] = 300;
+  WriteText(path, json.dump(2));
+  const Result<RobotDescription> robot = LoadRobot(path);
+  ASSERT_FALSE(robot.ok());
+  EXPECT_EQ(Pointers(robot.errors()), std::vector<std::string>{"/base/node"});
+  EXPECT_EQ(robot.Message(), path + "#/base/node: 300 is outside [0, 255]");
+}
+
+// --- Validate(RobotDescription) on structs (values JSON cannot carry) ---------------------------
+
+TEST(RobotValidate, RejectsNonFiniteValues) {
+  RobotDescription robot = LoadRobot(kDefaultRobot).value();
+  ASSERT_TRUE(Validate(robot).empty());
+  robot.base.track_width_m = std::numeric_limits<double>::quiet_NaN();
+  robot.scanner.sensors[1].angle_deg = std::numeric_limits<double>::infinity();
+  robot.sensor_types.at("long").range_max_m = std::numeric_limits<double>::infinity();
+  EXPECT_EQ(Pointers(Validate(robot)),
+            (std::vector<std::string>{"/base/track_width_m", "/scanner/sensors/1/angle_deg",
+                                      "/sensor_types/long/range_m"}));
+}
+
+TEST(RobotValidate, RejectsSameEventFromBaseAndScanner) {
+  RobotDescription robot = LoadRobot(kDefaultRobot).value();
+  robot.scanner.node = robot.base.node;
+  EXPECT_TRUE(Validate(robot).empty()) << "same node, different events is fine";
+  robot.scanner.event = robot.base.event;
+  EXPECT_EQ(Pointers(Validate(robot)), std::vector<std::string>{"/scanner/event"});
+}
+
+TEST(RobotValidate, EmptyDescriptionIsInvalid) {
+  const ConfigErrors errors = Validate(RobotDescription{});
+  EXPECT_TRUE(HasPointer(errors, "/scanner/sensors"));
+}
+
+// --- Params ------------------------------------------------------------------------------------
+
+SlamParams TunedParams() {
+  SlamParams params;
+  params.dist_error_ratio = 0.0731;
+  params.dist_error_const_m = 0.1 + 0.2;  // a double whose shortest text is long
+  params.angle_error_ratio = 0.0;
+  params.angle_error_const_deg = 1.0 / 3.0;
+  params.min_pos_uncertainty_m = 0.5;
+  params.min_angle_uncertainty_deg = 7.25;
+  params.resampling_period_scans = 3;
+  params.angle_between_scans_deg = 12.5;
+  params.particles = 40;
+  return params;
+}
+
+TEST(ParamsJson, RoundTripIsExact) {
+  const SlamParams params = TunedParams();
+  ASSERT_NE(params, SlamParams{});
+  const Result<SlamParams> again = ParamsFromJson(Json::parse(ParamsToJson(params).dump()));
+  ASSERT_TRUE(again.ok()) << again.Message();
+  EXPECT_EQ(again.value(), params);
+}
+
+TEST(ParamsJson, AllKeysAreOptional) {
+  const Result<SlamParams> empty = ParamsFromJson(Json::object());
+  ASSERT_TRUE(empty.ok()) << empty.Message();
+  EXPECT_EQ(empty.value(), SlamParams{});
+
+  const Result<SlamParams> one = ParamsFromJson({{"particles", 5}});
+  ASSERT_TRUE(one.ok()) << one.Message();
+  SlamParams expected;
+  expected.particles = 5;
+  EXPECT_EQ(one.value(), expected);
+}
+
+TEST(ParamsJson, IntegersMustBeIntegral) {
+  const Result<SlamParams> whole = ParamsFromJson({{"particles", 4.0}});
+  ASSERT_TRUE(whole.ok()) << whole.Message();
+  EXPECT_EQ(whole.value().particles, 4);
+
+  const Result<SlamParams> fraction = ParamsFromJson({{"resampling_period_scans", 2.5}});
+  ASSERT_FALSE(fraction.ok());
+  EXPECT_EQ(Pointers(fraction.errors()), std::vector<std::string>{"/resampling_period_scans"});
+}
+
+TEST(ParamsJson, UnknownKeysAndWrongTypesAreReported) {
+  const Result<SlamParams> typo = ParamsFromJson({{"partciles", 4}, {"particles", 2}});
+  ASSERT_FALSE(typo.ok());
+  EXPECT_EQ(Pointers(typo.errors()), std::vector<std::string>{"/partciles"});
+  EXPECT_EQ(DetailAt(typo.errors(), "/partciles"), "unknown key");
+
+  const Result<SlamParams> text =
+      ParamsFromJson({{"particles", "4"}, {"dist_error_ratio", nullptr}});
+  ASSERT_FALSE(text.ok());
+  EXPECT_EQ(Pointers(text.errors()), (std::vector<std::string>{"/dist_error_ratio", "/particles"}));
+
+  const Result<SlamParams> not_object = ParamsFromJson(Json::array({1, 2}));
+  ASSERT_FALSE(not_object.ok());
+  EXPECT_EQ(Pointers(not_object.errors()), std::vector<std::string>{""});
+}
+
+TEST(ParamsJson, OutOfRangeValuesAreReported) {
+  const Result<SlamParams> params = ParamsFromJson(
+      {{"particles", 0}, {"dist_error_ratio", 1.5}, {"angle_between_scans_deg", 180}});
+  ASSERT_FALSE(params.ok());
+  EXPECT_EQ(Pointers(params.errors()),
+            (std::vector<std::string>{"/dist_error_ratio", "/particles"}));
+  EXPECT_EQ(DetailAt(params.errors(), "/particles"), "0 is outside [1, 1000]");
+  EXPECT_FALSE(ParamsFromJson({{"particles", 1001}}).ok());
+  EXPECT_TRUE(ParamsFromJson({{"particles", 1000}}).ok());
+  EXPECT_FALSE(ParamsFromJson({{"resampling_period_scans", 0}}).ok());
+  EXPECT_FALSE(ParamsFromJson({{"min_angle_uncertainty_deg", 90.5}}).ok());
+  EXPECT_FALSE(ParamsFromJson({{"dist_error_const_m", -0.001}}).ok());
+  EXPECT_FALSE(ParamsFromJson({{"particles", 1e10}}).ok()) << "does not fit an int";
+}
+
+TEST(ParamsValidate, RejectsNonFiniteValues) {
+  SlamParams params;
+  params.min_pos_uncertainty_m = std::numeric_limits<double>::quiet_NaN();
+  params.angle_error_ratio = std::numeric_limits<double>::infinity();
+  EXPECT_EQ(Pointers(Validate(params)),
+            (std::vector<std::string>{"/angle_error_ratio", "/min_pos_uncertainty_m"}));
+  EXPECT_TRUE(Validate(SlamParams{}).empty());
+}
+
+TEST(ParamsJson, SaveThenLoadRoundTripsAtomically) {
+  TempDir dir("save");
+  const std::string path = dir.File("params.json");
+  const SlamParams params = TunedParams();
+  ASSERT_EQ(SaveParams(path, SlamParams{}), std::nullopt);
+  ASSERT_EQ(SaveParams(path, params), std::nullopt);  // replaces the existing file
+  const Result<SlamParams> loaded = LoadParams(path);
+  ASSERT_TRUE(loaded.ok()) << loaded.Message();
+  EXPECT_EQ(loaded.value(), params);
+  // No temporary file is left behind.
+  std::vector<std::string> names;
+  for (const fs::directory_entry& entry : fs::directory_iterator(dir.path())) {
+    names.push_back(entry.path().filename().string());
+  }
+  EXPECT_EQ(names, std::vector<std::string>{"params.json"});
+}
+
+TEST(ParamsJson, SaveRefusesInvalidParamsAndBadPaths) {
+  TempDir dir("save_errors");
+  const std::string path = dir.File("params.json");
+  SlamParams invalid;
+  invalid.particles = 0;
+  const std::optional<std::string> refused = SaveParams(path, invalid);
+  ASSERT_TRUE(refused.has_value());
+  EXPECT_NE(refused->find("/particles"), std::string::npos) << *refused;
+  EXPECT_FALSE(fs::exists(path));
+
+  const std::optional<std::string> no_dir = SaveParams(dir.File("missing/params.json"), {});
+  ASSERT_TRUE(no_dir.has_value());
+  EXPECT_NE(no_dir->find("missing"), std::string::npos) << *no_dir;
+}
+
+TEST(ParamsJson, LoadErrorsNameThePath) {
+  TempDir dir("load_errors");
+  const std::string missing = dir.File("params.absent.json");
+  EXPECT_NE(LoadParams(missing).Message().find(missing), std::string::npos);
+
+  const std::string broken = dir.File("params.broken.json");
+  WriteText(broken, "{\"particles\": 1\n\"x\": 2}");
+  const Result<SlamParams> params = LoadParams(broken);
+  ASSERT_FALSE(params.ok());
+  EXPECT_NE(params.Message().find(broken), std::string::npos) << params.Message();
+  EXPECT_NE(params.Message().find("line 2"), std::string::npos) << params.Message();
+}
+
+TEST(ParamsPatch, AppliesAMergePatch) {
+  const SlamParams base = TunedParams();
+  const Result<SlamParams> patched =
+      ApplyParamsPatch(base, {{"particles", 8}, {"min_pos_uncertainty_m", 0.03}});
+  ASSERT_TRUE(patched.ok()) << patched.Message();
+  SlamParams expected = base;
+  expected.particles = 8;
+  expected.min_pos_uncertainty_m = 0.03;
+  EXPECT_EQ(patched.value(), expected);
+
+  // RFC 7396: null removes the member, which brings back the default.
+  const Result<SlamParams> reset = ApplyParamsPatch(base, {{"particles", nullptr}});
+  ASSERT_TRUE(reset.ok()) << reset.Message();
+  EXPECT_EQ(reset.value().particles, SlamParams{}.particles);
+  EXPECT_EQ(reset.value().resampling_period_scans, base.resampling_period_scans);
+
+  const Result<SlamParams> empty = ApplyParamsPatch(base, Json::object());
+  ASSERT_TRUE(empty.ok());
+  EXPECT_EQ(empty.value(), base);
+}
+
+TEST(ParamsPatch, RejectsInvalidResults) {
+  const SlamParams base = TunedParams();
+  EXPECT_EQ(Pointers(ApplyParamsPatch(base, {{"particles", 0}}).errors()),
+            std::vector<std::string>{"/particles"});
+  EXPECT_EQ(Pointers(ApplyParamsPatch(base, {{"particls", 3}}).errors()),
+            std::vector<std::string>{"/particls"});
+  EXPECT_EQ(Pointers(ApplyParamsPatch(base, {{"particles", {{"n", 3}}}}).errors()),
+            std::vector<std::string>{"/particles"});
+  EXPECT_EQ(Pointers(ApplyParamsPatch(base, Json::array({1})).errors()),
+            std::vector<std::string>{""});
+  // Type errors and range errors come back together, so one answer lists every problem.
+  EXPECT_EQ(
+      Pointers(ApplyParamsPatch(base, {{"particles", 2.5}, {"dist_error_ratio", 3}}).errors()),
+      (std::vector<std::string>{"/particles", "/dist_error_ratio"}));
+}
+
+TEST(ConfigErrors, FormatOneLinePerError) {
+  EXPECT_EQ(FormatErrors({}), "");
+  EXPECT_EQ(FormatErrors({{"/particles", "0 is outside [1, 1000]"}, {"", "file.json: bad"}}),
+            "/particles: 0 is outside [1, 1000]\nfile.json: bad");
+}
+
+}  // namespace
+}  // namespace slam::io

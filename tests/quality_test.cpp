@@ -1,0 +1,79 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "engine/quality.hpp"
+#include "engine/random.hpp"
+
+namespace slam {
+namespace {
+
+TEST(AlignRigid2D, RecoversARotationAndShift) {
+  Rng rng(7);
+  std::vector<Vec2> source, target;
+  const RigidTransform2 truth{0.7, Vec2(1.5, -2.0)};
+  for (int i = 0; i < 50; ++i) {
+    source.emplace_back(rng.Uniform() * 3, rng.Uniform() * 2);
+    target.push_back(truth.Apply(source.back()));
+  }
+  const RigidTransform2 found = AlignRigid2D(source, target);
+  EXPECT_NEAR(found.rotation_rad, 0.7, 1e-12);
+  EXPECT_NEAR(found.translation.x(), 1.5, 1e-12);
+  EXPECT_NEAR(found.translation.y(), -2.0, 1e-12);
+}
+
+TEST(EvaluateTrajectory, ARotatedShiftedCopyScoresZero) {
+  std::vector<TimedPose> reference, estimate;
+  const Pose2 frame{0.3, -1.2, 2.5};  // the estimate lives in another frame
+  for (int i = 0; i <= 100; ++i) {
+    const double t = i * 0.1;
+    const Pose2 p{std::cos(t), 0.5 * std::sin(2 * t), t};
+    reference.push_back({t, p});
+    estimate.push_back({t, Compose(frame, p)});
+  }
+  const auto q = EvaluateTrajectory(estimate, reference);
+  ASSERT_TRUE(q);
+  EXPECT_EQ(q->matched, 101);
+  EXPECT_NEAR(q->q_cm2, 0.0, 1e-12);
+  EXPECT_NEAR(q->e, 0.0, 1e-12);
+  EXPECT_NEAR(q->ate_rmse_m, 0.0, 1e-7);
+}
+
+// Hand computation: residuals after the (identity) optimal alignment are 1, 2 and 1 cm, so
+// q = -(1 + 4 + 1) / 3 = -2 cm^2, e = log(3), ATE = sqrt(2e-4) m.
+TEST(EvaluateTrajectory, ThreePointsByHand) {
+  const std::vector<TimedPose> estimate = {{0, {0, 0, 0}}, {1, {1, 0, 0}}, {2, {2, 0, 0}}};
+  const std::vector<TimedPose> reference = {{0, {0, 0.01, 0}}, {1, {1, -0.02, 0}}, {2, {2, 0.01, 0}}};
+  const auto q = EvaluateTrajectory(estimate, reference);
+  ASSERT_TRUE(q);
+  EXPECT_NEAR(q->alignment.rotation_rad, 0.0, 1e-12);
+  EXPECT_NEAR(q->q_cm2, -2.0, 1e-9);
+  EXPECT_NEAR(q->e, std::log(3.0), 1e-9);
+  EXPECT_NEAR(q->ate_rmse_m, std::sqrt(2e-4), 1e-12);
+}
+
+TEST(EvaluateTrajectory, AssociatesByTimeWithInterpolation) {
+  // The estimate is known at 1 Hz on a straight line; the reference at 10 Hz on the same line.
+  std::vector<TimedPose> estimate, reference;
+  for (int i = 0; i <= 5; ++i) estimate.push_back({double(i), {0.2 * i, 0, 0}});
+  for (int i = -5; i <= 60; ++i) reference.push_back({i * 0.1, {0.02 * i, 0, 0}});
+  const auto q = EvaluateTrajectory(estimate, reference);
+  ASSERT_TRUE(q);
+  EXPECT_EQ(q->matched, 51);  // only the reference poses inside [0, 5] s
+  EXPECT_NEAR(q->ate_rmse_m, 0.0, 1e-9);
+  EXPECT_FALSE(EvaluateTrajectory(estimate, {{10.0, {}}, {11.0, {}}}));
+}
+
+TEST(PoseAt, InterpolatesTheShortWayRound) {
+  const std::vector<TimedPose> traj = {{0, {0, 0, DegToRad(170)}}, {2, {2, 4, DegToRad(-170)}}};
+  const auto mid = PoseAt(traj, 1.0);
+  ASSERT_TRUE(mid);
+  EXPECT_NEAR(mid->x, 1.0, 1e-12);
+  EXPECT_NEAR(mid->y, 2.0, 1e-12);
+  EXPECT_NEAR(std::abs(mid->theta), kPi, 1e-9);
+  EXPECT_FALSE(PoseAt(traj, -0.1));
+  EXPECT_FALSE(PoseAt(traj, 2.1));
+}
+
+}  // namespace
+}  // namespace slam
