@@ -1,5 +1,7 @@
 #include "engine/ray_cast.hpp"
 
+#include <algorithm>
+
 namespace slam {
 
 std::vector<CellIndex> CellsOnRay(const GridGeometry& geometry, const Vec2& from, const Vec2& to) {
@@ -16,13 +18,13 @@ std::vector<CellIndex> CellsOnRay(const GridGeometry& geometry, const Vec2& from
 
 RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,
                       double max_range_m, LogOdds occupied_above) {
-  RayHit result{max_range_m, false, 0};
+  RayHit result{max_range_m, max_range_m, false, 0};
   const Vec2 direction(std::cos(angle), std::sin(angle));
   // Cache the current tile: consecutive cells of a ray almost always share it.
   TileIndex cached_index{std::numeric_limits<int32_t>::min(), 0};
   const Tile* cached = nullptr;
   result.cells = TraverseCells(grid.geometry(), origin, direction, max_range_m,
-                               [&](CellIndex c, double enter_m, double) {
+                               [&](CellIndex c, double enter_m, double exit_m) {
                                  const TileIndex t = GridGeometry::TileOf(c);
                                  if (!(t == cached_index)) {
                                    cached_index = t;
@@ -32,6 +34,7 @@ RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angl
                                      cached->cells[static_cast<size_t>(GridGeometry::OffsetInTile(c))] >
                                          occupied_above) {
                                    result.distance_m = enter_m;
+                                   result.exit_m = exit_m;
                                    result.hit = true;
                                    return false;
                                  }
@@ -50,9 +53,9 @@ int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle, const 
   int changed = 0;
   TraverseCells(grid.geometry(), origin, direction, profile.length_m(),
                 [&](CellIndex c, double enter_m, double exit_m) {
-                  const auto bin = static_cast<size_t>(0.5 * (enter_m + exit_m) * inv_step);
-                  if (bin >= profile.delta.size()) return false;
-                  const int delta = profile.delta[bin];
+                  const size_t size = profile.delta.size();
+                  if (static_cast<size_t>(enter_m * inv_step) >= size) return false;
+                  const int delta = profile.delta[std::min(static_cast<size_t>(exit_m * inv_step), size - 1)];
                   if (delta == 0) return true;
                   const TileIndex t = GridGeometry::TileOf(c);
                   if (cached == nullptr || !(t == cached_index)) {

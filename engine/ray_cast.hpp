@@ -74,6 +74,7 @@ std::vector<CellIndex> CellsOnRay(const GridGeometry& geometry, const Vec2& from
 /// What a matching ray found.
 struct RayHit {
   double distance_m = 0.0;  // to the entry of the first occupied cell, or the maximum range
+  double exit_m = 0.0;      // where the ray leaves that cell (equals distance_m when no hit)
   bool hit = false;         // false: nothing occupied within the maximum range
   int cells = 0;            // cells visited (work done)
 };
@@ -83,9 +84,10 @@ struct RayHit {
 RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,
                       double max_range_m, LogOdds occupied_above);
 
-/// The log-odds change along an update ray, by distance from the sensor: the cell crossed at
-/// distance r (midpoint of its crossing) gets delta[floor(r / step_m)]; cells beyond the table
-/// are left untouched.
+/// The log-odds change along an update ray, by distance from the sensor, in bins of step_m.
+/// `delta` must be non-decreasing (free, then occupied). A crossed cell takes the value at the far
+/// end of its crossing, which is the largest over the crossing: the cell holding the measured
+/// point is always occupied, whatever the angle. The ray stops at the end of the table.
 struct UpdateProfile {
   double step_m = 0.0;
   std::vector<int16_t> delta;

@@ -36,7 +36,7 @@ int CalibratedRaw(const std::vector<CalibrationPoint>& table, double distance_m)
 SensorModel::SensorModel(const SensorTypeDescription& type, const UpdateModelConfig& update,
                          double resolution_m)
     : type_(type), update_(kRawValues) {
-  const double step = resolution_m / 2.0;
+  const double step = resolution_m / 8.0;  // fine bins: the free/occupied edge is exact to 1/16 cell
   const int free_delta = EncodeLogOdds(update.free_logodds);
   const int occupied_delta = EncodeLogOdds(update.occupied_logodds);
   const double use_min = std::max(type.use_min_m, type.range_min_m);
@@ -46,16 +46,17 @@ SensorModel::SensorModel(const SensorTypeDescription& type, const UpdateModelCon
     // Outside the table is the non-injective near zone or the floor beyond range: never used.
     if (!d || *d < use_min || *d > type.use_max_m) continue;
     distance_[static_cast<size_t>(raw)] = *d;
-    // Fig. 7: free before the measured distance, occupied at it, nothing beyond.
-    const double half_width = std::max(update.occupied_min_halfwidth_cells * resolution_m,
-                                       update.occupied_sigma_factor * Sigma(*d));
+    // Fig. 7: free before the measured distance, occupied at it (and a little behind, so that
+    // walls are closed), nothing beyond.
+    const double depth = std::max(update.occupied_depth_cells * resolution_m,
+                                  update.occupied_sigma_factor * Sigma(*d));
     UpdateProfile& profile = update_[static_cast<size_t>(raw)];
     profile.step_m = step;
-    const auto bins = static_cast<size_t>(std::ceil((*d + half_width) / step));
+    const auto bins = static_cast<size_t>(std::ceil((*d + depth) / step));
     profile.delta.resize(bins);
     for (size_t i = 0; i < bins; ++i) {
       const double r = (static_cast<double>(i) + 0.5) * step;  // bin centre
-      profile.delta[i] = static_cast<int16_t>(r < *d - half_width ? free_delta : occupied_delta);
+      profile.delta[i] = static_cast<int16_t>(r < *d ? free_delta : occupied_delta);
     }
   }
 }

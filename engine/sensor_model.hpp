@@ -14,15 +14,14 @@ namespace slam {
 
 inline constexpr int kRawValues = 1024;  // 10-bit ADC
 
-/// How a valid reading changes the grid (natural log odds).
+/// How a valid reading changes the grid (natural log odds, paper Fig. 7).
 struct UpdateModelConfig {
-  double free_logodds = -0.4;      // added to cells before the measured distance
-  double occupied_logodds = 0.85;  // added to cells at the measured distance
-  /// Half-width of the occupied band: max(min_halfwidth_cells * resolution, sigma_factor * sigma).
-  /// At least sqrt(2)/2 cells, so that the cell holding the measured point is never marked free
-  /// (a cell's crossing is at most sqrt(2) cells long and is binned by its midpoint).
+  double free_logodds = -0.4;      // added to cells crossed before the measured distance
+  double occupied_logodds = 0.85;  // added to the cell holding the measured point and behind it
+  /// Depth of the occupied band behind the measured point:
+  /// max(occupied_depth_cells * resolution, occupied_sigma_factor * sigma(d)).
+  double occupied_depth_cells = 1.0;
   double occupied_sigma_factor = 0.5;
-  double occupied_min_halfwidth_cells = 0.75;
 };
 
 /// The distance a calibration table gives for a raw value (interpolated linearly in 1/d, which

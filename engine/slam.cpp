@@ -71,9 +71,11 @@ Pose2 Recompose(const MotionDelta& m) {
   return {m.trans * std::cos(m.rot1), m.trans * std::sin(m.rot1), NormalizeAngle(m.rot1 + m.rot2)};
 }
 
+}  // namespace
+
 // The robot's path through one scan for one particle: the odometry path anchored at the particle's
 // start pose, plus a correction growing linearly in time to move the end onto a chosen pose.
-class ScanPath {
+class Slam::ScanPath {
  public:
   ScanPath(const Scan& scan, const Pose2& start) {
     const double span = scan.t_end - scan.t_begin;
@@ -105,8 +107,6 @@ class ScanPath {
   std::vector<double> fraction_;
   Pose2 nominal_end_;
 };
-
-}  // namespace
 
 // A usable reading of one sensor at one sample, with its geometry in the robot's frame.
 struct Slam::Measurement {
@@ -144,8 +144,9 @@ ConfigErrors SlamConfig::Validate() const {
         "must be > 0");
   check(std::isfinite(update.occupied_sigma_factor) && update.occupied_sigma_factor >= 0,
         "/update/occupied_sigma_factor", "must be >= 0");
-  check(std::isfinite(update.occupied_min_halfwidth_cells) && update.occupied_min_halfwidth_cells >= 0.71,
-        "/update/occupied_min_halfwidth_cells", "must be >= 0.71 (sqrt(2)/2)");
+  check(std::isfinite(update.occupied_depth_cells) && update.occupied_depth_cells >= 0.5 &&
+            update.occupied_depth_cells <= 10,
+        "/update/occupied_depth_cells", "must be in [0.5, 10]");
   check(std::isfinite(match_floor) && match_floor > 0 && match_floor < 1, "/match_floor",
         "must be in (0, 1)");
   check(std::isfinite(match_range_sigmas) && match_range_sigmas >= 1 && match_range_sigmas <= 10,
@@ -236,6 +237,36 @@ std::vector<size_t> Slam::ThinByAngle(const Scan& scan, const std::vector<Measur
   return kept;
 }
 
+double Slam::LogLikelihood(const OccupancyGrid& map, const ScanPath& path, const Pose2& correction,
+                           const std::vector<const Measurement*>& matching) const {
+  const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
+  double ll = 0.0;
+  for (const Measurement* m : matching) {
+    const Pose2 robot = path.SamplePose(m->sample, correction);
+    const double range = m->distance_m + config_.match_range_sigmas * m->sigma_m;
+    const RayHit hit = CastToObstacle(map, robot.Transform(m->local_origin), robot.theta + m->local_angle,
+                                      range, occupied_above);
+    double g = 0.0;
+    if (hit.hit) {
+      // The surface lies somewhere along the ray's crossing of the first occupied cell, which is
+      // longer than a cell for oblique walls: expect it in the middle of the crossing.
+      const double r = (m->distance_m - 0.5 * (hit.distance_m + hit.exit_m)) / m->sigma_m;
+      g = std::exp(-0.5 * r * r);
+    }
+    ll += std::log(g + config_.match_floor);  // eq. (2), robust to outliers
+  }
+  return ll;
+}
+
+double Slam::ScoreScan(const Scan& scan, const Pose2& end) const {
+  const Particle& best = Best();
+  const ScanPath path(scan, best.pose);
+  const std::vector<Measurement> usable = CollectMeasurements(scan);
+  std::vector<const Measurement*> matching;
+  for (size_t i : ThinByAngle(scan, usable)) matching.push_back(&usable[i]);
+  return LogLikelihood(best.map, path, path.CorrectionTo(end), matching);
+}
+
 ScanSummary Slam::Summarize(const Scan& scan) const {
   const std::vector<Measurement> usable = CollectMeasurements(scan);
   return {static_cast<int>(usable.size()), static_cast<int>(ThinByAngle(scan, usable).size())};
@@ -292,9 +323,6 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   if (match) {
     const double sigma_pos = std::max(params_.min_pos_uncertainty_m, sigma_trans);
     const double sigma_angle = std::max(DegToRad(params_.min_angle_uncertainty_deg), std::hypot(sigma_rot1, sigma_rot2));
-    const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
-    const double log_floor_weight = config_.match_floor;
-    const double half_cell = 0.5 * config_.resolution_m;
     std::vector<Pose2> candidate_pose(n_particles * n_candidates);
     std::vector<double> candidate_ll(n_particles * n_candidates);
     ForEach(config_.parallel, candidate_pose.size(), [&](size_t index) {
@@ -306,23 +334,7 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
         end.y += rng.Gaussian(sigma_pos);
         end.theta = NormalizeAngle(end.theta + rng.Gaussian(sigma_angle));
       }
-      const ScanPath& path = paths[p];
-      const Pose2 correction = path.CorrectionTo(end);
-      const OccupancyGrid& map = particles_[p].map;
-      double ll = 0.0;
-      for (const Measurement* m : matching) {
-        const Pose2 robot = path.SamplePose(m->sample, correction);
-        const double range = m->distance_m + config_.match_range_sigmas * m->sigma_m;  // sigma with grid
-        const RayHit hit = CastToObstacle(map, robot.Transform(m->local_origin), robot.theta + m->local_angle,
-                                          range, occupied_above);
-        double g = 0.0;
-        if (hit.hit) {
-          // The surface lies somewhere in the first occupied cell: expect it half a cell in.
-          const double r = (m->distance_m - hit.distance_m - half_cell) / m->sigma_m;
-          g = std::exp(-0.5 * r * r);
-        }
-        ll += std::log(g + log_floor_weight);
-      }
+      const double ll = LogLikelihood(particles_[p].map, paths[p], paths[p].CorrectionTo(end), matching);
       candidate_pose[index] = end;
       candidate_ll[index] = ll;
     });

@@ -97,6 +97,10 @@ class Slam {
   /// the map's tiles are shared, not copied. Precondition: same resolution as the config.
   void Restore(const OccupancyGrid& map, const Pose2& pose);
 
+  /// Log-likelihood (eq. 2) of a scan's matching measurements on the best particle's map, if
+  /// the scan ended at `end` (from the particle's current pose). For diagnostics and tests.
+  double ScoreScan(const Scan& scan, const Pose2& end) const;
+
   /// Counts what a scan offers, for the scheduler to plan with.
   ScanSummary Summarize(const Scan& scan) const;
 
@@ -114,6 +118,9 @@ class Slam {
 
  private:
   struct Measurement;
+  class ScanPath;
+  double LogLikelihood(const OccupancyGrid& map, const ScanPath& path, const Pose2& correction,
+                       const std::vector<const Measurement*>& matching) const;
   std::vector<Measurement> CollectMeasurements(const Scan& scan) const;
   std::vector<size_t> ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable) const;
 

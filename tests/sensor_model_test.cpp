@@ -1,5 +1,8 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
+
 #include "engine/cell_encoding.hpp"
 #include "engine/ray_cast.hpp"
 #include "engine/sensor_model.hpp"
@@ -63,7 +66,9 @@ TEST(SensorModel, UsesOnlyReadingsInsideTheUseWindow) {
   EXPECT_NEAR(short_model.Sigma(0.3), 0.003 + 0.02 * 0.09, 1e-12);
 }
 
-// Applies a reading along +x from the centre of cell 0 and classifies each cell.
+// Applies a reading along +x from the centre of cell 0: cell x is crossed over
+// [x - 1/2, x + 1/2] cells. Cells crossed entirely before the reading are free, the cell holding
+// the measured point and those up to the occupied depth behind it are occupied, the rest untouched.
 void ExpectFreeOccupiedUntouched(const SensorModel& model, int raw, const UpdateModelConfig& update,
                                  double resolution) {
   OccupancyGrid grid(GridGeometry(resolution), kLogOddsLimit);
@@ -71,27 +76,49 @@ void ExpectFreeOccupiedUntouched(const SensorModel& model, int raw, const Update
   ASSERT_NE(profile, nullptr);
   ApplyUpdateRay(grid, {resolution / 2, resolution / 2}, 0.0, *profile);
   const double d = *model.Distance(static_cast<uint16_t>(raw));
-  const double half = std::max(update.occupied_min_halfwidth_cells * resolution,
-                               update.occupied_sigma_factor * model.Sigma(d));
+  const double depth = std::max(update.occupied_depth_cells * resolution,
+                                update.occupied_sigma_factor * model.Sigma(d));
+  const double tolerance = resolution / 8;  // the table's bins
   const int free_value = EncodeLogOdds(update.free_logodds);
   const int occupied_value = EncodeLogOdds(update.occupied_logodds);
+  const int holding = static_cast<int>(std::floor(d / resolution + 0.5));  // cell of the point
+  EXPECT_EQ(grid.At({holding, 0}), occupied_value) << "the cell holding the measured point";
   int free = 0, occupied = 0;
   for (int x = 0; x < static_cast<int>(2.0 / resolution); ++x) {
-    const double r = x * resolution;  // distance of the cell's centre from the sensor
+    const double exit = (x + 0.5) * resolution, enter = std::max(0.0, (x - 0.5) * resolution);
     const int value = grid.At({x, 0});
-    if (r < d - half - resolution) {
+    if (exit < d - tolerance) {
       EXPECT_EQ(value, free_value) << "cell " << x << " before the reading";
-    } else if (std::abs(r - d) < half - resolution) {
+    } else if (enter < d + depth - tolerance && exit > d + tolerance) {
       EXPECT_EQ(value, occupied_value) << "cell " << x << " at the reading";
-    } else if (r > d + half + resolution) {
+    } else if (enter > d + depth + tolerance) {
       EXPECT_EQ(value, 0) << "cell " << x << " beyond the reading";
     }
     free += value == free_value;
     occupied += value == occupied_value;
   }
-  EXPECT_GE(free, static_cast<int>((d - half) / resolution) - 1);
+  EXPECT_GE(free, static_cast<int>(d / resolution) - 1);
   EXPECT_GE(occupied, 1);
+  EXPECT_LE(occupied, static_cast<int>(depth / resolution) + 2);
   EXPECT_EQ(grid.At({0, 1}), 0);  // nothing off the ray
+}
+
+// At any angle, the cell holding the measured point is occupied and the ray's cells before it
+// are free.
+TEST(SensorModel, TheCellHoldingTheReadingIsOccupiedAtEveryAngle) {
+  const UpdateModelConfig update;
+  const SensorModel model(LongSensor(), update, 0.01);
+  const double d = *model.Distance(420);
+  for (double deg = 0; deg < 360; deg += 7.3) {
+    OccupancyGrid grid(GridGeometry(0.01), kLogOddsLimit);
+    const Vec2 origin(0.0031, -0.0047);
+    const double a = DegToRad(deg);
+    ApplyUpdateRay(grid, origin, a, *model.Update(420));
+    const Vec2 point = origin + d * Vec2(std::cos(a), std::sin(a));
+    EXPECT_EQ(grid.At(grid.geometry().CellOf(point)), EncodeLogOdds(update.occupied_logodds)) << deg;
+    const Vec2 before = origin + (d - 0.015) * Vec2(std::cos(a), std::sin(a));
+    EXPECT_EQ(grid.At(grid.geometry().CellOf(before)), EncodeLogOdds(update.free_logodds)) << deg;
+  }
 }
 
 TEST(SensorModel, UpdateTablesMarkFreeThenOccupiedThenNothing) {
@@ -100,6 +127,7 @@ TEST(SensorModel, UpdateTablesMarkFreeThenOccupiedThenNothing) {
   for (int raw : {822, 600, 400, 200}) ExpectFreeOccupiedUntouched(SensorModel(ShortSensor(), update, 0.01), raw, update, 0.01);
   UpdateModelConfig wide;
   wide.occupied_sigma_factor = 2.0;
+  wide.occupied_depth_cells = 3.0;
   ExpectFreeOccupiedUntouched(SensorModel(LongSensor(), wide, 0.02), 320, wide, 0.02);
 }
 

@@ -1,0 +1,486 @@
+#include "engine/io/map_image.hpp"
+
+#include <fcntl.h>
+#include <png.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <charconv>
+#include <climits>
+#include <cmath>
+#include <csetjmp>
+#include <cstdio>
+#include <cstring>
+
+#include "engine/cell_encoding.hpp"
+#include "engine/grid_geometry.hpp"
+
+namespace slam::io {
+namespace {
+
+/// Shortest text that reads back as the same double.
+std::string FormatNumber(double v) {
+  char buffer[32];
+  const auto result = std::to_chars(buffer, buffer + sizeof(buffer), v);
+  std::string text(buffer, result.ptr);
+  if (text.find_first_of(".eEn") == std::string::npos) text += ".0";  // YAML float, not int
+  return text;
+}
+
+/// Cell window [x0, x0 + width) x [y0, y0 + height) in cells.
+struct CellWindow {
+  int64_t x0 = 0;
+  int64_t y0 = 0;
+  int64_t width = 0;
+  int64_t height = 0;
+};
+
+/// The cells covered by the grid's tiles (empty window for an empty grid).
+CellWindow TileWindow(const std::vector<TileRef>& tiles) {
+  if (tiles.empty()) return {};
+  int64_t tx0 = INT64_MAX, ty0 = INT64_MAX, tx1 = INT64_MIN, ty1 = INT64_MIN;
+  for (const TileRef& t : tiles) {
+    tx0 = std::min<int64_t>(tx0, t.index.x);
+    ty0 = std::min<int64_t>(ty0, t.index.y);
+    tx1 = std::max<int64_t>(tx1, t.index.x);
+    ty1 = std::max<int64_t>(ty1, t.index.y);
+  }
+  return {tx0 * kTileSize, ty0 * kTileSize, (tx1 - tx0 + 1) * kTileSize,
+          (ty1 - ty0 + 1) * kTileSize};
+}
+
+/// Calls f(column, row, log_odds) for every cell of the window held by a tile (row 0 = top).
+template <typename F>
+void ForEachTileCell(const std::vector<TileRef>& tiles, const CellWindow& window, F&& f) {
+  for (const TileRef& t : tiles) {
+    const CellIndex origin = GridGeometry::TileOrigin(t.index);
+    for (int j = 0; j < kTileSize; ++j) {
+      const int64_t row = window.height - 1 - (origin.y + j - window.y0);
+      if (row < 0 || row >= window.height) continue;
+      for (int i = 0; i < kTileSize; ++i) {
+        const int64_t col = origin.x + i - window.x0;
+        if (col < 0 || col >= window.width) continue;
+        f(col, row, t.tile->cells[static_cast<size_t>(j * kTileSize + i)]);
+      }
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// PNG through libpng, into memory. libpng reports errors by longjmp: the frame holding setjmp
+// (WriteRows) has only trivially destructible locals, and the output vector lives in the caller.
+
+void AppendToVector(png_structp png, png_bytep data, png_size_t length) {
+  auto* out = static_cast<std::vector<uint8_t>*>(png_get_io_ptr(png));
+  out->insert(out->end(), data, data + length);
+}
+
+void FlushNothing(png_structp) {}
+
+void StoreError(png_structp png, png_const_charp message) {
+  auto* error = static_cast<char*>(png_get_error_ptr(png));
+  std::snprintf(error, 256, "%s", message);
+  png_longjmp(png, 1);
+}
+
+void IgnoreWarning(png_structp, png_const_charp) {}
+
+/// Encodes rows of `channels` bytes per pixel; returns false (with `error` set) on failure.
+bool WriteRows(png_structp png, png_infop info, int width, int height, int color_type, int channels,
+               const uint8_t* pixels, std::vector<uint8_t>* out) {
+  if (setjmp(png_jmpbuf(png))) return false;
+  png_set_write_fn(png, out, AppendToVector, FlushNothing);
+  png_set_IHDR(png, info, static_cast<png_uint_32>(width), static_cast<png_uint_32>(height), 8,
+               color_type, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
+               PNG_FILTER_TYPE_DEFAULT);
+  png_write_info(png, info);
+  const size_t stride = static_cast<size_t>(width) * static_cast<size_t>(channels);
+  for (int y = 0; y < height; ++y) {
+    // libpng does not write through the row pointer; the cast only drops const.
+    png_write_row(png, const_cast<png_bytep>(pixels + static_cast<size_t>(y) * stride));
+  }
+  png_write_end(png, nullptr);
+  return true;
+}
+
+PngBytes Encode(int width, int height, int color_type, int channels, const uint8_t* pixels,
+                size_t size) {
+  PngBytes result;
+  if (width <= 0 || height <= 0) {
+    result.error = "cannot encode an empty image as PNG";
+    return result;
+  }
+  if (size !=
+      static_cast<size_t>(width) * static_cast<size_t>(height) * static_cast<size_t>(channels)) {
+    result.error = "image data does not match its size";
+    return result;
+  }
+  char error[256] = "libpng failed";
+  png_structp png =
+      png_create_write_struct(PNG_LIBPNG_VER_STRING, error, StoreError, IgnoreWarning);
+  if (png == nullptr) {
+    result.error = "cannot initialise libpng";
+    return result;
+  }
+  png_infop info = png_create_info_struct(png);
+  if (info == nullptr) {
+    png_destroy_write_struct(&png, nullptr);
+    result.error = "cannot initialise libpng";
+    return result;
+  }
+  const bool ok = WriteRows(png, info, width, height, color_type, channels, pixels, &result.bytes);
+  png_destroy_write_struct(&png, &info);
+  if (!ok) {
+    result.bytes.clear();
+    result.error = std::string("PNG encoding failed: ") + error;
+  }
+  return result;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Drawing.
+
+using Rgb = std::array<uint8_t, 3>;
+
+class Canvas {
+ public:
+  Canvas(int width, int height, Rgb background) {
+    image_.width = width;
+    image_.height = height;
+    image_.rgb.resize(static_cast<size_t>(width) * static_cast<size_t>(height) * 3);
+    for (size_t i = 0; i < image_.rgb.size(); i += 3) {
+      std::copy(background.begin(), background.end(), image_.rgb.begin() + static_cast<long>(i));
+    }
+  }
+
+  void Set(int64_t x, int64_t y, const Rgb& c) {
+    if (x < 0 || y < 0 || x >= image_.width || y >= image_.height) return;
+    const size_t i =
+        (static_cast<size_t>(y) * static_cast<size_t>(image_.width) + static_cast<size_t>(x)) * 3;
+    image_.rgb[i] = c[0];
+    image_.rgb[i + 1] = c[1];
+    image_.rgb[i + 2] = c[2];
+  }
+
+  void FillRect(int64_t x, int64_t y, int64_t w, int64_t h, const Rgb& c) {
+    for (int64_t j = 0; j < h; ++j) {
+      for (int64_t i = 0; i < w; ++i) Set(x + i, y + j, c);
+    }
+  }
+
+  /// A line of `thickness` pixels between two pixel positions (Bresenham, square pen).
+  void Line(int64_t x0, int64_t y0, int64_t x1, int64_t y1, int thickness, const Rgb& c) {
+    const int64_t dx = std::abs(x1 - x0), dy = -std::abs(y1 - y0);
+    const int64_t sx = x0 < x1 ? 1 : -1, sy = y0 < y1 ? 1 : -1;
+    const int64_t half = (thickness - 1) / 2;
+    int64_t err = dx + dy;
+    while (true) {
+      FillRect(x0 - half, y0 - half, thickness, thickness, c);
+      if (x0 == x1 && y0 == y1) break;
+      const int64_t e2 = 2 * err;
+      if (e2 >= dy) {
+        err += dy;
+        x0 += sx;
+      }
+      if (e2 <= dx) {
+        err += dx;
+        y0 += sy;
+      }
+    }
+  }
+
+  /// Text in the 5x7 font, each font pixel drawn as a `size` x `size` square; returns the width.
+  int Text(int x, int y, const std::string& text, int size, const Rgb& c);
+
+  RgbImage Take() { return std::move(image_); }
+
+ private:
+  RgbImage image_;
+};
+
+// A 5x7 bitmap font: 7 rows per glyph, the 5 low bits of each row from left (bit 4) to right.
+struct Glyph {
+  char c;
+  uint8_t rows[7];
+};
+
+constexpr Glyph kFont[] = {
+    {'A', {0x0E, 0x11, 0x11, 0x1F, 0x11, 0x11, 0x11}},
+    {'B', {0x1E, 0x11, 0x11, 0x1E, 0x11, 0x11, 0x1E}},
+    {'C', {0x0E, 0x11, 0x10, 0x10, 0x10, 0x11, 0x0E}},
+    {'D', {0x1C, 0x12, 0x11, 0x11, 0x11, 0x12, 0x1C}},
+    {'E', {0x1F, 0x10, 0x10, 0x1E, 0x10, 0x10, 0x1F}},
+    {'F', {0x1F, 0x10, 0x10, 0x1E, 0x10, 0x10, 0x10}},
+    {'G', {0x0E, 0x11, 0x10, 0x17, 0x11, 0x11, 0x0F}},
+    {'H', {0x11, 0x11, 0x11, 0x1F, 0x11, 0x11, 0x11}},
+    {'I', {0x0E, 0x04, 0x04, 0x04, 0x04, 0x04, 0x0E}},
+    {'J', {0x07, 0x02, 0x02, 0x02, 0x02, 0x12, 0x0C}},
+    {'K', {0x11, 0x12, 0x14, 0x18, 0x14, 0x12, 0x11}},
+    {'L', {0x10, 0x10, 0x10, 0x10, 0x10, 0x10, 0x1F}},
+    {'M', {0x11, 0x1B, 0x15, 0x15, 0x11, 0x11, 0x11}},
+    {'N', {0x11, 0x11, 0x19, 0x15, 0x13, 0x11, 0x11}},
+    {'O', {0x0E, 0x11, 0x11, 0x11, 0x11, 0x11, 0x0E}},
+    {'P', {0x1E, 0x11, 0x11, 0x1E, 0x10, 0x10, 0x10}},
+    {'Q', {0x0E, 0x11, 0x11, 0x11, 0x15, 0x12, 0x0D}},
+    {'R', {0x1E, 0x11, 0x11, 0x1E, 0x14, 0x12, 0x11}},
+    {'S', {0x0F, 0x10, 0x10, 0x0E, 0x01, 0x01, 0x1E}},
+    {'T', {0x1F, 0x04, 0x04, 0x04, 0x04, 0x04, 0x04}},
+    {'U', {0x11, 0x11, 0x11, 0x11, 0x11, 0x11, 0x0E}},
+    {'V', {0x11, 0x11, 0x11, 0x11, 0x11, 0x0A, 0x04}},
+    {'W', {0x11, 0x11, 0x11, 0x15, 0x15, 0x15, 0x0A}},
+    {'X', {0x11, 0x11, 0x0A, 0x04, 0x0A, 0x11, 0x11}},
+    {'Y', {0x11, 0x11, 0x11, 0x0A, 0x04, 0x04, 0x04}},
+    {'Z', {0x1F, 0x01, 0x02, 0x04, 0x08, 0x10, 0x1F}},
+    {'0', {0x0E, 0x11, 0x13, 0x15, 0x19, 0x11, 0x0E}},
+    {'1', {0x04, 0x0C, 0x04, 0x04, 0x04, 0x04, 0x0E}},
+    {'2', {0x0E, 0x11, 0x01, 0x02, 0x04, 0x08, 0x1F}},
+    {'3', {0x1F, 0x02, 0x04, 0x02, 0x01, 0x11, 0x0E}},
+    {'4', {0x02, 0x06, 0x0A, 0x12, 0x1F, 0x02, 0x02}},
+    {'5', {0x1F, 0x10, 0x1E, 0x01, 0x01, 0x11, 0x0E}},
+    {'6', {0x06, 0x08, 0x10, 0x1E, 0x11, 0x11, 0x0E}},
+    {'7', {0x1F, 0x01, 0x02, 0x04, 0x08, 0x08, 0x08}},
+    {'8', {0x0E, 0x11, 0x11, 0x0E, 0x11, 0x11, 0x0E}},
+    {'9', {0x0E, 0x11, 0x11, 0x0F, 0x01, 0x02, 0x0C}},
+    {' ', {0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00}},
+    {'-', {0x00, 0x00, 0x00, 0x1F, 0x00, 0x00, 0x00}},
+    {'.', {0x00, 0x00, 0x00, 0x00, 0x00, 0x0C, 0x0C}},
+    {',', {0x00, 0x00, 0x00, 0x00, 0x0C, 0x04, 0x08}},
+    {':', {0x00, 0x0C, 0x0C, 0x00, 0x0C, 0x0C, 0x00}},
+    {'(', {0x02, 0x04, 0x08, 0x08, 0x08, 0x04, 0x02}},
+    {')', {0x08, 0x04, 0x02, 0x02, 0x02, 0x04, 0x08}},
+    {'/', {0x00, 0x01, 0x02, 0x04, 0x08, 0x10, 0x00}},
+    {'_', {0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x1F}},
+    {'+', {0x00, 0x04, 0x04, 0x1F, 0x04, 0x04, 0x00}},
+    {'%', {0x18, 0x19, 0x02, 0x04, 0x08, 0x13, 0x03}},
+    {'?', {0x0E, 0x11, 0x01, 0x02, 0x04, 0x00, 0x04}},
+};
+
+constexpr int kGlyphWidth = 5;
+constexpr int kGlyphHeight = 7;
+constexpr int kGlyphAdvance = 6;
+
+const Glyph& GlyphFor(char c) {
+  if (c >= 'a' && c <= 'z') c = static_cast<char>(c - 'a' + 'A');
+  for (const Glyph& g : kFont) {
+    if (g.c == c) return g;
+  }
+  return kFont[std::size(kFont) - 1];  // '?'
+}
+
+int Canvas::Text(int x, int y, const std::string& text, int size, const Rgb& c) {
+  for (size_t k = 0; k < text.size(); ++k) {
+    const Glyph& g = GlyphFor(text[k]);
+    const int gx = x + static_cast<int>(k) * kGlyphAdvance * size;
+    for (int row = 0; row < kGlyphHeight; ++row) {
+      for (int col = 0; col < kGlyphWidth; ++col) {
+        if (g.rows[row] & (1 << (kGlyphWidth - 1 - col))) {
+          FillRect(gx + col * size, y + row * size, size, size, c);
+        }
+      }
+    }
+  }
+  return static_cast<int>(text.size()) * kGlyphAdvance * size;
+}
+
+constexpr Rgb kUnknownColor{205, 210, 220};
+constexpr Rgb kLegendBackground{255, 255, 255};
+constexpr Rgb kLegendText{0, 0, 0};
+
+}  // namespace
+
+GridImage MakeGridImage(const OccupancyGrid& grid) {
+  const std::vector<TileRef> tiles = grid.Tiles();
+  const CellWindow window = TileWindow(tiles);
+  GridImage image;
+  image.resolution_m = grid.geometry().resolution();
+  if (window.width == 0) {
+    image.width = image.height = 1;
+    image.gray = {kUnknownGray};
+    return image;
+  }
+  image.width = static_cast<int>(window.width);
+  image.height = static_cast<int>(window.height);
+  image.origin_m = grid.geometry().CellCorner(
+      {static_cast<int32_t>(window.x0), static_cast<int32_t>(window.y0)});
+  image.gray.assign(static_cast<size_t>(window.width * window.height), kUnknownGray);
+  ForEachTileCell(tiles, window, [&](int64_t col, int64_t row, LogOdds value) {
+    const double p = OccupancyProbability(value);
+    uint8_t gray = kUnknownGray;
+    if (p >= kOccupiedThreshold) {
+      gray = kOccupiedGray;
+    } else if (p <= kFreeThreshold) {
+      gray = kFreeGray;
+    }
+    image.gray[static_cast<size_t>(row * window.width + col)] = gray;
+  });
+  return image;
+}
+
+std::string EncodePgm(const GridImage& image) {
+  std::string out = "P5\n# CREATOR: marxbot-slam " + FormatNumber(image.resolution_m) + " m/pix\n" +
+                    std::to_string(image.width) + " " + std::to_string(image.height) + "\n255\n";
+  out.append(image.gray.begin(), image.gray.end());
+  return out;
+}
+
+std::string MapYaml(const std::string& pgm_name, const GridImage& image) {
+  return "image: " + pgm_name + "\nresolution: " + FormatNumber(image.resolution_m) +
+         "\norigin: [" + FormatNumber(image.origin_m.x()) + ", " +
+         FormatNumber(image.origin_m.y()) +
+         ", 0.0]\nnegate: 0\noccupied_thresh: " + FormatNumber(kOccupiedThreshold) +
+         "\nfree_thresh: " + FormatNumber(kFreeThreshold) + "\n";
+}
+
+PngBytes EncodePng(const RgbImage& image) {
+  return Encode(image.width, image.height, PNG_COLOR_TYPE_RGB, 3, image.rgb.data(),
+                image.rgb.size());
+}
+
+PngBytes EncodeGrayPng(int width, int height, const std::vector<uint8_t>& gray) {
+  return Encode(width, height, PNG_COLOR_TYPE_GRAY, 1, gray.data(), gray.size());
+}
+
+std::optional<std::string> WriteFileAtomic(const std::string& path, const std::string& bytes) {
+  static std::atomic<uint64_t> counter{0};
+  const std::string tmp =
+      path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(counter.fetch_add(1));
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return "cannot create " + tmp + ": " + std::strerror(errno);
+  size_t written = 0;
+  while (written < bytes.size()) {
+    const ssize_t n = ::write(fd, bytes.data() + written, bytes.size() - written);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      const std::string error = "cannot write " + tmp + ": " + std::strerror(errno);
+      ::close(fd);
+      ::unlink(tmp.c_str());
+      return error;
+    }
+    written += static_cast<size_t>(n);
+  }
+  if (::fsync(fd) != 0) {
+    const std::string error = "cannot write " + tmp + ": " + std::strerror(errno);
+    ::close(fd);
+    ::unlink(tmp.c_str());
+    return error;
+  }
+  if (::close(fd) != 0) {
+    const std::string error = "cannot write " + tmp + ": " + std::strerror(errno);
+    ::unlink(tmp.c_str());
+    return error;
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    const std::string error = "cannot rename " + tmp + " to " + path + ": " + std::strerror(errno);
+    ::unlink(tmp.c_str());
+    return error;
+  }
+  return std::nullopt;
+}
+
+std::optional<std::string> WritePgm(const std::string& path, const GridImage& image) {
+  if (image.width <= 0 || image.height <= 0 ||
+      image.gray.size() != static_cast<size_t>(image.width) * static_cast<size_t>(image.height)) {
+    return "cannot write " + path + ": image data does not match its size";
+  }
+  return WriteFileAtomic(path, EncodePgm(image));
+}
+
+std::optional<std::string> WriteMapYaml(const std::string& path, const std::string& pgm_name,
+                                        const GridImage& image) {
+  return WriteFileAtomic(path, MapYaml(pgm_name, image));
+}
+
+std::optional<std::string> WritePng(const std::string& path, const RgbImage& image) {
+  const PngBytes png = EncodePng(image);
+  if (!png.ok()) return "cannot write " + path + ": " + png.error;
+  return WriteFileAtomic(path, std::string(png.bytes.begin(), png.bytes.end()));
+}
+
+RgbImage RenderMapPicture(const OccupancyGrid& grid, const std::vector<TrajectoryLayer>& layers,
+                          int scale) {
+  scale = std::max(1, scale);
+  const GridGeometry& geometry = grid.geometry();
+  const std::vector<TileRef> tiles = grid.Tiles();
+  CellWindow window = TileWindow(tiles);
+
+  // Grow the window over every trajectory point, with a margin of two cells.
+  int64_t x0 = window.width > 0 ? window.x0 : INT64_MAX;
+  int64_t y0 = window.height > 0 ? window.y0 : INT64_MAX;
+  int64_t x1 = window.width > 0 ? window.x0 + window.width : INT64_MIN;
+  int64_t y1 = window.height > 0 ? window.y0 + window.height : INT64_MIN;
+  for (const TrajectoryLayer& layer : layers) {
+    for (const TimedPose& p : layer.poses) {
+      if (!std::isfinite(p.pose.x) || !std::isfinite(p.pose.y)) continue;
+      const Vec2 g = geometry.ToGrid(p.pose.translation());
+      const auto cx = static_cast<int64_t>(std::floor(std::clamp(g.x(), -1e9, 1e9)));
+      const auto cy = static_cast<int64_t>(std::floor(std::clamp(g.y(), -1e9, 1e9)));
+      x0 = std::min(x0, cx - 2);
+      y0 = std::min(y0, cy - 2);
+      x1 = std::max(x1, cx + 3);
+      y1 = std::max(y1, cy + 3);
+    }
+  }
+  if (x0 >= x1 || y0 >= y1) {
+    x0 = y0 = 0;
+    x1 = y1 = 1;
+  }
+  // Keep pictures of diverging trajectories within reason (8192 pixels a side).
+  const int64_t max_cells = std::max<int64_t>(1, 8192 / scale);
+  x1 = std::min(x1, x0 + max_cells);
+  y1 = std::min(y1, y0 + max_cells);
+  window = {x0, y0, x1 - x0, y1 - y0};
+
+  // Legend layout: one line per layer, a colour swatch then the name.
+  const int map_width = static_cast<int>(window.width) * scale;
+  const int map_height = static_cast<int>(window.height) * scale;
+  const int font = map_width >= 300 ? 2 : 1;
+  const int line_height = (kGlyphHeight + 4) * font;
+  const int swatch = 6 * kGlyphAdvance * font / 2;
+  int legend_width = 0;
+  for (const TrajectoryLayer& layer : layers) {
+    const int text_width = static_cast<int>(layer.name.size()) * kGlyphAdvance * font;
+    legend_width = std::max(legend_width, swatch + text_width + 8 * font);
+  }
+  const int legend_height =
+      layers.empty() ? 0 : static_cast<int>(layers.size()) * line_height + 4 * font;
+  Canvas canvas(std::max(map_width, legend_width), map_height + legend_height, kLegendBackground);
+
+  // The map: unknown where nothing was ever observed, else grey from the probability.
+  canvas.FillRect(0, 0, map_width, map_height, kUnknownColor);
+  ForEachTileCell(tiles, window, [&](int64_t col, int64_t row, LogOdds value) {
+    if (value == 0) return;
+    const auto level =
+        static_cast<uint8_t>(std::lround(255.0 * (1.0 - OccupancyProbability(value))));
+    canvas.FillRect(col * scale, row * scale, scale, scale, {level, level, level});
+  });
+
+  // Trajectories, in order (later layers on top).
+  const int thickness = std::max(1, (scale + 1) / 2);
+  const auto to_pixel = [&](const Pose2& p) {
+    const Vec2 g = geometry.ToGrid(p.translation());
+    const double px = (g.x() - static_cast<double>(window.x0)) * scale;
+    const double py =
+        static_cast<double>(map_height) - (g.y() - static_cast<double>(window.y0)) * scale;
+    return std::pair<int64_t, int64_t>{static_cast<int64_t>(std::floor(std::clamp(px, -1e6, 1e6))),
+                                       static_cast<int64_t>(std::floor(std::clamp(py, -1e6, 1e6)))};
+  };
+  for (const TrajectoryLayer& layer : layers) {
+    for (size_t i = 0; i < layer.poses.size(); ++i) {
+      const auto [ax, ay] = to_pixel(layer.poses[i == 0 ? 0 : i - 1].pose);
+      const auto [bx, by] = to_pixel(layer.poses[i].pose);
+      canvas.Line(ax, ay, bx, by, thickness, layer.color);
+    }
+  }
+
+  // Legend strip below the map.
+  for (size_t k = 0; k < layers.size(); ++k) {
+    const int y = map_height + 2 * font + static_cast<int>(k) * line_height;
+    canvas.FillRect(3 * font, y + 2 * font, swatch, 3 * font, layers[k].color);
+    canvas.Text(3 * font + swatch + 2 * font, y, layers[k].name, font, kLegendText);
+  }
+  return canvas.Take();
+}
+
+}  // namespace slam::io

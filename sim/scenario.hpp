@@ -1,0 +1,82 @@
+#pragma once
+// A deterministic simulation of the marXbot wandering in a World: the robot events the engine
+// consumes (odometry + gyro, scanner samples), the overhead tracker's ground truth, and the
+// grouping of scanner samples into scans (one per half turn of the platform).
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "engine/pose.hpp"
+#include "engine/robot.hpp"
+#include "engine/scan.hpp"
+#include "sim/world.hpp"
+
+namespace slam::sim {
+
+/// What to simulate and how noisy it is. Every draw comes from slam::Rng streams of `seed`, so a
+/// (world, robot, config) triple always gives the same output.
+struct ScenarioConfig {
+  double duration_s = 60.0;
+  double scans_per_s = 1.5;        // half turns of the scanner platform per second
+  double odometry_rate_hz = 50.0;  // base events; the scanner rate comes from the robot
+  double tracker_rate_hz = 30.0;
+  double speed_m_s = 0.12;        // cruising speed
+  double turn_rate_rad_s = 1.0;   // turning in place to avoid an obstacle
+  double robot_radius_m = 0.085;  // the base is 17 cm across
+  uint64_t seed = 1;
+
+  // Motion and odometry noise. Slip ratios are the standard deviations of slowly varying
+  // (Gauss-Markov, `slip_correlation_s`) relative errors of what the encoders report.
+  double translation_slip_ratio = 0.03;
+  double rotation_slip_ratio = 0.15;  // encoder-derived rotation (the engine uses the gyro)
+  double slip_correlation_s = 2.0;
+  double gyro_noise_dps = 0.3;  // white noise per gyro reading
+  // The gyro's bias starts with this deviation and wanders as a random walk whose deviation
+  // grows by as much every `gyro_bias_walk_s` (with 0.05 deg/s, dead reckoning typically ends
+  // a 300 s run a few to 40 degrees off).
+  double gyro_bias_dps = 0.05;
+  double gyro_bias_walk_s = 60.0;
+
+  // Sensor artefacts.
+  double sensor_noise_scale = 1.0;       // times the robot's sigma_m of each sensor type
+  double corner_hole_probability = 0.3;  // a beam hitting near a corner reads as nothing
+  double corner_radius_m = 0.03;
+  double floor_offset_raw = 15.0;    // out of range: table's last raw minus this ...
+  double floor_noise_raw = 2.0;      // ... plus Gaussian noise of this many ADC units
+  double near_floor_fraction = 0.4;  // below the minimum range the raw falls linearly
+                                     // to this fraction of the table's first raw at 0 m
+
+  double tracker_noise_m = 0.001;
+  double tracker_noise_rad = 0.005;
+
+  /// Problems with the configuration as "/key: detail" lines; empty when valid.
+  std::vector<std::string> Validate() const;
+};
+
+/// Everything a simulated run produces, time-ordered; times in seconds from the start.
+struct ScenarioOutput {
+  std::vector<OdometryReading> odometry;  // at odometry_rate_hz, the first at t = 0
+  std::vector<ScannerReading> scanner;    // at the robot's sample rate, the first at t = 0
+  std::vector<TimedPose> ground_truth;    // tracker poses (with tracker noise) at tracker_rate_hz
+  std::vector<TimedPose> true_path;       // exact poses at every scanner sample
+};
+
+/// Simulates the robot in `world`. Preconditions: Validate(robot) and config.Validate() are
+/// empty, and the world leaves room for the robot inside its bounds.
+ScenarioOutput RunScenario(const World& world, const RobotDescription& robot,
+                           const ScenarioConfig& config);
+
+/// Groups scanner samples into scans of half a platform turn, counted from the first sample
+/// (index from 0; the first scan's t_begin is the first sample's time), and poses every sample
+/// by dead reckoning (slam::OdometryIntegrator, interpolated at the sample's time). Samples
+/// outside the odometry's time span and a trailing incomplete half turn are left out.
+std::vector<Scan> BuildScans(const RobotDescription& robot,
+                             const std::vector<OdometryReading>& odometry,
+                             const std::vector<ScannerReading>& scanner);
+
+/// The dead-reckoned trajectory of the odometry readings (one pose per reading).
+std::vector<TimedPose> DeadReckoning(const RobotDescription& robot,
+                                     const std::vector<OdometryReading>& odometry);
+
+}  // namespace slam::sim

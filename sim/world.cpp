@@ -1,0 +1,400 @@
+#include "sim/world.hpp"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+namespace slam::sim {
+namespace {
+
+using Json = nlohmann::json;
+
+double Cross(const Vec2& a, const Vec2& b) { return a.x() * b.y() - a.y() * b.x(); }
+
+/// Distance from p to the segment [a, b].
+double PointSegmentDistance(const Vec2& p, const Vec2& a, const Vec2& b) {
+  const Vec2 e = b - a;
+  const double len2 = e.squaredNorm();
+  const double s = len2 > 0.0 ? std::clamp((p - a).dot(e) / len2, 0.0, 1.0) : 0.0;
+  return (a + s * e - p).norm();
+}
+
+/// Ray parameter t >= 0 where origin + t * d meets the segment, if it does.
+std::optional<double> RaySegment(const Vec2& origin, const Vec2& d, const Segment& seg) {
+  const Vec2 e = seg.b - seg.a;
+  const Vec2 w = seg.a - origin;
+  const double denom = Cross(d, e);
+  const double e_norm = e.norm();
+  if (std::abs(denom) <= 1e-12 * e_norm) {
+    // Parallel: only a collinear segment can be hit.
+    if (std::abs(Cross(w, d)) > 1e-12 * (1.0 + w.norm())) return std::nullopt;
+    const double ta = w.dot(d);
+    const double tb = (seg.b - origin).dot(d);
+    if (ta < 0.0 && tb < 0.0) return std::nullopt;
+    if ((ta <= 0.0) != (tb <= 0.0) || ta == 0.0 || tb == 0.0) return 0.0;
+    return std::min(ta, tb);
+  }
+  const double t = Cross(w, e) / denom;
+  const double s = Cross(w, d) / denom;
+  if (t < 0.0 || s < 0.0 || s > 1.0) return std::nullopt;
+  return t;
+}
+
+/// Ray parameter t >= 0 where origin + t * d enters the circle (0 when starting inside).
+std::optional<double> RayCircle(const Vec2& origin, const Vec2& d, const Circle& circle) {
+  const Vec2 f = origin - circle.center;
+  const double b = f.dot(d);
+  const double c = f.squaredNorm() - circle.radius_m * circle.radius_m;
+  if (c <= 0.0) return 0.0;
+  const double disc = b * b - c;
+  if (disc < 0.0) return std::nullopt;
+  const double t = -b - std::sqrt(disc);
+  if (t < 0.0) return std::nullopt;
+  return t;
+}
+
+/// Escapes a key for use in a JSON pointer (RFC 6901).
+std::string EscapePointerToken(const std::string& key) {
+  std::string out;
+  for (const char c : key) {
+    if (c == '~') {
+      out += "~0";
+    } else if (c == '/') {
+      out += "~1";
+    } else {
+      out += c;
+    }
+  }
+  return out;
+}
+
+std::string Pointer(std::string_view base, size_t index) {
+  return std::string(base) + "/" + std::to_string(index);
+}
+
+/// Reads an array of exactly n finite numbers at `pointer`, recording errors.
+std::optional<std::vector<double>> ReadNumbers(const Json& value, size_t n,
+                                               const std::string& pointer,
+                                               std::vector<std::string>& errors) {
+  if (!value.is_array() || value.size() != n) {
+    errors.push_back(pointer + ": expected an array of " + std::to_string(n) + " numbers");
+    return std::nullopt;
+  }
+  std::vector<double> numbers;
+  bool ok = true;
+  for (size_t i = 0; i < n; ++i) {
+    if (!value[i].is_number()) {
+      errors.push_back(Pointer(pointer, i) + ": expected a number");
+      ok = false;
+      continue;
+    }
+    numbers.push_back(value[i].get<double>());
+  }
+  if (!ok) return std::nullopt;
+  return numbers;
+}
+
+/// Writes `text` to `path` through a temporary file in the same directory and a rename.
+std::optional<std::string> WriteFileAtomic(const std::string& path, const std::string& text) {
+  static std::atomic<uint64_t> counter{0};
+  const std::string tmp =
+      path + ".tmp." + std::to_string(getpid()) + "." + std::to_string(counter.fetch_add(1));
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return "cannot create " + tmp + ": " + std::strerror(errno);
+  size_t written = 0;
+  while (written < text.size()) {
+    const ssize_t n = ::write(fd, text.data() + written, text.size() - written);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      const std::string error = "cannot write " + tmp + ": " + std::strerror(errno);
+      ::close(fd);
+      ::unlink(tmp.c_str());
+      return error;
+    }
+    written += static_cast<size_t>(n);
+  }
+  if (::fsync(fd) != 0 || ::close(fd) != 0) {
+    const std::string error = "cannot write " + tmp + ": " + std::strerror(errno);
+    ::unlink(tmp.c_str());
+    return error;
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    const std::string error = "cannot rename " + tmp + " to " + path + ": " + std::strerror(errno);
+    ::unlink(tmp.c_str());
+    return error;
+  }
+  return std::nullopt;
+}
+
+/// Appends the four walls of an axis-aligned rectangle (counter-clockwise).
+void AddRectangle(World& world, double x0, double y0, double x1, double y1) {
+  const Vec2 p00(x0, y0), p10(x1, y0), p11(x1, y1), p01(x0, y1);
+  world.segments.push_back({p00, p10});
+  world.segments.push_back({p10, p11});
+  world.segments.push_back({p11, p01});
+  world.segments.push_back({p01, p00});
+}
+
+/// Appends the walls of a square of side `side` centred on `center`, turned by `angle_deg`.
+void AddSquare(World& world, const Vec2& center, double side, double angle_deg) {
+  const Pose2 frame{center.x(), center.y(), DegToRad(angle_deg)};
+  const double h = side / 2.0;
+  const Vec2 corners[4] = {frame.Transform({-h, -h}), frame.Transform({h, -h}),
+                           frame.Transform({h, h}), frame.Transform({-h, h})};
+  for (int i = 0; i < 4; ++i) world.segments.push_back({corners[i], corners[(i + 1) % 4]});
+}
+
+/// A room with a rectangular box in it.
+World BoxArena() {
+  World world;
+  world.name = "box";
+  world.bounds = {0.0, 0.0, 2.0, 1.8};
+  AddRectangle(world, 0.0, 0.0, 2.0, 1.8);
+  AddRectangle(world, 0.8, 0.7, 1.3, 1.05);
+  return world;
+}
+
+/// Three rooms separated by walls with 50 cm doorways.
+World RoomsArena() {
+  World world;
+  world.name = "rooms";
+  world.bounds = {0.0, 0.0, 2.4, 2.0};
+  AddRectangle(world, 0.0, 0.0, 2.4, 2.0);
+  // Vertical wall at x = 1.1 with a doorway for y in [0.3, 0.8].
+  world.segments.push_back({{1.1, 0.0}, {1.1, 0.3}});
+  world.segments.push_back({{1.1, 0.8}, {1.1, 2.0}});
+  // Horizontal wall at y = 1.1 across the right half, doorway for x in [1.6, 2.1].
+  world.segments.push_back({{1.1, 1.1}, {1.6, 1.1}});
+  world.segments.push_back({{2.1, 1.1}, {2.4, 1.1}});
+  return world;
+}
+
+/// A room with round and square obstacles, every gap at least 25 cm.
+World ClutteredArena() {
+  World world;
+  world.name = "cluttered";
+  world.bounds = {0.0, 0.0, 2.0, 2.0};
+  AddRectangle(world, 0.0, 0.0, 2.0, 2.0);
+  AddSquare(world, {1.0, 0.95}, 0.22, 0.0);
+  AddSquare(world, {1.5, 1.5}, 0.2, 30.0);
+  AddSquare(world, {0.4, 1.0}, 0.16, 0.0);
+  world.circles.push_back({{0.45, 0.45}, 0.10});
+  world.circles.push_back({{1.55, 0.45}, 0.08});
+  world.circles.push_back({{0.45, 1.55}, 0.12});
+  world.circles.push_back({{1.0, 1.6}, 0.06});
+  world.circles.push_back({{1.0, 0.35}, 0.07});
+  return world;
+}
+
+}  // namespace
+
+std::optional<double> RayDistance(const World& world, const Vec2& origin, double angle,
+                                  double max_range_m) {
+  const Vec2 d(std::cos(angle), std::sin(angle));
+  double best = std::numeric_limits<double>::infinity();
+  for (const Segment& seg : world.segments) {
+    if (const auto t = RaySegment(origin, d, seg)) best = std::min(best, *t);
+  }
+  for (const Circle& circle : world.circles) {
+    if (const auto t = RayCircle(origin, d, circle)) best = std::min(best, *t);
+  }
+  if (best > max_range_m) return std::nullopt;
+  return best;
+}
+
+double ClearanceAt(const World& world, const Vec2& p) {
+  double best = std::numeric_limits<double>::infinity();
+  for (const Segment& seg : world.segments) {
+    best = std::min(best, PointSegmentDistance(p, seg.a, seg.b));
+  }
+  for (const Circle& circle : world.circles) {
+    best = std::min(best, std::max(0.0, (p - circle.center).norm() - circle.radius_m));
+  }
+  return best;
+}
+
+std::vector<Vec2> Corners(const World& world) {
+  constexpr double kTouch = 1e-3;
+  std::vector<Vec2> corners;
+  for (size_t i = 0; i < world.segments.size(); ++i) {
+    for (const Vec2& end : {world.segments[i].a, world.segments[i].b}) {
+      bool touches = false;
+      for (size_t j = 0; j < world.segments.size() && !touches; ++j) {
+        if (j != i) {
+          touches = PointSegmentDistance(end, world.segments[j].a, world.segments[j].b) <= kTouch;
+        }
+      }
+      const bool known = std::any_of(corners.begin(), corners.end(),
+                                     [&](const Vec2& c) { return (c - end).norm() <= kTouch; });
+      if (touches && !known) corners.push_back(end);
+    }
+  }
+  return corners;
+}
+
+std::vector<std::string> Validate(const World& world) {
+  std::vector<std::string> errors;
+  const auto& b = world.bounds;
+  for (size_t i = 0; i < 4; ++i) {
+    if (!std::isfinite(b[i])) errors.push_back(Pointer("/bounds", i) + ": must be finite");
+  }
+  if (!(b[0] < b[2]) || !(b[1] < b[3])) {
+    errors.push_back("/bounds: expected x0 < x1 and y0 < y1");
+  }
+  for (size_t i = 0; i < world.segments.size(); ++i) {
+    const Segment& s = world.segments[i];
+    if (!s.a.allFinite() || !s.b.allFinite()) {
+      errors.push_back(Pointer("/segments", i) + ": coordinates must be finite");
+    } else if ((s.b - s.a).norm() <= 0.0) {
+      errors.push_back(Pointer("/segments", i) + ": the two ends must differ");
+    }
+  }
+  for (size_t i = 0; i < world.circles.size(); ++i) {
+    const Circle& c = world.circles[i];
+    if (!c.center.allFinite() || !std::isfinite(c.radius_m)) {
+      errors.push_back(Pointer("/circles", i) + ": values must be finite");
+    } else if (c.radius_m <= 0.0) {
+      errors.push_back(Pointer("/circles", i) + "/2: the radius must be positive");
+    }
+  }
+  return errors;
+}
+
+WorldLoadResult ParseWorld(std::string_view json_text, std::string_view source) {
+  WorldLoadResult result;
+  const std::string prefix = std::string(source) + ": ";
+  Json doc;
+  try {
+    doc = Json::parse(json_text);
+  } catch (const Json::parse_error& e) {
+    result.errors.push_back(prefix + "invalid JSON: " + e.what());
+    return result;
+  }
+  if (!doc.is_object()) {
+    result.errors.push_back(prefix + "expected a JSON object");
+    return result;
+  }
+  std::vector<std::string> errors;
+  World world;
+  for (const auto& [key, value] : doc.items()) {
+    if (key != "name" && key != "bounds" && key != "segments" && key != "circles") {
+      errors.push_back("/" + EscapePointerToken(key) + ": unknown key");
+    }
+  }
+  if (!doc.contains("name")) {
+    errors.push_back("/name: missing");
+  } else if (!doc["name"].is_string()) {
+    errors.push_back("/name: expected a string");
+  } else {
+    world.name = doc["name"].get<std::string>();
+  }
+  if (!doc.contains("bounds")) {
+    errors.push_back("/bounds: missing");
+  } else if (const auto b = ReadNumbers(doc["bounds"], 4, "/bounds", errors)) {
+    std::copy(b->begin(), b->end(), world.bounds.begin());
+  }
+  if (doc.contains("segments")) {
+    const Json& list = doc["segments"];
+    if (!list.is_array()) {
+      errors.push_back("/segments: expected an array of [x1, y1, x2, y2]");
+    } else {
+      for (size_t i = 0; i < list.size(); ++i) {
+        if (const auto v = ReadNumbers(list[i], 4, Pointer("/segments", i), errors)) {
+          world.segments.push_back({{(*v)[0], (*v)[1]}, {(*v)[2], (*v)[3]}});
+        }
+      }
+    }
+  }
+  if (doc.contains("circles")) {
+    const Json& list = doc["circles"];
+    if (!list.is_array()) {
+      errors.push_back("/circles: expected an array of [cx, cy, r]");
+    } else {
+      for (size_t i = 0; i < list.size(); ++i) {
+        if (const auto v = ReadNumbers(list[i], 3, Pointer("/circles", i), errors)) {
+          world.circles.push_back({{(*v)[0], (*v)[1]}, (*v)[2]});
+        }
+      }
+    }
+  }
+  if (errors.empty()) errors = Validate(world);
+  if (!errors.empty()) {
+    for (const std::string& e : errors) result.errors.push_back(prefix + e);
+    return result;
+  }
+  result.world = std::move(world);
+  return result;
+}
+
+WorldLoadResult LoadWorld(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    WorldLoadResult result;
+    result.errors.push_back(path + ": cannot open: " + std::strerror(errno));
+    return result;
+  }
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (in.bad()) {
+    WorldLoadResult result;
+    result.errors.push_back(path + ": read error");
+    return result;
+  }
+  return ParseWorld(text.str(), path);
+}
+
+std::string WorldToJson(const World& world) {
+  // One obstacle per line; numbers go through nlohmann so that they round-trip exactly.
+  const auto row = [](std::initializer_list<double> values) {
+    std::string out = "[";
+    for (const double v : values) out += (out.size() > 1 ? ", " : "") + Json(v).dump();
+    return out + "]";
+  };
+  std::string out = "{\n  \"name\": " + Json(world.name).dump() + ",\n";
+  const auto& b = world.bounds;
+  out += "  \"bounds\": " + row({b[0], b[1], b[2], b[3]}) + ",\n  \"segments\": [";
+  for (size_t i = 0; i < world.segments.size(); ++i) {
+    const Segment& s = world.segments[i];
+    out += (i ? ",\n    " : "\n    ") + row({s.a.x(), s.a.y(), s.b.x(), s.b.y()});
+  }
+  out += world.segments.empty() ? "],\n  \"circles\": [" : "\n  ],\n  \"circles\": [";
+  for (size_t i = 0; i < world.circles.size(); ++i) {
+    const Circle& c = world.circles[i];
+    out += (i ? ",\n    " : "\n    ") + row({c.center.x(), c.center.y(), c.radius_m});
+  }
+  out += world.circles.empty() ? "]\n}\n" : "\n  ]\n}\n";
+  return out;
+}
+
+std::optional<std::string> SaveWorld(const std::string& path, const World& world) {
+  return WriteFileAtomic(path, WorldToJson(world));
+}
+
+std::vector<std::string> BuiltinArenaNames() { return {"box", "rooms", "cluttered"}; }
+
+std::optional<World> BuiltinArena(std::string_view name) {
+  if (name == "box") return BoxArena();
+  if (name == "rooms") return RoomsArena();
+  if (name == "cluttered") return ClutteredArena();
+  return std::nullopt;
+}
+
+WorldLoadResult ResolveWorld(const std::string& name_or_path) {
+  if (auto world = BuiltinArena(name_or_path)) {
+    WorldLoadResult result;
+    result.world = std::move(world);
+    return result;
+  }
+  return LoadWorld(name_or_path);
+}
+
+}  // namespace slam::sim

@@ -1,0 +1,670 @@
+// Tests of the simulated worlds and of the simulated marXbot (sim/world.hpp, sim/scenario.hpp).
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <set>
+#include <string>
+
+#include "engine/pose.hpp"
+#include "engine/robot.hpp"
+#include "engine/sensor_model.hpp"
+#include "sim/scenario.hpp"
+#include "sim/world.hpp"
+
+namespace slam::sim {
+namespace {
+
+constexpr double kTol = 1e-12;
+
+/// A marXbot description with calibration tables from the Sharp curves of notes/sensors.md
+/// (built here so that these tests do not depend on JSON parsing).
+RobotDescription TestRobot() {
+  RobotDescription robot;
+  robot.name = "test";
+  robot.scanner.sensors = {{"short", 0.0}, {"long", 90.0}, {"short", 180.0}, {"long", 270.0}};
+  const auto table = [](double a, double b, double d0_cm, double d1_cm, double step_cm) {
+    std::vector<CalibrationPoint> points;
+    for (double d = d0_cm; d <= d1_cm + 1e-9; d += step_cm) {
+      const double volts = 5.0 * (a / d + b);
+      points.push_back({static_cast<int>(std::lround(volts / 3.3 * 1023.0)), d / 100.0});
+    }
+    return points;
+  };
+  SensorTypeDescription short_type;
+  short_type.model = "GP2Y3A001K0F";
+  short_type.range_min_m = 0.04;
+  short_type.range_max_m = 0.30;
+  short_type.use_min_m = 0.0;
+  short_type.use_max_m = 0.35;
+  short_type.calibration = table(2.076, 0.011, 4.0, 35.0, 1.0);
+  SensorTypeDescription long_type;
+  long_type.model = "GP2Y3A002K0F";
+  long_type.range_min_m = 0.20;
+  long_type.range_max_m = 1.50;
+  long_type.use_min_m = 0.35;
+  long_type.use_max_m = 1.0;
+  long_type.calibration = table(9.462, 0.01692, 20.0, 150.0, 5.0);
+  robot.sensor_types = {{"short", short_type}, {"long", long_type}};
+  return robot;
+}
+
+World OneWall() {
+  World world;
+  world.name = "wall";
+  world.bounds = {-5.0, -5.0, 5.0, 5.0};
+  world.segments.push_back({{1.0, -1.0}, {1.0, 1.0}});
+  return world;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Ray casting and clearance against hand-computed values.
+
+TEST(RayDistanceTest, HitsASegmentHeadOnAndObliquely) {
+  const World world = OneWall();
+  EXPECT_NEAR(*RayDistance(world, {0.0, 0.0}, 0.0, 5.0), 1.0, kTol);
+  EXPECT_NEAR(*RayDistance(world, {0.0, 0.0}, DegToRad(30.0), 5.0), 1.0 / std::cos(DegToRad(30.0)),
+              kTol);
+  // Exactly through the end point (1, 1).
+  EXPECT_NEAR(*RayDistance(world, {0.0, 0.0}, DegToRad(45.0), 5.0), std::sqrt(2.0), 1e-9);
+  // From the other side, and from a point below the wall.
+  EXPECT_NEAR(*RayDistance(world, {3.0, 0.5}, kPi, 5.0), 2.0, kTol);
+  EXPECT_NEAR(*RayDistance(world, {0.0, -1.0}, DegToRad(45.0), 5.0), std::sqrt(2.0), 1e-9);
+}
+
+TEST(RayDistanceTest, MissesBesideBehindAndBeyondRange) {
+  const World world = OneWall();
+  EXPECT_FALSE(RayDistance(world, {0.0, 0.0}, DegToRad(60.0), 5.0));  // passes above (1, 1.73)
+  EXPECT_FALSE(RayDistance(world, {0.0, 0.0}, kPi, 5.0));             // wall behind
+  EXPECT_FALSE(RayDistance(world, {0.0, 0.0}, kPi / 2.0, 5.0));       // parallel, not collinear
+  EXPECT_FALSE(RayDistance(world, {0.0, 0.0}, 0.0, 0.99));            // beyond the range
+  EXPECT_TRUE(RayDistance(world, {0.0, 0.0}, 0.0, 1.0));              // range is inclusive
+}
+
+TEST(RayDistanceTest, CollinearSegmentIsHitAtItsNearerEnd) {
+  World world;
+  world.segments.push_back({{4.0, 0.0}, {2.0, 0.0}});
+  EXPECT_NEAR(*RayDistance(world, {0.0, 0.0}, 0.0, 10.0), 2.0, kTol);
+  EXPECT_NEAR(*RayDistance(world, {3.0, 0.0}, 0.0, 10.0), 0.0, kTol);  // starting on it
+  EXPECT_FALSE(RayDistance(world, {5.0, 0.0}, 0.0, 10.0));             // past it
+  EXPECT_NEAR(*RayDistance(world, {5.0, 0.0}, kPi, 10.0), 1.0, 1e-9);  // back along it
+}
+
+TEST(RayDistanceTest, CirclesFrontTangentInsideAndBehind) {
+  World world;
+  world.circles.push_back({{3.0, 0.0}, 0.5});
+  EXPECT_NEAR(*RayDistance(world, {0.0, 0.0}, 0.0, 10.0), 2.5, kTol);
+  EXPECT_NEAR(*RayDistance(world, {3.0, 2.0}, -kPi / 2.0, 10.0), 1.5, kTol);
+  // Grazing ray: at asin(0.5 / 3) from the x axis it touches at distance sqrt(9 - 0.25).
+  EXPECT_NEAR(*RayDistance(world, {0.0, 0.0}, std::asin(0.5 / 3.0) - 1e-9, 10.0), std::sqrt(8.75),
+              1e-4);
+  EXPECT_FALSE(RayDistance(world, {0.0, 0.0}, std::asin(0.5 / 3.0) + 1e-6, 10.0));
+  EXPECT_NEAR(*RayDistance(world, {3.1, 0.0}, 1.0, 10.0), 0.0, kTol);  // inside
+  EXPECT_FALSE(RayDistance(world, {0.0, 0.0}, kPi, 10.0));
+}
+
+TEST(RayDistanceTest, NearestOfSeveralObstaclesWins) {
+  World world = OneWall();
+  world.circles.push_back({{0.5, 0.0}, 0.1});
+  EXPECT_NEAR(*RayDistance(world, {0.0, 0.0}, 0.0, 5.0), 0.4, kTol);
+  EXPECT_NEAR(*RayDistance(world, {0.0, 0.5}, 0.0, 5.0), 1.0, kTol);
+}
+
+TEST(ClearanceTest, DistanceToNearestSegmentOrCircle) {
+  World world = OneWall();
+  EXPECT_NEAR(ClearanceAt(world, {0.0, 0.0}), 1.0, kTol);
+  EXPECT_NEAR(ClearanceAt(world, {2.0, 2.0}), std::sqrt(2.0), kTol);  // nearest is the end (1, 1)
+  world.circles.push_back({{-1.0, 0.0}, 0.25});
+  EXPECT_NEAR(ClearanceAt(world, {0.0, 0.0}), 0.75, kTol);
+  EXPECT_NEAR(ClearanceAt(world, {-1.1, 0.0}), 0.0, kTol);  // inside the disc
+  EXPECT_TRUE(std::isinf(ClearanceAt(World{}, {0.0, 0.0})));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Built-in arenas.
+
+/// Distance between two segments that do not cross.
+double SegmentDistance(const Segment& s, const Segment& t) {
+  World a, b;
+  a.segments = {s};
+  b.segments = {t};
+  return std::min(
+      {ClearanceAt(b, s.a), ClearanceAt(b, s.b), ClearanceAt(a, t.a), ClearanceAt(a, t.b)});
+}
+
+TEST(ArenaTest, BuiltinsAreValidNamedAndAboutTwoMetres) {
+  const std::vector<std::string> names = BuiltinArenaNames();
+  EXPECT_EQ(names, (std::vector<std::string>{"box", "rooms", "cluttered"}));
+  for (const std::string& name : names) {
+    SCOPED_TRACE(name);
+    const std::optional<World> world = BuiltinArena(name);
+    ASSERT_TRUE(world);
+    EXPECT_EQ(world->name, name);
+    EXPECT_TRUE(Validate(*world).empty());
+    const double width = world->bounds[2] - world->bounds[0];
+    const double height = world->bounds[3] - world->bounds[1];
+    EXPECT_GE(width, 1.5);
+    EXPECT_LE(width, 3.0);
+    EXPECT_GE(height, 1.5);
+    EXPECT_LE(height, 3.0);
+  }
+  EXPECT_FALSE(BuiltinArena("moon"));
+  EXPECT_EQ(BuiltinArena("cluttered")->circles.size(), 5u);
+  EXPECT_GE(BuiltinArena("cluttered")->segments.size(), 12u);  // walls and square obstacles
+}
+
+/// Component label of every segment: segments that touch (directly or through others) form one
+/// obstacle (a room's walls, a box).
+std::vector<size_t> SegmentComponents(const World& world) {
+  std::vector<size_t> label(world.segments.size());
+  for (size_t i = 0; i < label.size(); ++i) label[i] = i;
+  bool changed = true;
+  while (changed) {
+    changed = false;
+    for (size_t i = 0; i < label.size(); ++i) {
+      for (size_t j = 0; j < label.size(); ++j) {
+        if (label[j] < label[i] && SegmentDistance(world.segments[i], world.segments[j]) < 1e-6) {
+          label[i] = label[j];
+          changed = true;
+        }
+      }
+    }
+  }
+  return label;
+}
+
+TEST(ArenaTest, ObstaclesLeaveRoomForTheRobot) {
+  // Any two distinct obstacles are at least 25 cm apart (the robot is 17 cm across).
+  constexpr double kGap = 0.25;
+  for (const std::string& name : BuiltinArenaNames()) {
+    SCOPED_TRACE(name);
+    const World world = *BuiltinArena(name);
+    const std::vector<size_t> component = SegmentComponents(world);
+    for (size_t i = 0; i < world.segments.size(); ++i) {
+      for (size_t j = i + 1; j < world.segments.size(); ++j) {
+        if (component[i] != component[j]) {
+          EXPECT_GE(SegmentDistance(world.segments[i], world.segments[j]), kGap)
+              << "segments " << i << " and " << j;
+        }
+      }
+      for (const Circle& c : world.circles) {
+        World one;
+        one.segments = {world.segments[i]};
+        EXPECT_GE(ClearanceAt(one, c.center) - c.radius_m, kGap) << "segment " << i;
+      }
+    }
+    for (size_t i = 0; i < world.circles.size(); ++i) {
+      for (size_t j = i + 1; j < world.circles.size(); ++j) {
+        const Circle& a = world.circles[i];
+        const Circle& b = world.circles[j];
+        EXPECT_GE((a.center - b.center).norm() - a.radius_m - b.radius_m, kGap);
+      }
+    }
+  }
+}
+
+TEST(ArenaTest, CornersAreWhereWallsMeet) {
+  // A room with a box: 4 + 4 corners. Rooms: 4 room corners, 4 junctions of inner walls;
+  // door jambs are free ends, not corners.
+  EXPECT_EQ(Corners(*BuiltinArena("box")).size(), 8u);
+  const std::vector<Vec2> corners = Corners(*BuiltinArena("rooms"));
+  EXPECT_EQ(corners.size(), 8u);
+  for (const Vec2& jamb : {Vec2(1.1, 0.3), Vec2(1.1, 0.8), Vec2(1.6, 1.1), Vec2(2.1, 1.1)}) {
+    for (const Vec2& c : corners) EXPECT_GT((c - jamb).norm(), 0.01);
+  }
+  EXPECT_TRUE(Corners(OneWall()).empty());
+}
+
+// ---------------------------------------------------------------------------------------------
+// world.json.
+
+void ExpectSameWorld(const World& a, const World& b) {
+  EXPECT_EQ(a.name, b.name);
+  EXPECT_EQ(a.bounds, b.bounds);
+  ASSERT_EQ(a.segments.size(), b.segments.size());
+  for (size_t i = 0; i < a.segments.size(); ++i) {
+    EXPECT_EQ(a.segments[i].a, b.segments[i].a);
+    EXPECT_EQ(a.segments[i].b, b.segments[i].b);
+  }
+  ASSERT_EQ(a.circles.size(), b.circles.size());
+  for (size_t i = 0; i < a.circles.size(); ++i) {
+    EXPECT_EQ(a.circles[i].center, b.circles[i].center);
+    EXPECT_EQ(a.circles[i].radius_m, b.circles[i].radius_m);
+  }
+}
+
+TEST(WorldJsonTest, RoundTripsEveryArenaExactly) {
+  for (const std::string& name : BuiltinArenaNames()) {
+    SCOPED_TRACE(name);
+    const World world = *BuiltinArena(name);
+    const WorldLoadResult parsed = ParseWorld(WorldToJson(world), "mem");
+    ASSERT_TRUE(parsed.ok()) << parsed.errors.front();
+    ExpectSameWorld(world, *parsed.world);
+  }
+}
+
+TEST(WorldJsonTest, SavesAndLoadsAFile) {
+  World world = *BuiltinArena("cluttered");
+  world.name = "my \"arena\"";
+  world.circles.push_back({{0.1 + 0.2, 1.0 / 3.0}, 0.0123456789012345});
+  const std::string path = ::testing::TempDir() + "sim_test_world.json";
+  ASSERT_FALSE(SaveWorld(path, world));
+  const WorldLoadResult loaded = LoadWorld(path);
+  ASSERT_TRUE(loaded.ok()) << loaded.errors.front();
+  ExpectSameWorld(world, *loaded.world);
+  const WorldLoadResult resolved = ResolveWorld(path);
+  ASSERT_TRUE(resolved.ok());
+  EXPECT_EQ(resolved.world->name, world.name);
+  ASSERT_TRUE(ResolveWorld("rooms").ok());
+  EXPECT_EQ(ResolveWorld("rooms").world->name, "rooms");
+  std::remove(path.c_str());
+}
+
+TEST(WorldJsonTest, ReadsTheDesignFormatWithOptionalLists) {
+  const WorldLoadResult r = ParseWorld(
+      R"({"name": "tiny", "bounds": [0, 0, 1, 2], "segments": [[0, 0, 1, 0]]})", "tiny.json");
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(r.world->name, "tiny");
+  EXPECT_EQ(r.world->bounds, (std::array<double, 4>{0.0, 0.0, 1.0, 2.0}));
+  ASSERT_EQ(r.world->segments.size(), 1u);
+  EXPECT_EQ(r.world->segments[0].b, Vec2(1.0, 0.0));
+  EXPECT_TRUE(r.world->circles.empty());
+}
+
+bool Contains(const std::string& text, const std::string& part) {
+  return text.find(part) != std::string::npos;
+}
+
+/// The errors of parsing `json`, joined by newlines.
+std::string ErrorsOf(const std::string& json) {
+  const WorldLoadResult r = ParseWorld(json, "w.json");
+  EXPECT_FALSE(r.ok()) << json;
+  std::string text;
+  for (const std::string& e : r.errors) text += e + "\n";
+  return text;
+}
+
+TEST(WorldJsonTest, ErrorsNameTheSourceAndThePointer) {
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], )"),
+               "w.json: invalid JSON");
+  EXPECT_PRED2(Contains, ErrorsOf("[1, 2]"), "w.json: expected a JSON object");
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "colour/x": 1})"),
+               "w.json: /colour~1x: unknown key");
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"bounds": [0, 0, 1, 1]})"), "w.json: /name: missing");
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"name": 3, "bounds": [0, 0, 1, 1]})"),
+               "w.json: /name: expected a string");
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x"})"), "w.json: /bounds: missing");
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1]})"),
+               "w.json: /bounds: expected an array of 4 numbers");
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x", "bounds": [1, 0, 0, 1]})"),
+               "w.json: /bounds: expected x0 < x1 and y0 < y1");
+  EXPECT_PRED2(
+      Contains,
+      ErrorsOf(
+          R"({"name": "x", "bounds": [0, 0, 1, 1], "segments": [[0, 0, 1, 1], [0, 0, "a", 1]]})"),
+      "w.json: /segments/1/2: expected a number");
+  EXPECT_PRED2(Contains,
+               ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "segments": [[0, 0, 0, 0]]})"),
+               "w.json: /segments/0: the two ends must differ");
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "circles": {"a": 1}})"),
+               "w.json: /circles: expected an array");
+  EXPECT_PRED2(Contains,
+               ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "circles": [[0.5, 0.5]]})"),
+               "w.json: /circles/0: expected an array of 3 numbers");
+  EXPECT_PRED2(Contains,
+               ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "circles": [[0.5, 0.5, -1]]})"),
+               "w.json: /circles/0/2: the radius must be positive");
+}
+
+TEST(WorldJsonTest, ReportsEveryErrorAtOnce) {
+  const WorldLoadResult r =
+      ParseWorld(R"({"extra": 1, "bounds": [0, 0, 1, 1], "segments": [[0, 0, 1], [1]]})", "w");
+  EXPECT_FALSE(r.ok());
+  EXPECT_EQ(r.errors.size(), 4u);  // /extra, /name, /segments/0, /segments/1
+}
+
+TEST(WorldJsonTest, MissingFileAndUnwritableDirectory) {
+  const WorldLoadResult r = LoadWorld("/nonexistent/dir/world.json");
+  ASSERT_FALSE(r.ok());
+  EXPECT_PRED2(Contains, r.errors.front(), "/nonexistent/dir/world.json: cannot open");
+  EXPECT_FALSE(ResolveWorld("no-such-arena").ok());
+  const std::optional<std::string> error = SaveWorld("/nonexistent/dir/world.json", World{});
+  ASSERT_TRUE(error);
+  EXPECT_PRED2(Contains, *error, "/nonexistent/dir/world.json");
+}
+
+// ---------------------------------------------------------------------------------------------
+// The simulated robot.
+
+ScenarioConfig ShortRun(double duration_s, uint64_t seed) {
+  ScenarioConfig config;
+  config.duration_s = duration_s;
+  config.seed = seed;
+  return config;
+}
+
+TEST(ScenarioTest, ConfigValidation) {
+  EXPECT_TRUE(ScenarioConfig{}.Validate().empty());
+  ScenarioConfig bad;
+  bad.duration_s = 0.0;
+  bad.corner_hole_probability = 1.5;
+  bad.gyro_noise_dps = -1.0;
+  const std::vector<std::string> errors = bad.Validate();
+  ASSERT_EQ(errors.size(), 3u);
+  EXPECT_EQ(errors[0], "/duration_s: must be > 0");
+}
+
+TEST(ScenarioTest, EventRatesAndTimes) {
+  const ScenarioOutput out = RunScenario(*BuiltinArena("box"), TestRobot(), ShortRun(10.0, 3));
+  ASSERT_EQ(out.odometry.size(), 501u);  // 50 Hz, t = 0 .. 10 s inclusive
+  ASSERT_EQ(out.scanner.size(), 601u);   // 60 Hz
+  ASSERT_EQ(out.ground_truth.size(), 301u);
+  ASSERT_EQ(out.true_path.size(), out.scanner.size());
+  EXPECT_DOUBLE_EQ(out.odometry[0].t, 0.0);
+  EXPECT_DOUBLE_EQ(out.odometry[10].t, 0.2);
+  EXPECT_DOUBLE_EQ(out.scanner[60].t, 1.0);
+  EXPECT_DOUBLE_EQ(out.ground_truth.back().t, 10.0);
+  for (size_t i = 0; i < out.scanner.size(); ++i) {
+    EXPECT_EQ(out.scanner[i].seq, static_cast<uint16_t>(i));
+  }
+  // Platform at 1.5 half turns per second: 4.5 degrees = 819.2 raw units per sample.
+  EXPECT_EQ(out.scanner[0].angle_raw, 0);
+  EXPECT_EQ(out.scanner[1].angle_raw, 819);
+  EXPECT_EQ(out.scanner[40].angle_raw, 32768);
+  EXPECT_EQ(out.scanner[80].angle_raw, 0);
+}
+
+TEST(ScenarioTest, SameSeedSameOutputOtherSeedOtherOutput) {
+  const World world = *BuiltinArena("cluttered");
+  const ScenarioOutput a = RunScenario(world, TestRobot(), ShortRun(20.0, 7));
+  const ScenarioOutput b = RunScenario(world, TestRobot(), ShortRun(20.0, 7));
+  const ScenarioOutput c = RunScenario(world, TestRobot(), ShortRun(20.0, 8));
+  ASSERT_EQ(a.odometry.size(), b.odometry.size());
+  ASSERT_EQ(a.scanner.size(), b.scanner.size());
+  ASSERT_EQ(a.ground_truth.size(), b.ground_truth.size());
+  for (size_t i = 0; i < a.odometry.size(); ++i) {
+    EXPECT_EQ(a.odometry[i].left_ticks, b.odometry[i].left_ticks);
+    EXPECT_EQ(a.odometry[i].right_ticks, b.odometry[i].right_ticks);
+    EXPECT_EQ(a.odometry[i].gyro_raw, b.odometry[i].gyro_raw);
+  }
+  for (size_t i = 0; i < a.scanner.size(); ++i) {
+    EXPECT_EQ(a.scanner[i].raw, b.scanner[i].raw);
+    EXPECT_EQ(a.scanner[i].angle_raw, b.scanner[i].angle_raw);
+  }
+  for (size_t i = 0; i < a.ground_truth.size(); ++i) {
+    EXPECT_EQ(a.ground_truth[i].pose.x, b.ground_truth[i].pose.x);
+    EXPECT_EQ(a.ground_truth[i].pose.theta, b.ground_truth[i].pose.theta);
+  }
+  int differing = 0;
+  for (size_t i = 0; i < a.scanner.size(); ++i) differing += a.scanner[i].raw != c.scanner[i].raw;
+  EXPECT_GT(differing, static_cast<int>(a.scanner.size()) / 2);
+  EXPECT_NE(a.ground_truth.back().pose.x, c.ground_truth.back().pose.x);
+}
+
+TEST(ScenarioTest, RobotKeepsClearOfObstaclesAndMovesAround) {
+  for (const std::string& name : BuiltinArenaNames()) {
+    for (const uint64_t seed : {1u, 2u}) {
+      SCOPED_TRACE(name + " seed " + std::to_string(seed));
+      const World world = *BuiltinArena(name);
+      const ScenarioConfig config = ShortRun(120.0, seed);
+      const ScenarioOutput out = RunScenario(world, TestRobot(), config);
+      double min_clearance = 1e9, path_length = 0.0;
+      std::set<std::pair<int, int>> cells;  // 20 cm cells visited
+      for (size_t i = 0; i < out.true_path.size(); ++i) {
+        const Pose2& p = out.true_path[i].pose;
+        min_clearance = std::min(min_clearance, ClearanceAt(world, p.translation()));
+        EXPECT_GE(p.x, world.bounds[0]);
+        EXPECT_LE(p.x, world.bounds[2]);
+        EXPECT_GE(p.y, world.bounds[1]);
+        EXPECT_LE(p.y, world.bounds[3]);
+        if (i > 0)
+          path_length += (p.translation() - out.true_path[i - 1].pose.translation()).norm();
+        cells.insert(
+            {static_cast<int>(std::floor(p.x / 0.2)), static_cast<int>(std::floor(p.y / 0.2))});
+      }
+      EXPECT_GE(min_clearance, 0.085);
+      EXPECT_GE(path_length, 0.4 * config.speed_m_s * config.duration_s);
+      EXPECT_LE(path_length, config.speed_m_s * config.duration_s + 1e-6);
+      EXPECT_GE(cells.size(), 20u);
+    }
+  }
+}
+
+/// Pose of a time-ordered trajectory at exactly one of its times.
+Pose2 At(const std::vector<TimedPose>& path, double t) {
+  for (const TimedPose& p : path) {
+    if (std::abs(p.t - t) < 1e-9) return p.pose;
+  }
+  ADD_FAILURE() << "no pose at " << t;
+  return {};
+}
+
+TEST(ScenarioTest, NoiseFreeOdometryIntegratesToTheTruePath) {
+  ScenarioConfig config = ShortRun(30.0, 4);
+  config.translation_slip_ratio = 0.0;
+  config.rotation_slip_ratio = 0.0;
+  config.gyro_noise_dps = 0.0;
+  config.gyro_bias_dps = 0.0;
+  const RobotDescription robot = TestRobot();
+  const ScenarioOutput out = RunScenario(*BuiltinArena("rooms"), robot, config);
+  const std::vector<TimedPose> odom = DeadReckoning(robot, out.odometry);
+  const Pose2 start = out.true_path.front().pose;
+  double worst = 0.0;
+  for (const TimedPose& truth : out.true_path) {
+    if (std::fmod(truth.t * 10.0, 1.0) > 1e-6) continue;  // every 0.1 s, on an odometry reading
+    const Pose2 estimate = Compose(start, At(odom, truth.t));
+    worst = std::max(worst, (estimate.translation() - truth.pose.translation()).norm());
+    // The gyro reports its mean rate over each 20 ms period and the integrator's trapezoidal
+    // rule lags by half a period at the current rate, without accumulating.
+    double rate = 0.0;
+    for (const OdometryReading& r : out.odometry) {
+      if (std::abs(r.t - truth.t) < 1e-9) rate = DegToRad(r.gyro_raw * robot.base.gyro_unit_dps);
+    }
+    EXPECT_NEAR(NormalizeAngle(estimate.theta - truth.pose.theta), 0.0,
+                0.5 * 0.02 * std::abs(rate) + 0.002);
+  }
+  EXPECT_LT(worst, 0.005);  // tick quantisation and gyro units only
+}
+
+TEST(ScenarioTest, NoisyOdometryDriftsWithinSlipBounds) {
+  const RobotDescription robot = TestRobot();
+  double largest_error = 0.0;
+  for (const uint64_t seed : {1u, 2u, 3u, 4u, 5u}) {
+    SCOPED_TRACE(seed);
+    const ScenarioOutput out = RunScenario(*BuiltinArena("box"), robot, ShortRun(20.0, seed));
+    const std::vector<TimedPose> odom = DeadReckoning(robot, out.odometry);
+    const Pose2 start = out.true_path.front().pose;
+    double travelled = 0.0;
+    for (size_t i = 1; i < out.true_path.size(); ++i) {
+      const TimedPose& truth = out.true_path[i];
+      travelled += (truth.pose.translation() - out.true_path[i - 1].pose.translation()).norm();
+      if (std::fmod(truth.t * 10.0, 1.0) > 1e-6) continue;
+      const Pose2 estimate = Compose(start, At(odom, truth.t));
+      const double error = (estimate.translation() - truth.pose.translation()).norm();
+      largest_error = std::max(largest_error, error);
+      // Slip of a few percent of the distance plus the heading error of the gyro's bias.
+      EXPECT_LE(error, 0.12 * travelled + 0.03) << "t = " << truth.t;
+      EXPECT_LE(std::abs(NormalizeAngle(estimate.theta - truth.pose.theta)), DegToRad(6.0));
+    }
+  }
+  EXPECT_GT(largest_error, 0.005);  // the noise is really there
+}
+
+TEST(ScenarioTest, NoiseFreeReadingsMatchTheGeometry) {
+  // Oracle: recast every beam from the true pose and check the raw value against the table.
+  ScenarioConfig config = ShortRun(30.0, 5);
+  config.sensor_noise_scale = 0.0;
+  config.corner_hole_probability = 1.0;  // every beam near a corner reads as a hole
+  config.floor_noise_raw = 0.0;
+  const RobotDescription robot = TestRobot();
+  const World world = *BuiltinArena("cluttered");
+  const std::vector<Vec2> corners = Corners(world);
+  const ScenarioOutput out = RunScenario(world, robot, config);
+  int in_range = 0, holes = 0, floors = 0, near = 0;
+  for (size_t i = 0; i < out.scanner.size(); ++i) {
+    const Pose2& p = out.true_path[i].pose;
+    const double platform = kPi * config.scans_per_s * out.scanner[i].t;
+    for (size_t s = 0; s < kScannerSensors; ++s) {
+      const SensorTypeDescription& type = robot.sensor_types.at(robot.scanner.sensors[s].type);
+      const double angle = p.theta + platform + DegToRad(robot.scanner.sensors[s].angle_deg);
+      const Vec2 origin = p.translation() + 0.05 * Vec2(std::cos(angle), std::sin(angle));
+      const std::optional<double> d = RayDistance(world, origin, angle, 10.0);
+      const int raw = out.scanner[i].raw[s];
+      const int floor_raw = type.calibration.back().raw - 15;
+      if (!d || *d > type.calibration.back().distance_m) {
+        EXPECT_EQ(raw, floor_raw);
+        ++floors;
+        continue;
+      }
+      const Vec2 hit = origin + *d * Vec2(std::cos(angle), std::sin(angle));
+      bool at_corner = false;
+      for (const Vec2& c : corners) at_corner = at_corner || (c - hit).norm() <= 0.03;
+      if (at_corner) {
+        EXPECT_EQ(raw, floor_raw);
+        ++holes;
+      } else if (*d < type.calibration.front().distance_m) {
+        // Non-injective zone: reads like something further away (or nothing).
+        const std::optional<double> reads = CalibratedDistance(type.calibration, raw);
+        EXPECT_TRUE(!reads || *reads > *d);
+        ++near;
+      } else {
+        const std::optional<double> reads = CalibratedDistance(type.calibration, raw);
+        ASSERT_TRUE(reads);
+        EXPECT_NEAR(*reads, *d, 0.015 * *d + 0.002);
+        ++in_range;
+      }
+    }
+  }
+  EXPECT_GT(in_range, 1000);
+  EXPECT_GT(holes, 0);
+  EXPECT_GT(floors, 100);
+  EXPECT_GT(near, 0);
+}
+
+TEST(ScenarioTest, SensorNoiseFollowsTheRobotsSigma) {
+  // The long sensors' readings scatter around the truth with about the robot's sigma.
+  ScenarioConfig config = ShortRun(60.0, 6);
+  config.corner_hole_probability = 0.0;
+  const RobotDescription robot = TestRobot();
+  const World world = *BuiltinArena("box");
+  const ScenarioOutput out = RunScenario(world, robot, config);
+  double sum_z2 = 0.0;
+  int n = 0;
+  for (size_t i = 0; i < out.scanner.size(); ++i) {
+    const Pose2& p = out.true_path[i].pose;
+    const double platform = kPi * config.scans_per_s * out.scanner[i].t;
+    for (const size_t s : {size_t{1}, size_t{3}}) {
+      const SensorTypeDescription& type = robot.sensor_types.at("long");
+      const double angle = p.theta + platform + DegToRad(robot.scanner.sensors[s].angle_deg);
+      const Vec2 origin = p.translation() + 0.05 * Vec2(std::cos(angle), std::sin(angle));
+      const std::optional<double> d = RayDistance(world, origin, angle, 10.0);
+      if (!d || *d < 0.3 || *d > 0.9) continue;
+      const std::optional<double> reads =
+          CalibratedDistance(type.calibration, out.scanner[i].raw[s]);
+      ASSERT_TRUE(reads);
+      const double sigma = type.sigma_m[0] + type.sigma_m[2] * *d * *d;
+      sum_z2 += (*reads - *d) * (*reads - *d) / (sigma * sigma);
+      ++n;
+    }
+  }
+  ASSERT_GT(n, 500);
+  const double rms_z = std::sqrt(sum_z2 / n);
+  EXPECT_GT(rms_z, 0.8);  // the ADC's quantisation adds a little
+  EXPECT_LT(rms_z, 1.5);
+}
+
+TEST(ScenarioTest, GroundTruthIsTheTruePathWithTrackerNoise) {
+  const ScenarioOutput out = RunScenario(*BuiltinArena("box"), TestRobot(), ShortRun(10.0, 9));
+  double sum2 = 0.0;
+  int n = 0;
+  for (const TimedPose& g : out.ground_truth) {
+    for (const TimedPose& p : out.true_path) {
+      if (std::abs(p.t - g.t) < 1e-9) {
+        sum2 += (g.pose.translation() - p.pose.translation()).squaredNorm();
+        ++n;
+      }
+    }
+  }
+  ASSERT_GT(n, 100);
+  const double rms = std::sqrt(sum2 / (2 * n));  // per axis
+  EXPECT_GT(rms, 0.0005);
+  EXPECT_LT(rms, 0.002);
+}
+
+TEST(BuildScansTest, HalfTurnsOfFortySamplesWithOdometryPoses) {
+  const RobotDescription robot = TestRobot();
+  const ScenarioOutput out = RunScenario(*BuiltinArena("rooms"), robot, ShortRun(20.0, 11));
+  const std::vector<Scan> scans = BuildScans(robot, out.odometry, out.scanner);
+  // 1201 samples at 40 per half turn: 30 complete scans, the 31st has a single sample.
+  ASSERT_EQ(scans.size(), 30u);
+  const std::vector<TimedPose> odom = DeadReckoning(robot, out.odometry);
+  for (size_t k = 0; k < scans.size(); ++k) {
+    SCOPED_TRACE(k);
+    const Scan& scan = scans[k];
+    EXPECT_EQ(scan.index, static_cast<int64_t>(k));
+    ASSERT_EQ(scan.samples.size(), 40u);
+    EXPECT_DOUBLE_EQ(scan.t_begin, k == 0 ? 0.0 : scans[k - 1].t_end);
+    EXPECT_DOUBLE_EQ(scan.t_end, scan.samples.back().t);
+    EXPECT_DOUBLE_EQ(scan.samples.front().t, static_cast<double>(40 * k) / 60.0);
+    EXPECT_EQ(scan.odom_end.x, scan.samples.back().odom.x);
+    if (k > 0) {
+      EXPECT_EQ(scan.odom_begin.x, scans[k - 1].odom_end.x);
+    }
+    // Half a turn: platform angles span [0, 180) or [180, 360) degrees.
+    const double first = RadToDeg(scan.samples.front().platform_angle_rad);
+    const double last = RadToDeg(scan.samples.back().platform_angle_rad);
+    EXPECT_NEAR(first, k % 2 == 0 ? 0.0 : 180.0, 0.01);
+    EXPECT_NEAR(last, k % 2 == 0 ? 175.5 : 355.5, 0.01);
+    for (size_t i = 0; i < scan.samples.size(); ++i) {
+      const ScanSample& sample = scan.samples[i];
+      EXPECT_EQ(sample.raw, out.scanner[40 * k + i].raw);
+      // Samples at odometry times carry exactly the dead-reckoned pose.
+      if (std::fmod(sample.t * 10.0, 1.0) < 1e-6) {
+        const Pose2 expected = At(odom, sample.t);
+        EXPECT_NEAR(sample.odom.x, expected.x, 1e-9);
+        EXPECT_NEAR(sample.odom.theta, expected.theta, 1e-9);
+      }
+    }
+  }
+  EXPECT_EQ(scans.front().odom_begin.x, 0.0);
+  EXPECT_EQ(scans.front().odom_begin.theta, 0.0);
+}
+
+TEST(BuildScansTest, InterpolatesBetweenOdometryReadings) {
+  RobotDescription robot = TestRobot();
+  // Straight line along x at 0.1 m/s: 1137.5 ticks per second per treel, no rotation.
+  std::vector<OdometryReading> odometry;
+  for (int i = 0; i <= 10; ++i) {
+    OdometryReading r;
+    r.t = 0.5 + 0.1 * i;
+    const int64_t ticks = int64_t{2147483000} + std::llround(113.75 * i);  // wraps past 2^31
+    r.left_ticks = r.right_ticks = static_cast<int32_t>(static_cast<uint32_t>(ticks));
+    odometry.push_back(r);
+  }
+  std::vector<ScannerReading> scanner;
+  for (int i = 0; i < 50; ++i) {
+    ScannerReading r;
+    r.t = 0.46 + 0.025 * i;  // starts before the odometry, ends after it
+    r.angle_raw = static_cast<uint16_t>((65536 - 8000 + 4000 * i) % 65536);  // wraps around
+    scanner.push_back(r);
+  }
+  const std::vector<Scan> scans = BuildScans(robot, odometry, scanner);
+  // The 40 samples within [0.5, 1.5] s turn by 4000 raw units each: half turns (32768 units)
+  // of 9, 8, 8, 8 samples, then an incomplete one that is left out.
+  ASSERT_EQ(scans.size(), 4u);
+  EXPECT_DOUBLE_EQ(scans[0].t_begin, 0.51);
+  EXPECT_EQ(scans[0].samples.size(), 9u);
+  for (size_t k = 1; k < 4; ++k) EXPECT_EQ(scans[k].samples.size(), 8u);
+  EXPECT_DOUBLE_EQ(scans[1].t_begin, scans[0].t_end);
+  for (const Scan& scan : scans) {
+    for (const ScanSample& s : scan.samples) {
+      EXPECT_NEAR(s.odom.x, 0.1 * (s.t - 0.5), 1e-4);  // through the counters' wrap
+      EXPECT_NEAR(s.odom.y, 0.0, 1e-12);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace slam::sim
