@@ -16,7 +16,12 @@ inline constexpr int kRawValues = 1024;  // 10-bit ADC
 
 /// How a valid reading changes the grid (natural log odds, paper Fig. 7).
 struct UpdateModelConfig {
-  double free_logodds = -0.4;      // added to cells crossed before the measured distance
+  // Symmetric on purpose: a cell just in front of a surface is crossed by the long readings
+  // and hit by the short ones. With |free| < occupied it ends occupied as soon as more than
+  // |free| / (|free| + occupied) of the readings fall short, which thickens walls towards the
+  // sensor by about half a reading's sigma and biases matching; symmetric weights put that
+  // threshold at one half, where noise cancels.
+  double free_logodds = -0.85;     // added to cells crossed before the measured distance
   double occupied_logodds = 0.85;  // added to the cell holding the measured point and behind it
   /// Depth of the occupied band behind the measured point:
   /// max(occupied_depth_cells * resolution, occupied_sigma_factor * sigma(d)).
