@@ -368,7 +368,8 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
     auto chunk = std::make_shared<TrajectoryChunk>();
     chunk->poses.reserve(scan.samples.size() + 1);
     for (size_t i = 0; i < scan.samples.size(); ++i) {
-      chunk->poses.push_back({scan.samples[i].t, path.SamplePose(i, correction)});
+      // A sample at the scan's start is the previous end pose, already in the history.
+      if (scan.samples[i].t > scan.t_begin) chunk->poses.push_back({scan.samples[i].t, path.SamplePose(i, correction)});
     }
     if (chunk->poses.empty() || chunk->poses.back().t < scan.t_end) chunk->poses.push_back({scan.t_end, chosen[p]});
     chunk->parent = std::move(particle.history);

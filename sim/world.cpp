@@ -1,10 +1,9 @@
 #include "sim/world.hpp"
 
-#include <fcntl.h>
-#include <unistd.h>
+#include "engine/io/atomic_file.hpp"
+
 
 #include <algorithm>
-#include <atomic>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -103,37 +102,6 @@ std::optional<std::vector<double>> ReadNumbers(const Json& value, size_t n,
   return numbers;
 }
 
-/// Writes `text` to `path` through a temporary file in the same directory and a rename.
-std::optional<std::string> WriteFileAtomic(const std::string& path, const std::string& text) {
-  static std::atomic<uint64_t> counter{0};
-  const std::string tmp =
-      path + ".tmp." + std::to_string(getpid()) + "." + std::to_string(counter.fetch_add(1));
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) return "cannot create " + tmp + ": " + std::strerror(errno);
-  size_t written = 0;
-  while (written < text.size()) {
-    const ssize_t n = ::write(fd, text.data() + written, text.size() - written);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      const std::string error = "cannot write " + tmp + ": " + std::strerror(errno);
-      ::close(fd);
-      ::unlink(tmp.c_str());
-      return error;
-    }
-    written += static_cast<size_t>(n);
-  }
-  if (::fsync(fd) != 0 || ::close(fd) != 0) {
-    const std::string error = "cannot write " + tmp + ": " + std::strerror(errno);
-    ::unlink(tmp.c_str());
-    return error;
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    const std::string error = "cannot rename " + tmp + " to " + path + ": " + std::strerror(errno);
-    ::unlink(tmp.c_str());
-    return error;
-  }
-  return std::nullopt;
-}
 
 /// Appends the four walls of an axis-aligned rectangle (counter-clockwise).
 void AddRectangle(World& world, double x0, double y0, double x1, double y1) {
@@ -376,7 +344,7 @@ std::string WorldToJson(const World& world) {
 }
 
 std::optional<std::string> SaveWorld(const std::string& path, const World& world) {
-  return WriteFileAtomic(path, WorldToJson(world));
+  return io::WriteFileAtomic(path, WorldToJson(world));
 }
 
 std::vector<std::string> BuiltinArenaNames() { return {"box", "rooms", "cluttered"}; }

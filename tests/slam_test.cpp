@@ -278,7 +278,9 @@ TEST(EndToEnd, SlamBeatsOdometryOnlyOnASimulatedRun) {
   const auto [odometry, odo_rays] = RunSlam(run, params, SlamConfig{}, 16250, false);
   EXPECT_GT(rays.matching, 0);
   EXPECT_EQ(odo_rays.matching, 0);
-  const auto q_slam = EvaluateTrajectory(slam.Trajectory(), run.truth);
+  const std::vector<TimedPose> trajectory = slam.Trajectory();
+  for (size_t i = 1; i < trajectory.size(); ++i) ASSERT_GT(trajectory[i].t, trajectory[i - 1].t) << i;
+  const auto q_slam = EvaluateTrajectory(trajectory, run.truth);
   const auto q_odo = EvaluateTrajectory(odometry.Trajectory(), run.truth);
   ASSERT_TRUE(q_slam && q_odo);
   RecordProperty("ate_slam_m", std::to_string(q_slam->ate_rmse_m));

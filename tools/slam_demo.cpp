@@ -18,6 +18,7 @@
 #include <string_view>
 #include <vector>
 
+#include "engine/io/atomic_file.hpp"
 #include "engine/io/map_image.hpp"
 #include "engine/io/params_json.hpp"
 #include "engine/io/robot_json.hpp"

@@ -1,18 +1,15 @@
 #include "engine/io/map_image.hpp"
 
-#include <fcntl.h>
+#include "engine/io/atomic_file.hpp"
+
 #include <png.h>
-#include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
-#include <cerrno>
 #include <charconv>
 #include <climits>
 #include <cmath>
 #include <csetjmp>
 #include <cstdio>
-#include <cstring>
 
 #include "engine/cell_encoding.hpp"
 #include "engine/grid_geometry.hpp"
@@ -340,43 +337,6 @@ PngBytes EncodePng(const RgbImage& image) {
 
 PngBytes EncodeGrayPng(int width, int height, const std::vector<uint8_t>& gray) {
   return Encode(width, height, PNG_COLOR_TYPE_GRAY, 1, gray.data(), gray.size());
-}
-
-std::optional<std::string> WriteFileAtomic(const std::string& path, const std::string& bytes) {
-  static std::atomic<uint64_t> counter{0};
-  const std::string tmp =
-      path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(counter.fetch_add(1));
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) return "cannot create " + tmp + ": " + std::strerror(errno);
-  size_t written = 0;
-  while (written < bytes.size()) {
-    const ssize_t n = ::write(fd, bytes.data() + written, bytes.size() - written);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      const std::string error = "cannot write " + tmp + ": " + std::strerror(errno);
-      ::close(fd);
-      ::unlink(tmp.c_str());
-      return error;
-    }
-    written += static_cast<size_t>(n);
-  }
-  if (::fsync(fd) != 0) {
-    const std::string error = "cannot write " + tmp + ": " + std::strerror(errno);
-    ::close(fd);
-    ::unlink(tmp.c_str());
-    return error;
-  }
-  if (::close(fd) != 0) {
-    const std::string error = "cannot write " + tmp + ": " + std::strerror(errno);
-    ::unlink(tmp.c_str());
-    return error;
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    const std::string error = "cannot rename " + tmp + " to " + path + ": " + std::strerror(errno);
-    ::unlink(tmp.c_str());
-    return error;
-  }
-  return std::nullopt;
 }
 
 std::optional<std::string> WritePgm(const std::string& path, const GridImage& image) {

@@ -60,11 +60,6 @@ PngBytes EncodePng(const RgbImage& image);
 /// Encodes an 8-bit grey image (width * height bytes, row 0 at the top) as a grey PNG.
 PngBytes EncodeGrayPng(int width, int height, const std::vector<uint8_t>& gray);
 
-/// Writes `bytes` to `path` atomically (temporary file in the same directory, then rename);
-/// nullopt on success, else why nothing was written.
-[[nodiscard]] std::optional<std::string> WriteFileAtomic(const std::string& path,
-                                                         const std::string& bytes);
-
 /// Writes a grid image as a binary PGM file, atomically; nullopt on success, else the error.
 [[nodiscard]] std::optional<std::string> WritePgm(const std::string& path, const GridImage& image);
 
