@@ -1,6 +1,7 @@
 #include "sim/world.hpp"
 
 #include "engine/io/atomic_file.hpp"
+#include "engine/io/json_reader.hpp"
 
 
 #include <algorithm>
@@ -59,21 +60,6 @@ std::optional<double> RayCircle(const Vec2& origin, const Vec2& d, const Circle&
   const double t = -b - std::sqrt(disc);
   if (t < 0.0) return std::nullopt;
   return t;
-}
-
-/// Escapes a key for use in a JSON pointer (RFC 6901).
-std::string EscapePointerToken(const std::string& key) {
-  std::string out;
-  for (const char c : key) {
-    if (c == '~') {
-      out += "~0";
-    } else if (c == '/') {
-      out += "~1";
-    } else {
-      out += c;
-    }
-  }
-  return out;
 }
 
 std::string Pointer(std::string_view base, size_t index) {
@@ -255,7 +241,7 @@ WorldLoadResult ParseWorld(std::string_view json_text, std::string_view source) 
   World world;
   for (const auto& [key, value] : doc.items()) {
     if (key != "name" && key != "bounds" && key != "segments" && key != "circles") {
-      errors.push_back("/" + EscapePointerToken(key) + ": unknown key");
+      errors.push_back(io::detail::Child("", key) + ": unknown key");
     }
   }
   if (!doc.contains("name")) {
