@@ -13,43 +13,15 @@
 #include "engine/sensor_model.hpp"
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
+#include "test_support.hpp"
 
 namespace slam::sim {
 namespace {
 
 constexpr double kTol = 1e-12;
 
-/// A marXbot description with calibration tables from the Sharp curves of notes/sensors.md
-/// (built here so that these tests do not depend on JSON parsing).
-RobotDescription TestRobot() {
-  RobotDescription robot;
-  robot.name = "test";
-  robot.scanner.sensors = {{"short", 0.0}, {"long", 90.0}, {"short", 180.0}, {"long", 270.0}};
-  const auto table = [](double a, double b, double d0_cm, double d1_cm, double step_cm) {
-    std::vector<CalibrationPoint> points;
-    for (double d = d0_cm; d <= d1_cm + 1e-9; d += step_cm) {
-      const double volts = 5.0 * (a / d + b);
-      points.push_back({static_cast<int>(std::lround(volts / 3.3 * 1023.0)), d / 100.0});
-    }
-    return points;
-  };
-  SensorTypeDescription short_type;
-  short_type.model = "GP2Y3A001K0F";
-  short_type.range_min_m = 0.04;
-  short_type.range_max_m = 0.30;
-  short_type.use_min_m = 0.0;
-  short_type.use_max_m = 0.35;
-  short_type.calibration = table(2.076, 0.011, 4.0, 35.0, 1.0);
-  SensorTypeDescription long_type;
-  long_type.model = "GP2Y3A002K0F";
-  long_type.range_min_m = 0.20;
-  long_type.range_max_m = 1.50;
-  long_type.use_min_m = 0.35;
-  long_type.use_max_m = 1.0;
-  long_type.calibration = table(9.462, 0.01692, 20.0, 150.0, 5.0);
-  robot.sensor_types = {{"short", short_type}, {"long", long_type}};
-  return robot;
-}
+/// The marXbot description the project ships.
+RobotDescription TestRobot() { return testing::ShippedRobot(); }
 
 World OneWall() {
   World world;

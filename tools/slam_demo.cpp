@@ -213,15 +213,11 @@ Json RunJson(const RunResult& run, size_t scans, double duration_s) {
   return j;
 }
 
-/// The trajectory in TUM format: "t x y z qx qy qz qw", one pose per line; poses that do not
-/// advance in time (the start pose repeated by the first sample) are left out.
+/// The trajectory in TUM format: "t x y z qx qy qz qw", one pose per line.
 std::string TumText(const std::vector<slam::TimedPose>& trajectory) {
   std::string text;
   char line[160];
-  std::optional<double> last_t;
   for (const slam::TimedPose& p : trajectory) {
-    if (last_t && p.t <= *last_t) continue;
-    last_t = p.t;
     std::snprintf(line, sizeof(line), "%.6f %.6f %.6f 0 0 0 %.9f %.9f\n", p.t, p.pose.x, p.pose.y,
                   std::sin(p.pose.theta / 2.0), std::cos(p.pose.theta / 2.0));
     text += line;
