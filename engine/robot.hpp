@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <variant>
 #include <vector>
 
 #include "engine/config_error.hpp"
@@ -70,6 +71,8 @@ struct OdometryReading {
   int32_t left_ticks = 0;
   int32_t right_ticks = 0;
   int16_t gyro_raw = 0;  // z rate, counter-clockwise positive, in gyro units
+
+  friend bool operator==(const OdometryReading&, const OdometryReading&) = default;
 };
 
 /// Scanner event: platform angle and the raw readings of the four sensors.
@@ -79,6 +82,16 @@ struct ScannerReading {
   uint16_t angle_raw = 0;  // 65536 = 360 degrees, counter-clockwise from the robot's forward axis
   std::array<uint16_t, kScannerSensors> raw{};
   uint16_t rectifier_mv = 0;
+
+  friend bool operator==(const ScannerReading&, const ScannerReading&) = default;
 };
+
+/// One event from the robot, as the link decodes it.
+using RobotEvent = std::variant<OdometryReading, ScannerReading>;
+
+/// The event's time (seconds).
+inline double EventTime(const RobotEvent& event) {
+  return std::visit([](const auto& reading) { return reading.t; }, event);
+}
 
 }  // namespace slam

@@ -9,6 +9,7 @@
 #include "engine/odometry.hpp"
 #include "engine/quality.hpp"
 #include "engine/random.hpp"
+#include "engine/scan_assembler.hpp"
 #include "engine/sensor_model.hpp"
 
 namespace slam::sim {
@@ -391,54 +392,27 @@ std::vector<TimedPose> DeadReckoning(const RobotDescription& robot,
   return path;
 }
 
+std::vector<RobotEvent> MergeEvents(const std::vector<OdometryReading>& odometry,
+                                    const std::vector<ScannerReading>& scanner) {
+  std::vector<RobotEvent> events;
+  events.reserve(odometry.size() + scanner.size());
+  size_t o = 0, s = 0;
+  while (o < odometry.size() || s < scanner.size()) {
+    if (s == scanner.size() || (o < odometry.size() && odometry[o].t <= scanner[s].t)) {
+      events.emplace_back(odometry[o++]);
+    } else {
+      events.emplace_back(scanner[s++]);
+    }
+  }
+  return events;
+}
+
 std::vector<Scan> BuildScans(const RobotDescription& robot,
                              const std::vector<OdometryReading>& odometry,
                              const std::vector<ScannerReading>& scanner) {
-  const std::vector<TimedPose> path = DeadReckoning(robot, odometry);
+  ScanAssembler assembler(robot);
   std::vector<Scan> scans;
-  std::optional<Scan> current;
-  int64_t progress = 0;  // platform rotation since the first sample, raw units
-  int64_t half_turn = 0;
-  std::optional<uint16_t> previous_angle;
-  for (const ScannerReading& r : scanner) {
-    const std::optional<Pose2> odom = PoseAt(path, r.t);
-    if (!odom) {
-      if (current) break;  // past the end of the odometry
-      continue;            // before its start
-    }
-    if (previous_angle) {
-      int64_t delta = (int64_t{r.angle_raw} - *previous_angle) & (kFullTurnRaw - 1);
-      if (delta >= kHalfTurnRaw) delta -= kFullTurnRaw;
-      progress += delta;
-    }
-    previous_angle = r.angle_raw;
-    const int64_t h = std::abs(progress) / kHalfTurnRaw;
-    if (current && h != half_turn) {
-      const double t_end = current->t_end;
-      const Pose2 odom_end = current->odom_end;
-      scans.push_back(std::move(*current));
-      current.reset();
-      current.emplace();
-      current->index = static_cast<int64_t>(scans.size());
-      current->t_begin = t_end;
-      current->odom_begin = odom_end;
-    }
-    if (!current) {
-      current.emplace();
-      current->index = 0;
-      current->t_begin = r.t;
-      current->odom_begin = *odom;
-    }
-    half_turn = h;
-    ScanSample sample;
-    sample.t = r.t;
-    sample.odom = *odom;
-    sample.platform_angle_rad = static_cast<double>(r.angle_raw) * 2.0 * kPi / kFullTurnRaw;
-    sample.raw = r.raw;
-    current->samples.push_back(sample);
-    current->t_end = r.t;
-    current->odom_end = *odom;
-  }
+  for (const RobotEvent& event : MergeEvents(odometry, scanner)) assembler.Add(event, scans);
   return scans;
 }
 

@@ -67,9 +67,12 @@ struct ScenarioOutput {
 ScenarioOutput RunScenario(const World& world, const RobotDescription& robot,
                            const ScenarioConfig& config);
 
-/// Groups scanner samples into scans of half a platform turn, counted from the first sample
-/// (index from 0; the first scan's t_begin is the first sample's time), and poses every sample
-/// by dead reckoning (slam::OdometryIntegrator, interpolated at the sample's time). Samples
+/// Both streams as one, in time order (odometry first at equal times).
+std::vector<RobotEvent> MergeEvents(const std::vector<OdometryReading>& odometry,
+                                    const std::vector<ScannerReading>& scanner);
+
+/// The scans a slam::ScanAssembler makes of these readings (fed in time order): half platform
+/// turns counted from the first posed sample, every sample posed by dead reckoning. Samples
 /// outside the odometry's time span and a trailing incomplete half turn are left out.
 std::vector<Scan> BuildScans(const RobotDescription& robot,
                              const std::vector<OdometryReading>& odometry,
