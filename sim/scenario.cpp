@@ -2,7 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <array>
 #include <cstdlib>
+#include <memory>
 #include <limits>
 #include <optional>
 
@@ -24,6 +26,7 @@ enum Stream : uint64_t {
   kStreamSensors = 5,
   kStreamTracker = 6,
   kStreamTicks = 7,
+  kStreamRectifier = 8,
 };
 
 constexpr double kControlDt = 0.01;       // the motion is a constant twist over each step
@@ -32,10 +35,14 @@ constexpr double kMaxAccel = 0.6;         // m/s^2
 constexpr double kMaxAngularAccel = 8.0;  // rad/s^2
 constexpr double kWanderSigma = 0.35;     // rad/s, gentle random turns while cruising
 constexpr double kWanderCorrelationS = 2.0;
-constexpr double kStopGapM = 0.06;   // start turning when the free gap ahead is below this
-constexpr double kGoGapM = 0.25;     // resume cruising when the gap ahead exceeds this
-constexpr double kLookAheadM = 1.0;  // rays of the avoidance behaviour
+constexpr int kProximitySensors = 24;   // the base's infrared proximity ring
+constexpr double kProximityRangeM = 0.15;
+constexpr double kProximityNoiseM = 0.003;
+constexpr double kStopGapM = 0.05;  // start turning when the free gap ahead is below this
+constexpr double kGoGapM = 0.14;    // resume cruising when the gap ahead exceeds this
 constexpr int kRawMax = 1023;
+constexpr double kRectifierMv = 6500.0;  // the scanner's supply after its rectifier
+constexpr double kRectifierNoiseMv = 15.0;
 constexpr int64_t kFullTurnRaw = 65536;
 constexpr int64_t kHalfTurnRaw = 32768;
 
@@ -85,29 +92,25 @@ World MotionWorld(const World& world) {
   return out;
 }
 
-/// Free gap between the robot's disc and the first obstacle straight ahead (rays from five
-/// points across the robot's width, parallel to its heading).
-double FreeGapAhead(const World& world, const Pose2& pose, double radius) {
-  double gap = kLookAheadM;
-  for (const double f : {-1.0, -0.5, 0.0, 0.5, 1.0}) {
-    const double offset = 0.98 * f * radius;
-    const Vec2 from = pose.Transform({0.0, offset});
-    const double body = std::sqrt(radius * radius - offset * offset);
-    if (const auto d = RayDistance(world, from, pose.theta, kLookAheadM + radius)) {
-      gap = std::min(gap, *d - body);
-    }
+/// The 24 infrared proximity sensors around the base: distance from the body's edge to the
+/// first obstacle along each sensor's direction (every 15 degrees, the first straight ahead),
+/// capped at their range, with a little noise.
+std::array<double, kProximitySensors> Proximity(const World& world, const Pose2& pose,
+                                               double radius, Rng& rng) {
+  std::array<double, kProximitySensors> out{};
+  for (int i = 0; i < kProximitySensors; ++i) {
+    const double angle = pose.theta + 2.0 * kPi * i / kProximitySensors;
+    const Vec2 from = pose.translation() + radius * Vec2(std::cos(angle), std::sin(angle));
+    const double d = RayDistance(world, from, angle, kProximityRangeM).value_or(kProximityRangeM);
+    out[static_cast<size_t>(i)] =
+        std::clamp(d + rng.Gaussian(kProximityNoiseM), 0.0, kProximityRangeM);
   }
-  return gap;
+  return out;
 }
 
-/// Free distance from the robot's centre along a direction relative to its heading.
-double SpaceToward(const World& world, const Pose2& pose, double relative_angle) {
-  return RayDistance(world, pose.translation(), pose.theta + relative_angle, kLookAheadM)
-      .value_or(kLookAheadM);
-}
-
-/// The obstacle-avoiding wander behaviour: cruise with gentle random turns, turn in place away
-/// from obstacles ahead. Produces the commanded twist for each control step.
+/// The obstacle-avoiding wander behaviour, driven by the proximity sensors only: cruise with
+/// gentle random turns, steer away from obstacles at the sides, turn in place away from
+/// obstacles ahead. Produces the commanded twist for each control step.
 class Wanderer {
  public:
   Wanderer(const ScenarioConfig& config, Rng rng)
@@ -117,11 +120,13 @@ class Wanderer {
   std::pair<double, double> Command(const World& world, const Pose2& pose) {
     wander_.Step(rng_);
     mode_time_ += kControlDt;
-    const double gap = FreeGapAhead(world, pose, config_.robot_radius_m);
-    const double left = SpaceToward(world, pose, DegToRad(60.0));
-    const double right = SpaceToward(world, pose, DegToRad(-60.0));
-    if (!turning_ && gap < kStopGapM) StartTurn(left, right);
-    if (turning_ && mode_time_ >= turn_min_s_ && gap > kGoGapM) {
+    const auto prox = Proximity(world, pose, config_.robot_radius_m, rng_);
+    // Sensors 22, 23, 0, 1, 2 look ahead (within 30 degrees); 3..6 left, 18..21 right.
+    const double ahead = std::min({prox[22], prox[23], prox[0], prox[1], prox[2]});
+    const double left = std::min({prox[3], prox[4], prox[5], prox[6]});
+    const double right = std::min({prox[18], prox[19], prox[20], prox[21]});
+    if (!turning_ && ahead < kStopGapM) StartTurn(left, right);
+    if (turning_ && mode_time_ >= turn_min_s_ && ahead > kGoGapM) {
       turning_ = false;
       mode_time_ = 0.0;
     }
@@ -129,9 +134,9 @@ class Wanderer {
     if (turning_) {
       target_w = turn_dir_ * config_.turn_rate_rad_s;
     } else {
-      target_v = config_.speed_m_s * std::clamp((gap - kStopGapM) / 0.25, 0.3, 1.0);
-      target_w = wander_.value();
-      if (std::min(left, right) < 0.35) target_w += std::clamp(1.5 * (left - right), -0.8, 0.8);
+      target_v = config_.speed_m_s * std::clamp((ahead - kStopGapM) / (kGoGapM - kStopGapM),
+                                                0.3, 1.0);
+      target_w = wander_.value() + std::clamp(8.0 * (left - right), -0.8, 0.8);
     }
     v_ += std::clamp(target_v - v_, -kMaxAccel * kControlDt, kMaxAccel * kControlDt);
     w_ += std::clamp(target_w - w_, -kMaxAngularAccel * kControlDt, kMaxAngularAccel * kControlDt);
@@ -142,8 +147,8 @@ class Wanderer {
   void Blocked(const World& world, const Pose2& pose) {
     v_ = 0.0;
     if (!turning_) {
-      StartTurn(SpaceToward(world, pose, DegToRad(60.0)),
-                SpaceToward(world, pose, DegToRad(-60.0)));
+      const auto prox = Proximity(world, pose, config_.robot_radius_m, rng_);
+      StartTurn(prox[3] + prox[4] + prox[5], prox[19] + prox[20] + prox[21]);
     }
   }
 
@@ -151,7 +156,7 @@ class Wanderer {
   void StartTurn(double left, double right) {
     turning_ = true;
     mode_time_ = 0.0;
-    turn_dir_ = std::abs(left - right) > 0.02 ? (left > right ? 1.0 : -1.0)
+    turn_dir_ = std::abs(left - right) > 0.01 ? (left > right ? 1.0 : -1.0)
                                               : (rng_.Uniform() < 0.5 ? 1.0 : -1.0);
     turn_min_s_ = 0.3 + 1.2 * rng_.Uniform();
   }
@@ -248,6 +253,7 @@ std::vector<std::string> ScenarioConfig::Validate() const {
   non_negative(translation_slip_ratio, "translation_slip_ratio");
   non_negative(rotation_slip_ratio, "rotation_slip_ratio");
   positive(slip_correlation_s, "slip_correlation_s");
+  non_negative(accel_slip_s, "accel_slip_s");
   non_negative(gyro_noise_dps, "gyro_noise_dps");
   non_negative(gyro_bias_dps, "gyro_bias_dps");
   positive(gyro_bias_walk_s, "gyro_bias_walk_s");
@@ -266,120 +272,174 @@ std::vector<std::string> ScenarioConfig::Validate() const {
   return errors;
 }
 
-ScenarioOutput RunScenario(const World& world, const RobotDescription& robot,
-                           const ScenarioConfig& config) {
-  const World motion_world = MotionWorld(world);
-  const std::vector<Vec2> corners = Corners(world);
+/// Everything the simulation carries from one control step to the next.
+struct Simulator::State {
+  State(const World& world_in, const RobotDescription& r, const ScenarioConfig& c)
+      : world(world_in),
+        robot(r),
+        config(c),
+        motion_world(MotionWorld(world_in)),
+        corners(Corners(world_in)),
+        slip_rng(Rng::ForStream(c.seed, kStreamSlip)),
+        gyro_rng(Rng::ForStream(c.seed, kStreamGyro)),
+        sensor_rng(Rng::ForStream(c.seed, kStreamSensors)),
+        tracker_rng(Rng::ForStream(c.seed, kStreamTracker)),
+        ticks_rng(Rng::ForStream(c.seed, kStreamTicks)),
+        rectifier_rng(Rng::ForStream(c.seed, kStreamRectifier)),
+        wanderer(c, Rng::ForStream(c.seed, kStreamWander)),
+        slip_t(c.translation_slip_ratio, c.slip_correlation_s, kControlDt, slip_rng),
+        slip_turn(c.translation_slip_ratio, c.slip_correlation_s, kControlDt, slip_rng),
+        slip_r(c.rotation_slip_ratio, c.slip_correlation_s, kControlDt, slip_rng),
+        bias(gyro_rng.Gaussian(DegToRad(c.gyro_bias_dps))),
+        bias_step(DegToRad(c.gyro_bias_dps) * std::sqrt(kControlDt / c.gyro_bias_walk_s)),
+        left_offset(static_cast<int32_t>(static_cast<uint32_t>(ticks_rng.Next()))),
+        right_offset(static_cast<int32_t>(static_cast<uint32_t>(ticks_rng.Next()))),
+        pose(StartPose(motion_world, c, Rng::ForStream(c.seed, kStreamStart))),
+        last_gyro_theta(pose.theta) {}
+
+  World world;
+  RobotDescription robot;
+  ScenarioConfig config;
+  World motion_world;
+  std::vector<Vec2> corners;
+  Rng slip_rng, gyro_rng, sensor_rng, tracker_rng, ticks_rng, rectifier_rng;
+  Wanderer wanderer;
+  GaussMarkov slip_t, slip_turn, slip_r;
+  double bias;
+  double bias_step;
+  int64_t left_offset, right_offset;
+  Pose2 pose;  // at the start of the current control step (theta unwrapped)
+  double v = 0.0, w = 0.0;  // the previous step's twist, for the accelerations
+  double left_m = 0.0, right_m = 0.0;  // distances the encoders report
+  int64_t step = 0;
+  int64_t next_odometry = 0, next_sample = 0, next_tracker = 0;
+  double last_gyro_t = 0.0;
+  double last_gyro_theta;
+};
+
+Simulator::Simulator(const World& world, const RobotDescription& robot,
+                     const ScenarioConfig& config)
+    : state_(std::make_unique<State>(world, robot, config)) {}
+
+Simulator::~Simulator() = default;
+Simulator::Simulator(Simulator&&) noexcept = default;
+Simulator& Simulator::operator=(Simulator&&) noexcept = default;
+
+double Simulator::time() const { return static_cast<double>(state_->step) * kControlDt; }
+
+Pose2 Simulator::pose() const { return Normalized(state_->pose); }
+
+void Simulator::Step(ScenarioOutput& out) {
+  State& st = *state_;
+  const ScenarioConfig& config = st.config;
+  const RobotDescription& robot = st.robot;
   const double min_clearance = config.robot_radius_m + kSafetyMarginM;
   const double half_track = robot.base.track_width_m / 2.0;
   const double sample_rate = robot.scanner.sample_rate_hz;
+  const double t0 = static_cast<double>(st.step) * kControlDt;
+  const double t1 = static_cast<double>(st.step + 1) * kControlDt;
+  const Pose2 pose = st.pose;
 
-  Rng slip_rng = Rng::ForStream(config.seed, kStreamSlip);
-  Rng gyro_rng = Rng::ForStream(config.seed, kStreamGyro);
-  Rng sensor_rng = Rng::ForStream(config.seed, kStreamSensors);
-  Rng tracker_rng = Rng::ForStream(config.seed, kStreamTracker);
-  Rng ticks_rng = Rng::ForStream(config.seed, kStreamTicks);
-  Wanderer wanderer(config, Rng::ForStream(config.seed, kStreamWander));
-  GaussMarkov slip_t(config.translation_slip_ratio, config.slip_correlation_s, kControlDt,
-                     slip_rng);
-  GaussMarkov slip_turn(config.translation_slip_ratio, config.slip_correlation_s, kControlDt,
-                        slip_rng);
-  GaussMarkov slip_r(config.rotation_slip_ratio, config.slip_correlation_s, kControlDt, slip_rng);
-  double bias = gyro_rng.Gaussian(DegToRad(config.gyro_bias_dps));
-  const double bias_step =
-      DegToRad(config.gyro_bias_dps) * std::sqrt(kControlDt / config.gyro_bias_walk_s);
-  const int64_t left_offset = static_cast<int32_t>(static_cast<uint32_t>(ticks_rng.Next()));
-  const int64_t right_offset = static_cast<int32_t>(static_cast<uint32_t>(ticks_rng.Next()));
-
-  // Motion state at the start of the current control step (theta unwrapped).
-  Pose2 pose = StartPose(motion_world, config, Rng::ForStream(config.seed, kStreamStart));
-  double left_m = 0.0, right_m = 0.0;  // distances the encoders report
-
-  ScenarioOutput out;
-  int64_t next_odometry = 0, next_sample = 0, next_tracker = 0;
-  double last_gyro_t = 0.0, last_gyro_theta = pose.theta;
-  const auto steps = static_cast<int64_t>(std::ceil(config.duration_s / kControlDt)) + 1;
-  for (int64_t k = 0; k < steps; ++k) {
-    const double t0 = static_cast<double>(k) * kControlDt;
-    const double t1 = static_cast<double>(k + 1) * kControlDt;
-    auto [v, w] = wanderer.Command(motion_world, pose);
-    Pose2 next = Advance(pose, v, w, kControlDt);
-    const double clearance_next = ClearanceAt(motion_world, next.translation());
-    if (clearance_next < min_clearance &&
-        clearance_next < ClearanceAt(motion_world, pose.translation())) {
-      wanderer.Blocked(motion_world, pose);
-      v = 0.0;
-      next = Advance(pose, v, w, kControlDt);
-    }
-    slip_t.Step(slip_rng);
-    slip_turn.Step(slip_rng);
-    slip_r.Step(slip_rng);
-    bias += gyro_rng.Gaussian(bias_step);
-    // What the encoders see: translation and rotation with slip, plus spurious translation
-    // when the treels skid while turning.
-    const double v_enc = v * (1.0 + slip_t.value()) + slip_turn.value() * std::abs(w) * half_track;
-    const double w_enc = w * (1.0 + slip_r.value());
-    const double left_rate = v_enc - w_enc * half_track;
-    const double right_rate = v_enc + w_enc * half_track;
-
-    const auto in_step = [&](int64_t n, double rate) {
-      const double t = static_cast<double>(n) / rate;
-      return t < t1 && t <= config.duration_s + 1e-9;
-    };
-    while (in_step(next_odometry, config.odometry_rate_hz)) {
-      const double t = static_cast<double>(next_odometry) / config.odometry_rate_hz;
-      const Pose2 p = Advance(pose, v, w, t - t0);
-      // The gyro reports its mean rate since the previous reading (plus bias and noise).
-      const double rate = next_odometry == 0 ? w : (p.theta - last_gyro_theta) / (t - last_gyro_t);
-      const double measured = rate + bias + gyro_rng.Gaussian(DegToRad(config.gyro_noise_dps));
-      const double gyro_units = RadToDeg(measured) / robot.base.gyro_unit_dps;
-      OdometryReading r;
-      r.t = t;
-      r.seq = static_cast<uint16_t>(next_odometry & 0xFFFF);
-      r.left_ticks = WrapTicks(
-          left_offset + std::llround((left_m + left_rate * (t - t0)) * robot.base.ticks_per_m));
-      r.right_ticks = WrapTicks(
-          right_offset + std::llround((right_m + right_rate * (t - t0)) * robot.base.ticks_per_m));
-      r.gyro_raw = static_cast<int16_t>(std::clamp(std::lround(gyro_units), -32768L, 32767L));
-      out.odometry.push_back(r);
-      last_gyro_t = t;
-      last_gyro_theta = p.theta;
-      ++next_odometry;
-    }
-    while (in_step(next_sample, sample_rate)) {
-      const double t = static_cast<double>(next_sample) / sample_rate;
-      const Pose2 p = Advance(pose, v, w, t - t0);
-      const double platform = kPi * config.scans_per_s * t;
-      ScannerReading r;
-      r.t = t;
-      r.seq = static_cast<uint16_t>(next_sample & 0xFFFF);
-      const int64_t angle_raw = std::llround(platform / (2.0 * kPi) * kFullTurnRaw);
-      r.angle_raw = static_cast<uint16_t>(angle_raw & (kFullTurnRaw - 1));
-      for (size_t s = 0; s < robot.scanner.sensors.size() && s < kScannerSensors; ++s) {
-        const ScannerSensor& sensor = robot.scanner.sensors[s];
-        const double angle = p.theta + platform + DegToRad(sensor.angle_deg);
-        const Vec2 origin =
-            p.translation() + robot.scanner.mount_radius_m * Vec2(std::cos(angle), std::sin(angle));
-        r.raw[s] = SenseRaw(world, corners, robot.sensor_types.at(sensor.type), config, origin,
-                            angle, sensor_rng);
-      }
-      out.scanner.push_back(r);
-      out.true_path.push_back({t, Normalized(p)});
-      ++next_sample;
-    }
-    while (in_step(next_tracker, config.tracker_rate_hz)) {
-      const double t = static_cast<double>(next_tracker) / config.tracker_rate_hz;
-      Pose2 p = Normalized(Advance(pose, v, w, t - t0));
-      p.x += tracker_rng.Gaussian(config.tracker_noise_m);
-      p.y += tracker_rng.Gaussian(config.tracker_noise_m);
-      p.theta = NormalizeAngle(p.theta + tracker_rng.Gaussian(config.tracker_noise_rad));
-      out.ground_truth.push_back({t, p});
-      ++next_tracker;
-    }
-    pose = next;
-    left_m += left_rate * kControlDt;
-    right_m += right_rate * kControlDt;
+  auto [v, w] = st.wanderer.Command(st.motion_world, pose);
+  Pose2 next = Advance(pose, v, w, kControlDt);
+  const double clearance_next = ClearanceAt(st.motion_world, next.translation());
+  if (clearance_next < min_clearance &&
+      clearance_next < ClearanceAt(st.motion_world, pose.translation())) {
+    st.wanderer.Blocked(st.motion_world, pose);
+    v = 0.0;
+    next = Advance(pose, v, w, kControlDt);
   }
+  st.slip_t.Step(st.slip_rng);
+  st.slip_turn.Step(st.slip_rng);
+  st.slip_r.Step(st.slip_rng);
+  st.bias += st.gyro_rng.Gaussian(st.bias_step);
+  // What the encoders see. Treels slip more when turning (the translation slip grows with the
+  // turn rate, and they skid sideways, adding spurious translation) and when accelerating or
+  // braking (they spin or drag: the encoders run ahead of the motion by accel_slip_s x a).
+  const double accel = (v - st.v) / kControlDt;
+  const double angular_accel = (w - st.w) / kControlDt;
+  st.v = v;
+  st.w = w;
+  const double v_enc = v * (1.0 + st.slip_t.value() * (1.0 + std::abs(w))) +
+                       st.slip_turn.value() * std::abs(w) * half_track +
+                       config.accel_slip_s * accel;
+  const double w_enc = w * (1.0 + st.slip_r.value()) + config.accel_slip_s * angular_accel;
+  const double left_rate = v_enc - w_enc * half_track;
+  const double right_rate = v_enc + w_enc * half_track;
+
+  const auto in_step = [&](int64_t n, double rate) {
+    return static_cast<double>(n) / rate < t1;
+  };
+  while (in_step(st.next_odometry, config.odometry_rate_hz)) {
+    const double t = static_cast<double>(st.next_odometry) / config.odometry_rate_hz;
+    const Pose2 p = Advance(pose, v, w, t - t0);
+    // The gyro reports its mean rate since the previous reading (plus bias and noise).
+    const double rate =
+        st.next_odometry == 0 ? w : (p.theta - st.last_gyro_theta) / (t - st.last_gyro_t);
+    const double measured =
+        rate + st.bias + st.gyro_rng.Gaussian(DegToRad(config.gyro_noise_dps));
+    const double gyro_units = RadToDeg(measured) / robot.base.gyro_unit_dps;
+    OdometryReading r;
+    r.t = t;
+    r.seq = static_cast<uint16_t>(st.next_odometry & 0xFFFF);
+    r.left_ticks = WrapTicks(st.left_offset + std::llround((st.left_m + left_rate * (t - t0)) *
+                                                           robot.base.ticks_per_m));
+    r.right_ticks = WrapTicks(st.right_offset + std::llround((st.right_m + right_rate * (t - t0)) *
+                                                             robot.base.ticks_per_m));
+    r.gyro_raw = static_cast<int16_t>(std::clamp(std::lround(gyro_units), -32768L, 32767L));
+    out.odometry.push_back(r);
+    st.last_gyro_t = t;
+    st.last_gyro_theta = p.theta;
+    ++st.next_odometry;
+  }
+  while (in_step(st.next_sample, sample_rate)) {
+    const double t = static_cast<double>(st.next_sample) / sample_rate;
+    const Pose2 p = Advance(pose, v, w, t - t0);
+    const double platform = kPi * config.scans_per_s * t;
+    ScannerReading r;
+    r.t = t;
+    r.seq = static_cast<uint16_t>(st.next_sample & 0xFFFF);
+    const int64_t angle_raw = std::llround(platform / (2.0 * kPi) * kFullTurnRaw);
+    r.angle_raw = static_cast<uint16_t>(angle_raw & (kFullTurnRaw - 1));
+    for (size_t s = 0; s < robot.scanner.sensors.size() && s < kScannerSensors; ++s) {
+      const ScannerSensor& sensor = robot.scanner.sensors[s];
+      const double angle = p.theta + platform + DegToRad(sensor.angle_deg);
+      const Vec2 origin =
+          p.translation() + robot.scanner.mount_radius_m * Vec2(std::cos(angle), std::sin(angle));
+      r.raw[s] = SenseRaw(st.world, st.corners, robot.sensor_types.at(sensor.type), config,
+                          origin, angle, st.sensor_rng);
+    }
+    r.rectifier_mv = static_cast<uint16_t>(
+        std::lround(kRectifierMv + st.rectifier_rng.Gaussian(kRectifierNoiseMv)));
+    out.scanner.push_back(r);
+    out.true_path.push_back({t, Normalized(p)});
+    ++st.next_sample;
+  }
+  while (in_step(st.next_tracker, config.tracker_rate_hz)) {
+    const double t = static_cast<double>(st.next_tracker) / config.tracker_rate_hz;
+    Pose2 p = Normalized(Advance(pose, v, w, t - t0));
+    p.x += st.tracker_rng.Gaussian(config.tracker_noise_m);
+    p.y += st.tracker_rng.Gaussian(config.tracker_noise_m);
+    p.theta = NormalizeAngle(p.theta + st.tracker_rng.Gaussian(config.tracker_noise_rad));
+    out.ground_truth.push_back({t, p});
+    ++st.next_tracker;
+  }
+  st.pose = next;
+  st.left_m += left_rate * kControlDt;
+  st.right_m += right_rate * kControlDt;
+  ++st.step;
+}
+
+ScenarioOutput RunScenario(const World& world, const RobotDescription& robot,
+                           const ScenarioConfig& config) {
+  Simulator simulator(world, robot, config);
+  ScenarioOutput out;
+  while (simulator.time() <= config.duration_s + 1e-9) simulator.Step(out);
+  const auto after_end = [&](const auto& reading) { return reading.t > config.duration_s + 1e-9; };
+  std::erase_if(out.odometry, after_end);
+  std::erase_if(out.scanner, after_end);
+  std::erase_if(out.ground_truth, after_end);
+  std::erase_if(out.true_path, after_end);
   return out;
 }
 

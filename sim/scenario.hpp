@@ -4,6 +4,7 @@
 // grouping of scanner samples into scans (one per half turn of the platform).
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -31,6 +32,9 @@ struct ScenarioConfig {
   double translation_slip_ratio = 0.03;
   double rotation_slip_ratio = 0.15;  // encoder-derived rotation (the engine uses the gyro)
   double slip_correlation_s = 2.0;
+  // While accelerating or braking the treels spin or drag: the encoders run ahead of the true
+  // motion by this many seconds times the (angular) acceleration.
+  double accel_slip_s = 0.02;
   double gyro_noise_dps = 0.3;  // white noise per gyro reading
   // The gyro's bias starts with this deviation and wanders as a random walk whose deviation
   // grows by as much every `gyro_bias_walk_s` (with 0.05 deg/s, dead reckoning typically ends
@@ -62,7 +66,29 @@ struct ScenarioOutput {
   std::vector<TimedPose> true_path;       // exact poses at every scanner sample
 };
 
-/// Simulates the robot in `world`. Preconditions: Validate(robot) and config.Validate() are
+/// The simulation advancing step by step (10 ms each), without an end: the live virtual
+/// marXbot runs it for as long as it is wanted. Same (world, robot, config) -> same readings.
+class Simulator {
+ public:
+  /// Preconditions as RunScenario's; config.duration_s is not used.
+  Simulator(const World& world, const RobotDescription& robot, const ScenarioConfig& config);
+  ~Simulator();
+  Simulator(Simulator&&) noexcept;
+  Simulator& operator=(Simulator&&) noexcept;
+
+  /// Advances one control step, appending the readings made during it to `out` (in time order).
+  void Step(ScenarioOutput& out);
+  /// Simulated time at the start of the next step (seconds).
+  double time() const;
+  /// The robot's true pose now.
+  Pose2 pose() const;
+
+ private:
+  struct State;
+  std::unique_ptr<State> state_;
+};
+
+/// Simulates the robot in `world` for config.duration_s (readings at t <= duration_s). Preconditions: Validate(robot) and config.Validate() are
 /// empty, and the world leaves room for the robot inside its bounds.
 ScenarioOutput RunScenario(const World& world, const RobotDescription& robot,
                            const ScenarioConfig& config);

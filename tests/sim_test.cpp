@@ -418,6 +418,7 @@ TEST(ScenarioTest, NoiseFreeOdometryIntegratesToTheTruePath) {
   config.translation_slip_ratio = 0.0;
   config.rotation_slip_ratio = 0.0;
   config.gyro_noise_dps = 0.0;
+  config.accel_slip_s = 0.0;
   config.gyro_bias_dps = 0.0;
   const RobotDescription robot = TestRobot();
   const ScenarioOutput out = RunScenario(*BuiltinArena("rooms"), robot, config);
