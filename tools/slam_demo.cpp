@@ -22,6 +22,7 @@
 #include "engine/io/map_image.hpp"
 #include "engine/io/params_json.hpp"
 #include "engine/io/robot_json.hpp"
+#include "engine/io/tum.hpp"
 #include "engine/quality.hpp"
 #include "engine/slam.hpp"
 #include "scheduler/fixed_plan.hpp"
@@ -213,18 +214,6 @@ Json RunJson(const RunResult& run, size_t scans, double duration_s) {
   return j;
 }
 
-/// The trajectory in TUM format: "t x y z qx qy qz qw", one pose per line.
-std::string TumText(const std::vector<slam::TimedPose>& trajectory) {
-  std::string text;
-  char line[160];
-  for (const slam::TimedPose& p : trajectory) {
-    std::snprintf(line, sizeof(line), "%.6f %.6f %.6f 0 0 0 %.9f %.9f\n", p.t, p.pose.x, p.pose.y,
-                  std::sin(p.pose.theta / 2.0), std::cos(p.pose.theta / 2.0));
-    text += line;
-  }
-  return text;
-}
-
 /// The reference trajectory brought into the estimate's frame (inverse of the alignment).
 std::vector<slam::TimedPose> IntoEstimateFrame(const std::vector<slam::TimedPose>& reference,
                                                const slam::RigidTransform2& alignment) {
@@ -313,7 +302,7 @@ int main(int argc, char** argv) {
   const slam::io::GridImage grid_image = slam::io::MakeGridImage(*full.map);
   check(slam::io::WritePgm(dir + "map.pgm", grid_image));
   check(slam::io::WriteMapYaml(dir + "map.yaml", "map.pgm", grid_image));
-  check(slam::io::WriteFileAtomic(dir + "trajectory.tum", TumText(full.trajectory)));
+  check(slam::io::WriteFileAtomic(dir + "trajectory.tum", slam::io::FormatTum(full.trajectory)));
   std::vector<slam::io::TrajectoryLayer> layers;
   layers.push_back({"odometry only", odometry.trajectory, {150, 150, 150}});
   if (full.quality) {

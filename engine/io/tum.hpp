@@ -1,0 +1,25 @@
+#pragma once
+// Trajectories in the TUM RGB-D format: one pose per line, "t x y z qx qy qz qw" (planar: z = 0,
+// rotation about z). Used for trajectory.tum (our output) and groundtruth.tum (the tracker's).
+
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "engine/io/result.hpp"
+#include "engine/pose.hpp"
+
+namespace slam::io {
+
+/// The trajectory as TUM text (times with microseconds, positions with micrometres).
+std::string FormatTum(const std::vector<TimedPose>& trajectory);
+
+/// Parses TUM text; `source` names the input in errors ("groundtruth.tum:12: ..."). Blank lines
+/// and lines starting with '#' are skipped. Errors: wrong field count, non-numbers, non-finite
+/// values, a quaternion far from unit length, times not strictly increasing.
+Result<std::vector<TimedPose>> ParseTum(std::string_view text, const std::string& source);
+
+/// Reads and parses a TUM file.
+Result<std::vector<TimedPose>> LoadTum(const std::string& path);
+
+}  // namespace slam::io

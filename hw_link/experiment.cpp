@@ -1,0 +1,63 @@
+#include "hw_link/experiment.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <system_error>
+
+#include "engine/io/atomic_file.hpp"
+#include "engine/io/robot_json.hpp"
+#include "engine/io/tum.hpp"
+#include "hw_link/candump.hpp"
+#include "hw_link/virtual_marxbot.hpp"
+
+namespace slam::hw {
+
+std::optional<std::string> WriteSimulatedExperiment(const std::string& dir,
+                                                    const sim::World& world,
+                                                    const std::string& world_name,
+                                                    const RobotDescription& robot,
+                                                    const sim::ScenarioConfig& config,
+                                                    ExperimentSummary* summary) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return "cannot create " + dir + ": " + ec.message();
+
+  const sim::ScenarioOutput output = sim::RunScenario(world, robot, config);
+  const auto frames = SimulatedFrames(robot, output);
+  std::string log;
+  log.reserve(frames.size() * 48);
+  for (const auto& [t, frame] : frames) {
+    log += FormatCandumpLine(kSimulationEpochUs + std::llround(t * 1e6), kSimulatedInterface,
+                             frame);
+    log += '\n';
+  }
+  std::vector<TimedPose> truth = output.ground_truth;
+  for (TimedPose& p : truth) {
+    p.t = static_cast<double>(kSimulationEpochUs + std::llround(p.t * 1e6)) * 1e-6;
+  }
+  nlohmann::json meta;
+  meta["name"] = world_name + "-seed" + std::to_string(config.seed);
+  meta["world"] = world_name;
+  meta["duration_s"] = config.duration_s;
+  meta["source"] = "sim";
+  meta["seed"] = config.seed;
+
+  const std::string base = (std::filesystem::path(dir) / "").string();
+  for (const auto& [name, text] :
+       {std::pair<std::string, std::string>{"robot.json", io::RobotToJson(robot).dump(2) + "\n"},
+        {"can.log", log},
+        {"groundtruth.tum", io::FormatTum(truth)},
+        {"meta.json", meta.dump(2) + "\n"},
+        {"world.json", sim::WorldToJson(world)}}) {
+    if (auto error = io::WriteFileAtomic(base + name, text)) return error;
+  }
+  if (summary != nullptr) {
+    summary->frames = frames.size();
+    summary->events = output.odometry.size() + output.scanner.size();
+    summary->ground_truth_poses = truth.size();
+  }
+  return std::nullopt;
+}
+
+}  // namespace slam::hw

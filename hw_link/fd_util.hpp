@@ -1,0 +1,49 @@
+#pragma once
+// Small POSIX helpers shared by the live transports (slcan, UDP, SocketCAN) and their tests:
+// an owning file descriptor, errno text, and poll() with a deadline.
+
+#include <cstdint>
+#include <string>
+#include <utility>
+
+namespace slam::hw {
+
+/// Owns a file descriptor and closes it exactly once.
+class UniqueFd {
+ public:
+  UniqueFd() = default;
+  explicit UniqueFd(int fd) : fd_(fd) {}
+  ~UniqueFd() { Reset(); }
+  UniqueFd(UniqueFd&& other) noexcept : fd_(std::exchange(other.fd_, -1)) {}
+  UniqueFd& operator=(UniqueFd&& other) noexcept {
+    if (this != &other) Reset(std::exchange(other.fd_, -1));
+    return *this;
+  }
+  UniqueFd(const UniqueFd&) = delete;
+  UniqueFd& operator=(const UniqueFd&) = delete;
+
+  /// The descriptor, or -1.
+  int get() const { return fd_; }
+  /// True when a descriptor is held.
+  bool valid() const { return fd_ >= 0; }
+  /// Closes the held descriptor (if any) and takes `fd` instead.
+  void Reset(int fd = -1);
+
+ private:
+  int fd_ = -1;
+};
+
+/// The text of an errno value, e.g. "No such file or directory" (thread-safe).
+std::string ErrnoText(int err);
+
+/// Waits until `fd` is readable, hung up or in error, or until the steady clock reaches
+/// `deadline_ns` (SteadyNowNs() time). Returns poll()'s revents (0 on timeout), or -1 with errno
+/// set when poll() itself fails; EINTR is retried with the remaining time.
+int PollReadable(int fd, int64_t deadline_ns);
+
+/// Writes all of `bytes` to a (possibly non-blocking) descriptor, waiting for it to accept
+/// them until `deadline_ns`. Returns 0, or the errno value of the failure (ETIMEDOUT when the
+/// deadline passed).
+int WriteAll(int fd, const std::string& bytes, int64_t deadline_ns);
+
+}  // namespace slam::hw

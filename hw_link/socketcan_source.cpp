@@ -1,0 +1,186 @@
+// SocketCAN raw sockets (Linux). Kernels without AF_CAN (such as the build machines') make
+// OpenSocketCan fail with a message saying so.
+//
+// Errors: ENETDOWN (interface down) is reported as kError and the socket is kept (it receives
+// again once the interface is up); any other read error closes the socket, reports kError, and
+// later Reads reopen it (attempts at least kReopenInterval apart; kError while closed).
+
+#include <linux/can.h>
+#include <linux/can/raw.h>
+#include <net/if.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <thread>
+#include <variant>
+
+#include "hw_link/fd_util.hpp"
+#include "hw_link/transports.hpp"
+
+namespace slam::hw {
+namespace {
+
+constexpr int64_t kReopenIntervalNs = 200'000'000;
+constexpr size_t kMaxFramesPerRead = 256;
+
+// A raw CAN socket bound to `interface` (CAN FD frames enabled when possible), or why not.
+std::variant<UniqueFd, std::string> OpenSocket(const std::string& interface) {
+  UniqueFd fd(::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW));
+  if (!fd.valid()) {
+    const int err = errno;
+    if (err == EAFNOSUPPORT) {
+      return "SocketCAN is not available: this kernel has no AF_CAN support (socket: " +
+             ErrnoText(err) + ")";
+    }
+    return "cannot create a SocketCAN socket for '" + interface + "': " + ErrnoText(err);
+  }
+  if (interface.empty() || interface.size() >= IFNAMSIZ) {
+    return "invalid CAN interface name '" + interface + "'";
+  }
+  const unsigned int index = ::if_nametoindex(interface.c_str());
+  if (index == 0) {
+    const int err = errno;
+    return "no CAN interface '" + interface + "': " + ErrnoText(err);
+  }
+  const int on = 1;  // best effort: older kernels deliver classic frames only
+  ::setsockopt(fd.get(), SOL_CAN_RAW, CAN_RAW_FD_FRAMES, &on, sizeof on);
+  sockaddr_can addr{};
+  addr.can_family = AF_CAN;
+  addr.can_ifindex = static_cast<int>(index);
+  if (::bind(fd.get(), reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0) {
+    const int err = errno;
+    return "cannot bind to CAN interface '" + interface + "': " + ErrnoText(err);
+  }
+  return fd;
+}
+
+class SocketCanSource final : public FrameSource {
+ public:
+  SocketCanSource(std::string interface, UniqueFd fd)
+      : interface_(std::move(interface)), fd_(std::move(fd)) {}
+
+  ReadOutcome Read(std::vector<TimedFrame>& out, std::chrono::milliseconds timeout) override {
+    const int64_t deadline_ns = SteadyNowNs() + std::max<int64_t>(0, timeout.count()) * 1'000'000;
+    if (!fd_.valid()) {
+      std::string failure = TryReopen(deadline_ns);
+      if (!failure.empty()) return {ReadStatus::kError, std::move(failure)};
+    }
+    const size_t before = out.size();
+    while (true) {
+      const int revents = PollReadable(fd_.get(), deadline_ns);
+      if (revents < 0) return Fail("poll: " + ErrnoText(errno));
+      if (revents == 0) return {};
+      for (size_t count = 0; count < kMaxFramesPerRead; ++count) {
+        canfd_frame raw{};
+        const ssize_t n = ::read(fd_.get(), &raw, sizeof raw);
+        if (n < 0) {
+          if (errno == EINTR) continue;
+          if (errno == EAGAIN || errno == EWOULDBLOCK) break;
+          if (errno == ENETDOWN) {
+            return {ReadStatus::kError, Describe() + ": interface is down"};
+          }
+          return Fail("read: " + ErrnoText(errno));
+        }
+        Deliver(raw, static_cast<size_t>(n), out);
+      }
+      if (out.size() > before || SteadyNowNs() >= deadline_ns) return {};
+    }
+  }
+
+  std::string Describe() const override { return "socketcan:" + interface_; }
+
+  SourceCounters Counters() const override {
+    return {{"frames", frames_},           {"fd_frames", fd_frames_},
+            {"error_frames", error_frames_}, {"short_reads", short_reads_},
+            {"reopen_attempts", reopen_attempts_}, {"reopens", reopens_}};
+  }
+
+ private:
+  // Converts one kernel frame (CAN_MTU or CANFD_MTU bytes) and appends it.
+  void Deliver(const canfd_frame& raw, size_t bytes, std::vector<TimedFrame>& out) {
+    const bool fd = bytes == CANFD_MTU;
+    if (!fd && bytes != CAN_MTU) {
+      ++short_reads_;
+      return;
+    }
+    if ((raw.can_id & CAN_ERR_FLAG) != 0) {
+      ++error_frames_;
+      return;
+    }
+    TimedFrame frame;
+    frame.frame.extended = (raw.can_id & CAN_EFF_FLAG) != 0;
+    frame.frame.remote = (raw.can_id & CAN_RTR_FLAG) != 0;
+    frame.frame.fd = fd;
+    frame.frame.id = raw.can_id & (frame.frame.extended ? CAN_EFF_MASK : CAN_SFF_MASK);
+    const size_t max_len = fd ? static_cast<size_t>(kCanFdMaxData) : kCanMaxData;
+    const size_t len = std::min<size_t>(raw.len, max_len);
+    frame.frame.len = static_cast<uint8_t>(len);
+    if (!frame.frame.remote) std::memcpy(frame.frame.data.data(), raw.data, len);
+    frame.receive_ns = SteadyNowNs();
+    frame.t = static_cast<double>(frame.receive_ns) * 1e-9;
+    out.push_back(frame);
+    ++frames_;
+    if (fd) ++fd_frames_;
+  }
+
+  // Closes the socket after a failure; a later Read reopens it.
+  ReadOutcome Fail(const std::string& reason) {
+    fd_.Reset();
+    closed_reason_ = reason;
+    next_reopen_ns_ = SteadyNowNs() + kReopenIntervalNs;
+    return {ReadStatus::kError, Describe() + ": " + reason};
+  }
+
+  // Waits (until `deadline_ns` at most) for the next attempt and reopens; empty on success,
+  // otherwise the error to report.
+  std::string TryReopen(int64_t deadline_ns) {
+    int64_t now_ns = SteadyNowNs();
+    if (now_ns < next_reopen_ns_) {
+      std::this_thread::sleep_for(
+          std::chrono::nanoseconds(std::min(next_reopen_ns_, deadline_ns) - now_ns));
+      now_ns = SteadyNowNs();
+      if (now_ns < next_reopen_ns_) {
+        return Describe() + ": closed (" + closed_reason_ + "), waiting to reopen";
+      }
+    }
+    ++reopen_attempts_;
+    next_reopen_ns_ = now_ns + kReopenIntervalNs;
+    auto opened = OpenSocket(interface_);
+    if (auto* error = std::get_if<std::string>(&opened)) {
+      return Describe() + ": closed (" + closed_reason_ + "); reopen failed: " + *error;
+    }
+    fd_ = std::move(std::get<UniqueFd>(opened));
+    ++reopens_;
+    return {};
+  }
+
+  std::string interface_;
+  UniqueFd fd_;
+  std::string closed_reason_;
+  int64_t next_reopen_ns_ = 0;
+  uint64_t frames_ = 0;
+  uint64_t fd_frames_ = 0;
+  uint64_t error_frames_ = 0;
+  uint64_t short_reads_ = 0;
+  uint64_t reopen_attempts_ = 0;
+  uint64_t reopens_ = 0;
+};
+
+}  // namespace
+
+OpenResult OpenSocketCan(const std::string& interface) {
+  auto opened = OpenSocket(interface);
+  if (auto* error = std::get_if<std::string>(&opened)) return std::move(*error);
+  return std::make_unique<SocketCanSource>(interface, std::move(std::get<UniqueFd>(opened)));
+}
+
+bool SocketCanAvailable() {
+  const UniqueFd fd(::socket(PF_CAN, SOCK_RAW | SOCK_CLOEXEC, CAN_RAW));
+  return fd.valid();
+}
+
+}  // namespace slam::hw

@@ -1,0 +1,131 @@
+// CAN frames in cannelloni datagrams on a UDP port.
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <span>
+#include <variant>
+
+#include "hw_link/cannelloni.hpp"
+#include "hw_link/fd_util.hpp"
+#include "hw_link/transports.hpp"
+
+namespace slam::hw {
+namespace {
+
+constexpr size_t kMaxDatagram = 65536;          // larger than any UDP payload
+constexpr int kReceiveBufferBytes = 1 << 20;    // absorbs bursts while the link is busy
+constexpr size_t kMaxDatagramsPerRead = 256;
+
+class UdpSource final : public FrameSource {
+ public:
+  UdpSource(UniqueFd fd, std::string address, uint16_t port)
+      : fd_(std::move(fd)), address_(std::move(address)), port_(port) {}
+
+  ReadOutcome Read(std::vector<TimedFrame>& out, std::chrono::milliseconds timeout) override {
+    const int64_t deadline_ns = SteadyNowNs() + std::max<int64_t>(0, timeout.count()) * 1'000'000;
+    const size_t before = out.size();
+    while (true) {
+      const int revents = PollReadable(fd_.get(), deadline_ns);
+      if (revents < 0) return {ReadStatus::kError, Describe() + ": poll: " + ErrnoText(errno)};
+      if (revents == 0) return {};
+      for (size_t count = 0; count < kMaxDatagramsPerRead; ++count) {
+        const ssize_t n = ::recv(fd_.get(), buffer_.data(), buffer_.size(), MSG_DONTWAIT);
+        if (n < 0) {
+          if (errno == EINTR) continue;
+          if (errno == EAGAIN || errno == EWOULDBLOCK) break;
+          return {ReadStatus::kError, Describe() + ": recv: " + ErrnoText(errno)};
+        }
+        Deliver(std::span<const uint8_t>(buffer_.data(), static_cast<size_t>(n)), out);
+      }
+      if (out.size() > before || SteadyNowNs() >= deadline_ns) return {};
+    }
+  }
+
+  std::string Describe() const override {
+    return "udp:" + address_ + ":" + std::to_string(port_);
+  }
+
+  SourceCounters Counters() const override {
+    return {{"datagrams", datagrams_},
+            {"bad_datagrams", bad_datagrams_},
+            {"frames", frames_},
+            {"lost", sequence_.counters().lost},
+            {"reordered", sequence_.counters().reordered}};
+  }
+
+  uint16_t port() const { return port_; }
+
+ private:
+  // Decodes one datagram and appends its frames.
+  void Deliver(std::span<const uint8_t> bytes, std::vector<TimedFrame>& out) {
+    const int64_t now_ns = SteadyNowNs();
+    ++datagrams_;
+    auto decoded = DecodeCannelloni(bytes);
+    const auto* datagram = std::get_if<CannelloniDatagram>(&decoded);
+    if (datagram == nullptr) {
+      ++bad_datagrams_;
+      return;
+    }
+    sequence_.Observe(datagram->sequence);
+    for (const CanFrame& can_frame : datagram->frames) {
+      TimedFrame frame;
+      frame.frame = can_frame;
+      frame.receive_ns = now_ns;
+      frame.t = static_cast<double>(now_ns) * 1e-9;
+      out.push_back(frame);
+      ++frames_;
+    }
+  }
+
+  UniqueFd fd_;
+  std::string address_;
+  uint16_t port_;
+  std::array<uint8_t, kMaxDatagram> buffer_{};
+  SequenceTracker sequence_;
+  uint64_t datagrams_ = 0;
+  uint64_t bad_datagrams_ = 0;
+  uint64_t frames_ = 0;
+};
+
+}  // namespace
+
+OpenResult OpenUdp(uint16_t port, const std::string& address) {
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(port);
+  if (::inet_pton(AF_INET, address.c_str(), &addr.sin_addr) != 1) {
+    return "invalid IPv4 address '" + address + "' for the UDP source";
+  }
+  const std::string where = address + ":" + std::to_string(port);
+  UniqueFd fd(::socket(AF_INET, SOCK_DGRAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0));
+  if (!fd.valid()) {
+    const int err = errno;
+    return "cannot create a UDP socket for " + where + ": " + ErrnoText(err);
+  }
+  const int size = kReceiveBufferBytes;
+  ::setsockopt(fd.get(), SOL_SOCKET, SO_RCVBUF, &size, sizeof size);  // best effort
+  if (::bind(fd.get(), reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0) {
+    const int err = errno;
+    return "cannot bind UDP " + where + ": " + ErrnoText(err);
+  }
+  sockaddr_in bound{};
+  socklen_t bound_size = sizeof bound;
+  if (::getsockname(fd.get(), reinterpret_cast<sockaddr*>(&bound), &bound_size) != 0) {
+    const int err = errno;
+    return "cannot read the address of UDP " + where + ": " + ErrnoText(err);
+  }
+  return std::make_unique<UdpSource>(std::move(fd), address, ntohs(bound.sin_port));
+}
+
+uint16_t BoundUdpPort(const FrameSource& source) {
+  const auto* udp = dynamic_cast<const UdpSource*>(&source);
+  return udp != nullptr ? udp->port() : 0;
+}
+
+}  // namespace slam::hw

@@ -1,0 +1,164 @@
+#include "hw_link/virtual_marxbot.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <thread>
+
+#include "hw_link/aseba.hpp"
+#include "hw_link/event_decoder.hpp"
+
+namespace slam::hw {
+namespace {
+
+constexpr double kStuffingFactor = 1.1;   // typical bit stuffing on this traffic
+constexpr double kFrameOverheadBits = 47;  // standard frame without data, with inter-frame space
+constexpr double kUnpacedChunkS = 0.2;     // simulated time per Read when not paced
+
+std::vector<CanFrame> Frames(const AsebaMessage& m) {
+  return FragmentAseba(m.source, m.type, m.payload);
+}
+
+/// Hands a simulation's readings to the bus in time order (odometry first at equal times).
+void SendReadings(const RobotDescription& robot, const sim::ScenarioOutput& output,
+                  CanBusModel& bus, uint64_t* events) {
+  for (const RobotEvent& event : sim::MergeEvents(output.odometry, output.scanner)) {
+    const AsebaMessage message =
+        std::holds_alternative<OdometryReading>(event)
+            ? EncodeOdometry(robot, std::get<OdometryReading>(event))
+            : EncodeScanner(robot, std::get<ScannerReading>(event));
+    bus.Send(Frames(message), message.t);
+    if (events != nullptr) ++*events;
+  }
+}
+
+}  // namespace
+
+void CanBusModel::Send(const std::vector<CanFrame>& frames, double t) {
+  for (const CanFrame& frame : frames) nodes_[frame.id & 0xFF].push_back({t, frame});
+}
+
+double CanBusModel::FrameSeconds(const CanFrame& frame) const {
+  return std::round(kStuffingFactor * (kFrameOverheadBits + 8.0 * frame.len)) / bitrate_bps_;
+}
+
+size_t CanBusModel::pending() const {
+  size_t n = 0;
+  for (const auto& [node, queue] : nodes_) n += queue.size();
+  return n;
+}
+
+void CanBusModel::Deliver(double until, std::vector<std::pair<double, CanFrame>>& out) {
+  for (;;) {
+    // The earliest time any head frame is ready.
+    double earliest = std::numeric_limits<double>::infinity();
+    for (const auto& [node, queue] : nodes_) {
+      if (!queue.empty()) earliest = std::min(earliest, queue.front().ready_t);
+    }
+    if (!std::isfinite(earliest)) return;
+    const double start = std::max(bus_t_, earliest);
+    if (!(start < until)) return;
+    // Arbitration among the frames ready at `start`: the lowest id wins.
+    std::deque<Queued>* winner = nullptr;
+    for (auto& [node, queue] : nodes_) {
+      if (queue.empty() || queue.front().ready_t > start) continue;
+      if (winner == nullptr || queue.front().frame.id < winner->front().frame.id) winner = &queue;
+    }
+    const CanFrame frame = winner->front().frame;
+    winner->pop_front();
+    bus_t_ = start + FrameSeconds(frame);
+    out.emplace_back(bus_t_, frame);
+  }
+}
+
+std::vector<std::pair<double, CanFrame>> SimulatedFrames(const RobotDescription& robot,
+                                                         const sim::ScenarioOutput& output) {
+  CanBusModel bus;
+  SendReadings(robot, output, bus, nullptr);
+  std::vector<std::pair<double, CanFrame>> frames;
+  bus.Deliver(std::numeric_limits<double>::max(), frames);
+  return frames;
+}
+
+VirtualMarxbotSource::VirtualMarxbotSource(const sim::World& world, std::string world_name,
+                                           const RobotDescription& robot,
+                                           const sim::ScenarioConfig& config,
+                                           const VirtualMarxbotOptions& options)
+    : world_name_(std::move(world_name)),
+      robot_(robot),
+      options_(options),
+      simulator_(world, robot, config) {}
+
+void VirtualMarxbotSource::Advance(double until_s) {
+  sim::ScenarioOutput output;
+  while (simulator_.time() <= until_s) simulator_.Step(output);
+  SendReadings(robot_, output, bus_, &events_);
+  std::vector<std::pair<double, CanFrame>> delivered;
+  // Readings made so far are at times before simulator_.time(): everything starting before it
+  // has been arbitrated against every frame that could compete.
+  bus_.Deliver(simulator_.time(), delivered);
+  ready_.insert(ready_.end(), delivered.begin(), delivered.end());
+  if (!output.ground_truth.empty()) {
+    const std::lock_guard lock(truth_mutex_);
+    ground_truth_.insert(ground_truth_.end(), output.ground_truth.begin(),
+                         output.ground_truth.end());
+  }
+}
+
+ReadOutcome VirtualMarxbotSource::Read(std::vector<TimedFrame>& out,
+                                       std::chrono::milliseconds timeout) {
+  const int64_t now = SteadyNowNs();
+  if (!started_) {
+    started_ = true;
+    start_ns_ = now;
+  }
+  const bool bounded = options_.duration_s > 0.0;
+  double target = 0.0;
+  if (options_.paced) {
+    target = static_cast<double>(now - start_ns_) * 1e-9 * options_.speed;
+    // Make sure something is due within the timeout, then wait for it.
+    const double horizon = target + static_cast<double>(timeout.count()) * 1e-3 * options_.speed;
+    if (ready_.empty() || ready_.front().first > target) Advance(horizon);
+  } else {
+    target = simulator_.time() + kUnpacedChunkS;
+    Advance(target);
+  }
+  if (bounded) target = std::min(target, options_.duration_s);
+  if (options_.paced && !ready_.empty() && ready_.front().first > target) {
+    const double wait_s = (ready_.front().first - target) / options_.speed;
+    const auto wait = std::chrono::duration<double>(
+        std::min(wait_s, static_cast<double>(timeout.count()) * 1e-3));
+    std::this_thread::sleep_for(wait);
+    target += wait.count() * options_.speed;
+  }
+  const int64_t receive_ns = SteadyNowNs();
+  while (!ready_.empty() && ready_.front().first <= target &&
+         !(bounded && ready_.front().first > options_.duration_s)) {
+    TimedFrame frame;
+    frame.frame = ready_.front().second;
+    frame.t = ready_.front().first;
+    frame.source_t = frame.t;
+    frame.receive_ns = receive_ns;
+    out.push_back(frame);
+    ready_.pop_front();
+    ++frames_;
+  }
+  if (bounded && (ready_.empty() || ready_.front().first > options_.duration_s) &&
+      simulator_.time() > options_.duration_s) {
+    return {ReadStatus::kEnd, "the simulated run reached its duration"};
+  }
+  return {};
+}
+
+std::string VirtualMarxbotSource::Describe() const { return "sim:" + world_name_; }
+
+SourceCounters VirtualMarxbotSource::Counters() const {
+  return {{"events", events_}, {"frames", frames_}, {"bus_backlog", bus_.pending()}};
+}
+
+std::vector<TimedPose> VirtualMarxbotSource::GroundTruth() const {
+  const std::lock_guard lock(truth_mutex_);
+  return ground_truth_;
+}
+
+}  // namespace slam::hw

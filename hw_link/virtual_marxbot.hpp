@@ -1,0 +1,96 @@
+#pragma once
+// The virtual marXbot: the simulated robot (sim::Simulator) on the other side of the link,
+// emitting exactly the real robot's frames (DESIGN section 5) through the Aseba fragmenter and a
+// model of the CAN bus, so that everything downstream is exercised.
+
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <mutex>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "engine/pose.hpp"
+#include "engine/robot.hpp"
+#include "hw_link/can_frame.hpp"
+#include "hw_link/frame_source.hpp"
+#include "sim/scenario.hpp"
+#include "sim/world.hpp"
+
+namespace slam::hw {
+
+/// A classic CAN bus: each node sends its frames in order; when several nodes have a frame
+/// ready, the lowest id wins arbitration; a frame is received when its transmission ends.
+class CanBusModel {
+ public:
+  explicit CanBusModel(double bitrate_bps = 1e6) : bitrate_bps_(bitrate_bps) {}
+
+  /// Queues one node's frames, ready to send from time t (seconds). Calls come with
+  /// non-decreasing t, and t not before the last Deliver's `until`.
+  void Send(const std::vector<CanFrame>& frames, double t);
+
+  /// Appends (reception time, frame), in bus order, for every transmission starting before
+  /// `until`.
+  void Deliver(double until, std::vector<std::pair<double, CanFrame>>& out);
+
+  /// Frames queued and not yet delivered.
+  size_t pending() const;
+
+  /// Time on the bus of one frame (bits including a typical amount of stuffing / bit rate).
+  double FrameSeconds(const CanFrame& frame) const;
+
+ private:
+  struct Queued {
+    double ready_t;
+    CanFrame frame;
+  };
+  double bitrate_bps_;
+  double bus_t_ = 0.0;                             // the bus is idle from this time
+  std::map<uint32_t, std::deque<Queued>> nodes_;  // by source node (the id's low byte)
+};
+
+/// Every frame of a simulated run, in bus order, with reception times in seconds of simulated
+/// time (the readings' times are when each node hands its event to the bus).
+std::vector<std::pair<double, CanFrame>> SimulatedFrames(const RobotDescription& robot,
+                                                         const sim::ScenarioOutput& output);
+
+struct VirtualMarxbotOptions {
+  bool paced = true;          // true: in real time (times speed); false: as fast as read
+  double speed = 1.0;
+  double duration_s = 0.0;    // 0: runs until stopped; otherwise kEnd after this
+};
+
+/// The virtual marXbot as a live FrameSource. Frame times are simulated seconds since its start
+/// (t and source_t); receive_ns is when Read handed the frame over.
+class VirtualMarxbotSource : public FrameSource {
+ public:
+  VirtualMarxbotSource(const sim::World& world, std::string world_name,
+                       const RobotDescription& robot, const sim::ScenarioConfig& config,
+                       const VirtualMarxbotOptions& options);
+
+  ReadOutcome Read(std::vector<TimedFrame>& out, std::chrono::milliseconds timeout) override;
+  std::string Describe() const override;
+  SourceCounters Counters() const override;
+
+  /// The overhead tracker's poses so far (thread-safe; the server draws them as ground truth).
+  std::vector<TimedPose> GroundTruth() const;
+
+ private:
+  void Advance(double until_s);
+
+  std::string world_name_;
+  RobotDescription robot_;
+  VirtualMarxbotOptions options_;
+  sim::Simulator simulator_;
+  CanBusModel bus_;
+  std::deque<std::pair<double, CanFrame>> ready_;  // delivered by the bus, not yet read
+  int64_t start_ns_ = 0;                            // steady time of the first Read
+  bool started_ = false;
+  uint64_t events_ = 0;
+  uint64_t frames_ = 0;
+  mutable std::mutex truth_mutex_;
+  std::vector<TimedPose> ground_truth_;  // guarded by truth_mutex_
+};
+
+}  // namespace slam::hw

@@ -1,0 +1,551 @@
+// The transports: candump replay (unpaced and paced), slcan over a pseudo-terminal (including
+// hang-up and reopening), cannelloni over loopback UDP, and SocketCAN where the kernel has it.
+
+#include "hw_link/transports.hpp"
+
+#include <arpa/inet.h>
+#include <fcntl.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <stdlib.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <optional>
+#include <random>
+#include <string>
+#include <string_view>
+#include <thread>
+#include <vector>
+
+#include "hw_link/aseba.hpp"
+#include "hw_link/candump.hpp"
+#include "hw_link/cannelloni.hpp"
+#include "hw_link/event_decoder.hpp"
+#include "hw_link/fd_util.hpp"
+#include "hw_link/slcan.hpp"
+#include "test_support.hpp"
+
+namespace slam::hw {
+namespace {
+
+using std::chrono::milliseconds;
+
+constexpr int64_t kLogStartUs = 1'700'000'000'000'000;
+
+// A fresh directory under /tmp, removed with everything in it.
+class TempDir {
+ public:
+  TempDir() {
+    std::string pattern = (std::filesystem::temp_directory_path() / "hw_link_test_XXXXXX").string();
+    if (::mkdtemp(pattern.data()) == nullptr) ADD_FAILURE() << "mkdtemp failed";
+    path_ = pattern;
+  }
+  ~TempDir() {
+    std::error_code ignored;
+    std::filesystem::remove_all(path_, ignored);
+  }
+  std::string File(const std::string& name) const { return (path_ / name).string(); }
+
+ private:
+  std::filesystem::path path_;
+};
+
+void WriteFile(const std::string& path, const std::string& text) {
+  std::ofstream file(path, std::ios::binary);
+  file << text;
+}
+
+// The value of a named counter; a test failure when it is missing.
+uint64_t Counter(const SourceCounters& counters, std::string_view name) {
+  for (const auto& [key, value] : counters) {
+    if (key == name) return value;
+  }
+  ADD_FAILURE() << "no counter named " << name;
+  return 0;
+}
+
+std::unique_ptr<FrameSource> Unwrap(OpenResult result) {
+  if (auto* error = std::get_if<std::string>(&result)) {
+    ADD_FAILURE() << "open failed: " << *error;
+    return nullptr;
+  }
+  return std::move(std::get<std::unique_ptr<FrameSource>>(result));
+}
+
+std::string ErrorOf(const OpenResult& result) {
+  const auto* error = std::get_if<std::string>(&result);
+  return error != nullptr ? *error : std::string();
+}
+
+// The frames of `count` robot events (odometry and scanner alternating), as the robot sends them.
+std::vector<CanFrame> RobotFrames(const RobotDescription& robot, int count) {
+  std::vector<CanFrame> frames;
+  for (int i = 0; i < count; ++i) {
+    AsebaMessage message;
+    if (i % 2 == 0) {
+      OdometryReading odometry;
+      odometry.seq = static_cast<uint16_t>(i);
+      odometry.left_ticks = 1000 * i - 70000;
+      odometry.right_ticks = 70000 - 999 * i;
+      odometry.gyro_raw = static_cast<int16_t>(-3 * i);
+      message = EncodeOdometry(robot, odometry);
+    } else {
+      ScannerReading scanner;
+      scanner.seq = static_cast<uint16_t>(i);
+      scanner.angle_raw = static_cast<uint16_t>(1093 * i);
+      scanner.raw = {static_cast<uint16_t>(300 + i), 512, 280, static_cast<uint16_t>(1023 - i)};
+      scanner.rectifier_mv = 6500;
+      message = EncodeScanner(robot, scanner);
+    }
+    for (const CanFrame& frame : FragmentAseba(message.source, message.type, message.payload)) {
+      frames.push_back(frame);
+    }
+  }
+  return frames;
+}
+
+// Reads until kEnd (or a failure, or 5 s); the frames in order.
+std::vector<TimedFrame> ReadToEnd(FrameSource& source, milliseconds timeout) {
+  std::vector<TimedFrame> frames;
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  while (std::chrono::steady_clock::now() < give_up) {
+    const ReadOutcome outcome = source.Read(frames, timeout);
+    if (outcome.status == ReadStatus::kEnd) return frames;
+    if (outcome.status == ReadStatus::kError) {
+      ADD_FAILURE() << "read error: " << outcome.message;
+      return frames;
+    }
+  }
+  ADD_FAILURE() << "no end after 5 s";
+  return frames;
+}
+
+// --------------------------------------------------------------------------------------------
+// candump replay
+
+TEST(CandumpReplayTest, ReplaysFramesInOrderWithTheLogsTimesAndCountsBadLines) {
+  const RobotDescription robot = testing::ShippedRobot();
+  const std::vector<CanFrame> frames = RobotFrames(robot, 20);
+  TempDir dir;
+  std::string text = "# recorded by a test\n\n";
+  std::vector<int64_t> times;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const int64_t time_us = kLogStartUs + static_cast<int64_t>(i) * 8'333;
+    times.push_back(time_us);
+    text += FormatCandumpLine(time_us, "can0", frames[i]);
+    text += i == 3 ? "\r\n" : "\n";
+    if (i == 5) text += "(1700000000.100000) can0 12#00\n";        // bad id: 2 digits
+    if (i == 9) text += "(17000x0000.100000) can0 123#00\n";       // bad timestamp
+    if (i == 11) text += "  not a candump line at all\n";           // ignored, like canplayer
+    if (i == 13) text += "(1700000000.100000) can0 123#0\n";       // odd number of hex digits
+  }
+  text.pop_back();  // the last line without its '\n'
+  const std::string path = dir.File("can.log");
+  WriteFile(path, text);
+
+  auto source = Unwrap(OpenCandumpReplay(path));
+  ASSERT_NE(source, nullptr);
+  EXPECT_NE(source->Describe().find(path), std::string::npos);
+  const std::vector<TimedFrame> replayed = ReadToEnd(*source, milliseconds(0));
+  ASSERT_EQ(replayed.size(), frames.size());
+  for (size_t i = 0; i < frames.size(); ++i) {
+    EXPECT_EQ(replayed[i].frame, frames[i]) << i;
+    EXPECT_DOUBLE_EQ(replayed[i].t, static_cast<double>(times[i]) * 1e-6) << i;
+    ASSERT_TRUE(replayed[i].source_t.has_value());
+    EXPECT_DOUBLE_EQ(*replayed[i].source_t, replayed[i].t);
+    EXPECT_GT(replayed[i].receive_ns, 0);
+  }
+  const SourceCounters counters = source->Counters();
+  EXPECT_EQ(Counter(counters, "frames"), frames.size());
+  EXPECT_EQ(Counter(counters, "bad_lines"), 3u);
+  EXPECT_EQ(Counter(counters, "ignored_lines"), 3u);  // comment, empty line, text
+  EXPECT_EQ(Counter(counters, "lines"), frames.size() + 6);
+  EXPECT_EQ(Counter(counters, "first_bad_line"), 2u + 7u);  // 2 header lines + 6 frames + 1
+  EXPECT_NE(source->Describe().find("bad line 9"), std::string::npos) << source->Describe();
+
+  // The end stays the end.
+  std::vector<TimedFrame> more;
+  EXPECT_EQ(source->Read(more, milliseconds(0)).status, ReadStatus::kEnd);
+  EXPECT_TRUE(more.empty());
+}
+
+TEST(CandumpReplayTest, UnpacedReadsComeInBoundedBatches) {
+  CanFrame frame;
+  frame.id = 0x301;
+  frame.len = 2;
+  TempDir dir;
+  std::string text;
+  for (int i = 0; i < 1000; ++i) text += FormatCandumpLine(kLogStartUs + i, "can0", frame) + "\n";
+  const std::string path = dir.File("big.log");
+  WriteFile(path, text);
+  auto source = Unwrap(OpenCandumpReplay(path));
+  ASSERT_NE(source, nullptr);
+  std::vector<TimedFrame> frames;
+  ASSERT_EQ(source->Read(frames, milliseconds(0)).status, ReadStatus::kOk);
+  EXPECT_EQ(frames.size(), 256u);
+  EXPECT_EQ(ReadToEnd(*source, milliseconds(0)).size(), 1000u - 256u);
+}
+
+TEST(CandumpReplayTest, EmptyFileEndsAtOnce) {
+  TempDir dir;
+  const std::string path = dir.File("empty.log");
+  WriteFile(path, "");
+  auto source = Unwrap(OpenCandumpReplay(path));
+  ASSERT_NE(source, nullptr);
+  std::vector<TimedFrame> frames;
+  EXPECT_EQ(source->Read(frames, milliseconds(0)).status, ReadStatus::kEnd);
+}
+
+TEST(CandumpReplayTest, MissingFileOrDirectoryFailsWithAClearMessage) {
+  const std::string missing = "/nonexistent/dir/can.log";
+  const std::string error = ErrorOf(OpenCandumpReplay(missing));
+  EXPECT_NE(error.find(missing), std::string::npos) << error;
+  EXPECT_NE(error.find("No such file or directory"), std::string::npos) << error;
+
+  TempDir dir;
+  const std::string dir_error = ErrorOf(OpenCandumpReplay(dir.File("")));
+  EXPECT_NE(dir_error.find("directory"), std::string::npos) << dir_error;
+
+  const std::string speed_error =
+      ErrorOf(OpenCandumpReplay(missing, CandumpReplayOptions{.paced = true, .speed = 0.0}));
+  EXPECT_NE(speed_error.find("speed"), std::string::npos) << speed_error;
+}
+
+TEST(CandumpReplayTest, PacedReplayFollowsTheLogsClockScaledBySpeed) {
+  CanFrame frame;
+  frame.id = 0x302;
+  frame.len = 1;
+  TempDir dir;
+  std::string text;
+  for (int i = 0; i <= 20; ++i) {  // one second of log, a frame every 50 ms
+    text += FormatCandumpLine(kLogStartUs + i * 50'000, "can0", frame) + "\n";
+  }
+  const std::string path = dir.File("paced.log");
+  WriteFile(path, text);
+  auto source =
+      Unwrap(OpenCandumpReplay(path, CandumpReplayOptions{.paced = true, .speed = 20.0}));
+  ASSERT_NE(source, nullptr);
+  const auto start = std::chrono::steady_clock::now();
+  const std::vector<TimedFrame> frames = ReadToEnd(*source, milliseconds(20));
+  const auto elapsed = std::chrono::steady_clock::now() - start;
+  EXPECT_EQ(frames.size(), 21u);
+  EXPECT_GE(elapsed, milliseconds(30));  // 1 s / 20 = 50 ms
+  EXPECT_LT(elapsed, milliseconds(600));
+  // Frames keep the log's times, and are released in order.
+  for (size_t i = 1; i < frames.size(); ++i) {
+    EXPECT_GT(frames[i].t, frames[i - 1].t);
+    EXPECT_GE(frames[i].receive_ns, frames[i - 1].receive_ns);
+  }
+}
+
+TEST(CandumpReplayTest, PacedReadNeverWaitsLongerThanItsTimeout) {
+  CanFrame frame;
+  frame.id = 0x303;
+  TempDir dir;
+  const std::string path = dir.File("slow.log");
+  WriteFile(path, FormatCandumpLine(kLogStartUs, "can0", frame) + "\n" +
+                      FormatCandumpLine(kLogStartUs + 10'000'000, "can0", frame) + "\n");
+  auto source = Unwrap(OpenCandumpReplay(path, CandumpReplayOptions{.paced = true}));
+  ASSERT_NE(source, nullptr);
+  std::vector<TimedFrame> frames;
+  EXPECT_EQ(source->Read(frames, milliseconds(20)).status, ReadStatus::kOk);
+  EXPECT_EQ(frames.size(), 1u);  // the first frame at once
+  const auto start = std::chrono::steady_clock::now();
+  EXPECT_EQ(source->Read(frames, milliseconds(20)).status, ReadStatus::kOk);
+  EXPECT_EQ(frames.size(), 1u);  // the second is due in 10 s
+  EXPECT_LT(std::chrono::steady_clock::now() - start, milliseconds(500));
+}
+
+// --------------------------------------------------------------------------------------------
+// slcan over a pseudo-terminal
+
+struct Pty {
+  UniqueFd master;
+  std::string slave_path;
+};
+
+std::optional<Pty> OpenPty() {
+  Pty pty;
+  pty.master = UniqueFd(::posix_openpt(O_RDWR | O_NOCTTY | O_CLOEXEC));
+  if (!pty.master.valid() || ::grantpt(pty.master.get()) != 0 ||
+      ::unlockpt(pty.master.get()) != 0) {
+    return std::nullopt;
+  }
+  char name[128] = {};
+  if (::ptsname_r(pty.master.get(), name, sizeof name) != 0) return std::nullopt;
+  pty.slave_path = name;
+  return pty;
+}
+
+// Points the symbolic link `link` at `target`, atomically.
+void PointLink(const std::string& link, const std::string& target) {
+  const std::string temporary = link + ".new";
+  ::unlink(temporary.c_str());
+  ASSERT_EQ(::symlink(target.c_str(), temporary.c_str()), 0);
+  ASSERT_EQ(::rename(temporary.c_str(), link.c_str()), 0);
+}
+
+// Reads exactly `size` bytes from `fd` (or what came within 3 s).
+std::string ReadBytes(int fd, size_t size) {
+  std::string bytes;
+  const int64_t deadline_ns = SteadyNowNs() + 3'000'000'000;
+  while (bytes.size() < size && SteadyNowNs() < deadline_ns) {
+    const int revents = PollReadable(fd, deadline_ns);
+    if (revents <= 0) break;
+    char buffer[256];
+    const ssize_t n = ::read(fd, buffer, std::min(sizeof buffer, size - bytes.size()));
+    if (n <= 0) break;
+    bytes.append(buffer, static_cast<size_t>(n));
+  }
+  return bytes;
+}
+
+// Reads from `source` until `count` frames arrived (or 5 s passed).
+std::vector<TimedFrame> ReadFrames(FrameSource& source, size_t count) {
+  std::vector<TimedFrame> frames;
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  while (frames.size() < count && std::chrono::steady_clock::now() < give_up) {
+    const ReadOutcome outcome = source.Read(frames, milliseconds(20));
+    EXPECT_EQ(outcome.status, ReadStatus::kOk) << outcome.message;
+    if (outcome.status != ReadStatus::kOk) break;
+  }
+  return frames;
+}
+
+TEST(SlcanSourceTest, ReceivesFramesSplitAnywhereOnAPseudoTerminal) {
+  std::optional<Pty> pty = OpenPty();
+  ASSERT_TRUE(pty.has_value()) << "cannot open a pseudo-terminal";
+  auto source = Unwrap(OpenSlcan(pty->slave_path));
+  ASSERT_NE(source, nullptr);
+  EXPECT_EQ(source->Describe(), "slcan:" + pty->slave_path);
+  const std::string commands = SlcanOpenCommands();
+  EXPECT_EQ(ReadBytes(pty->master.get(), commands.size()), commands);
+
+  // Standard, extended and remote frames, some with adapter time stamps, plus replies and one
+  // garbage line, written in small random chunks.
+  std::mt19937 random(42);
+  std::vector<CanFrame> frames;
+  std::vector<std::optional<uint16_t>> stamps;
+  std::string stream;
+  for (int i = 0; i < 300; ++i) {
+    CanFrame frame;
+    frame.extended = i % 7 == 3;
+    frame.remote = i % 11 == 5;
+    frame.id = frame.extended ? static_cast<uint32_t>(random()) & kCanExtendedIdMax
+                              : static_cast<uint32_t>(random()) & kCanStandardIdMax;
+    frame.len = static_cast<uint8_t>(random() % 9);
+    if (!frame.remote) {
+      for (int b = 0; b < frame.len; ++b) {
+        frame.data[static_cast<size_t>(b)] = static_cast<uint8_t>(random());
+      }
+    }
+    const std::optional<uint16_t> stamp =
+        i % 3 == 0 ? std::optional<uint16_t>(static_cast<uint16_t>(i * 199 % 60000))
+                   : std::nullopt;
+    frames.push_back(frame);
+    stamps.push_back(stamp);
+    stream += FormatSlcanFrame(frame, stamp);
+    if (i == 100) stream += "\r";       // ack
+    if (i == 150) stream += "\a";       // nack
+    if (i == 200) stream += "t12\r";    // truncated: a bad line
+  }
+  std::thread writer([&] {
+    std::mt19937 chunks(7);
+    size_t done = 0;
+    while (done < stream.size()) {
+      const size_t size = std::min<size_t>(1 + chunks() % 17, stream.size() - done);
+      const ssize_t n = ::write(pty->master.get(), stream.data() + done, size);
+      if (n <= 0) break;
+      done += static_cast<size_t>(n);
+      if (chunks() % 8 == 0) std::this_thread::sleep_for(std::chrono::microseconds(200));
+    }
+  });
+  const std::vector<TimedFrame> received = ReadFrames(*source, frames.size());
+  writer.join();
+
+  ASSERT_EQ(received.size(), frames.size());
+  const int64_t now_ns = SteadyNowNs();
+  for (size_t i = 0; i < frames.size(); ++i) {
+    EXPECT_EQ(received[i].frame, frames[i]) << i;
+    if (stamps[i]) {
+      ASSERT_TRUE(received[i].source_t.has_value()) << i;
+      EXPECT_DOUBLE_EQ(*received[i].source_t, *stamps[i] * 1e-3);
+    } else {
+      EXPECT_FALSE(received[i].source_t.has_value()) << i;
+    }
+    EXPECT_LE(received[i].receive_ns, now_ns);
+    EXPECT_DOUBLE_EQ(received[i].t, static_cast<double>(received[i].receive_ns) * 1e-9);
+  }
+  const SourceCounters counters = source->Counters();
+  EXPECT_EQ(Counter(counters, "bytes"), stream.size());
+  EXPECT_EQ(Counter(counters, "frames"), frames.size());
+  EXPECT_EQ(Counter(counters, "acks"), 1u);
+  EXPECT_EQ(Counter(counters, "nacks"), 1u);
+  EXPECT_EQ(Counter(counters, "bad_lines"), 1u);
+  EXPECT_EQ(Counter(counters, "reopens"), 0u);
+}
+
+TEST(SlcanSourceTest, ReportsAHangUpAndReopensTheDeviceWhenItComesBack) {
+  // The source opens a symbolic link (as with /dev/serial/by-id/...): it can be pointed at
+  // nothing while the device is gone, then at a new pseudo-terminal.
+  TempDir dir;
+  const std::string link = dir.File("ttySLCAN");
+  std::optional<Pty> first = OpenPty();
+  ASSERT_TRUE(first.has_value());
+  PointLink(link, first->slave_path);
+  auto source = Unwrap(OpenSlcan(link));
+  ASSERT_NE(source, nullptr);
+  const std::string commands = SlcanOpenCommands();
+  EXPECT_EQ(ReadBytes(first->master.get(), commands.size()), commands);
+
+  // The adapter goes away.
+  PointLink(link, dir.File("missing"));
+  first->master.Reset();
+  std::vector<TimedFrame> frames;
+  ReadOutcome outcome;
+  for (int i = 0; i < 100 && outcome.status != ReadStatus::kError; ++i) {
+    outcome = source->Read(frames, milliseconds(20));
+  }
+  ASSERT_EQ(outcome.status, ReadStatus::kError);
+  EXPECT_NE(outcome.message.find("hung up"), std::string::npos) << outcome.message;
+  EXPECT_NE(outcome.message.find(link), std::string::npos) << outcome.message;
+
+  // While it is gone, reads report errors and reopen attempts are made (200 ms apart).
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  while (Counter(source->Counters(), "reopen_attempts") < 2 &&
+         std::chrono::steady_clock::now() < give_up) {
+    outcome = source->Read(frames, milliseconds(50));
+    EXPECT_EQ(outcome.status, ReadStatus::kError);
+  }
+  EXPECT_EQ(Counter(source->Counters(), "reopen_attempts"), 2u);
+  EXPECT_EQ(Counter(source->Counters(), "reopens"), 0u);
+  EXPECT_NE(outcome.message.find("No such file or directory"), std::string::npos)
+      << outcome.message;
+
+  // A new adapter appears: the source reopens it, sends the open commands and receives again.
+  std::optional<Pty> second = OpenPty();
+  ASSERT_TRUE(second.has_value());
+  PointLink(link, second->slave_path);
+  while (Counter(source->Counters(), "reopens") < 1 &&
+         std::chrono::steady_clock::now() < give_up) {
+    source->Read(frames, milliseconds(50));
+  }
+  EXPECT_EQ(Counter(source->Counters(), "reopens"), 1u);
+  EXPECT_EQ(ReadBytes(second->master.get(), commands.size()), commands);
+  CanFrame frame;
+  frame.id = 0x123;
+  frame.len = 2;
+  frame.data[0] = 0xAB;
+  frame.data[1] = 0xCD;
+  const std::string line = FormatSlcanFrame(frame);
+  ASSERT_EQ(::write(second->master.get(), line.data(), line.size()),
+            static_cast<ssize_t>(line.size()));
+  const std::vector<TimedFrame> received = ReadFrames(*source, 1);
+  ASSERT_EQ(received.size(), 1u);
+  EXPECT_EQ(received[0].frame, frame);
+  EXPECT_TRUE(frames.empty());
+}
+
+TEST(SlcanSourceTest, MissingDeviceFailsWithAClearMessage) {
+  const std::string error = ErrorOf(OpenSlcan("/dev/nonexistent-slcan-adapter"));
+  EXPECT_NE(error.find("/dev/nonexistent-slcan-adapter"), std::string::npos) << error;
+  EXPECT_NE(error.find("No such file or directory"), std::string::npos) << error;
+}
+
+// --------------------------------------------------------------------------------------------
+// cannelloni over UDP
+
+TEST(UdpSourceTest, ReceivesDatagramsAndCountsLossReorderingAndGarbage) {
+  auto source = Unwrap(OpenUdp(0, "127.0.0.1"));
+  ASSERT_NE(source, nullptr);
+  const uint16_t port = BoundUdpPort(*source);
+  ASSERT_NE(port, 0);
+  EXPECT_EQ(source->Describe(), "udp:127.0.0.1:" + std::to_string(port));
+
+  UniqueFd client(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0));
+  ASSERT_TRUE(client.valid());
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(port);
+  to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  const auto send = [&](const std::vector<uint8_t>& bytes) {
+    ASSERT_EQ(::sendto(client.get(), bytes.data(), bytes.size(), 0,
+                       reinterpret_cast<const sockaddr*>(&to), sizeof to),
+              static_cast<ssize_t>(bytes.size()));
+  };
+
+  // Sequence 0 1 2 _ _ 5 6 6 4 7: 3 and 4 skipped (lost 2), then a duplicate 6 and a late 4
+  // (reordered 2). Every datagram carries two frames; one garbage datagram in the middle.
+  const std::vector<uint8_t> sequence = {0, 1, 2, 5, 6, 6, 4, 7};
+  std::vector<CanFrame> sent;
+  for (size_t i = 0; i < sequence.size(); ++i) {
+    std::vector<CanFrame> frames(2);
+    for (size_t k = 0; k < frames.size(); ++k) {
+      frames[k].id = static_cast<uint32_t>(0x100 + 2 * i + k);
+      frames[k].len = 3;
+      frames[k].data = {static_cast<uint8_t>(i), static_cast<uint8_t>(k), 0x5A};
+    }
+    frames[1].extended = i == 3;
+    sent.insert(sent.end(), frames.begin(), frames.end());
+    send(EncodeCannelloni(sequence[i], frames));
+    if (i == 4) send({'h', 'e', 'l', 'l', 'o'});
+  }
+
+  const std::vector<TimedFrame> received = ReadFrames(*source, sent.size());
+  ASSERT_EQ(received.size(), sent.size());
+  for (size_t i = 0; i < sent.size(); ++i) EXPECT_EQ(received[i].frame, sent[i]) << i;
+  const SourceCounters counters = source->Counters();
+  EXPECT_EQ(Counter(counters, "datagrams"), sequence.size() + 1);
+  EXPECT_EQ(Counter(counters, "bad_datagrams"), 1u);
+  EXPECT_EQ(Counter(counters, "frames"), sent.size());
+  EXPECT_EQ(Counter(counters, "lost"), 2u);
+  EXPECT_EQ(Counter(counters, "reordered"), 2u);
+
+  // Nothing more: a read times out with no frames.
+  std::vector<TimedFrame> more;
+  EXPECT_EQ(source->Read(more, milliseconds(10)).status, ReadStatus::kOk);
+  EXPECT_TRUE(more.empty());
+}
+
+TEST(UdpSourceTest, BadAddressOrBusyPortFailsWithAClearMessage) {
+  EXPECT_NE(ErrorOf(OpenUdp(0, "not-an-address")).find("not-an-address"), std::string::npos);
+  auto first = Unwrap(OpenUdp(0, "127.0.0.1"));
+  ASSERT_NE(first, nullptr);
+  const std::string busy = ErrorOf(OpenUdp(BoundUdpPort(*first), "127.0.0.1"));
+  EXPECT_NE(busy.find("Address already in use"), std::string::npos) << busy;
+}
+
+TEST(UdpSourceTest, BoundPortIsZeroForOtherSources) {
+  TempDir dir;
+  WriteFile(dir.File("x.log"), "");
+  auto replay = Unwrap(OpenCandumpReplay(dir.File("x.log")));
+  ASSERT_NE(replay, nullptr);
+  EXPECT_EQ(BoundUdpPort(*replay), 0);
+}
+
+// --------------------------------------------------------------------------------------------
+// SocketCAN
+
+TEST(SocketCanTest, FailsWithAClearMessageWithoutAfCan) {
+  if (SocketCanAvailable()) GTEST_SKIP() << "this kernel has AF_CAN";
+  const std::string error = ErrorOf(OpenSocketCan("can0"));
+  EXPECT_NE(error.find("AF_CAN"), std::string::npos) << error;
+  EXPECT_NE(error.find("SocketCAN is not available"), std::string::npos) << error;
+}
+
+TEST(SocketCanTest, MissingInterfaceFailsWithAClearMessage) {
+  if (!SocketCanAvailable()) {
+    GTEST_SKIP() << "SocketCAN is not available: this kernel has no AF_CAN support";
+  }
+  const std::string error = ErrorOf(OpenSocketCan("slamnocan0"));
+  EXPECT_NE(error.find("slamnocan0"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace slam::hw

@@ -1,0 +1,241 @@
+#include "hw_link/virtual_marxbot.hpp"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "engine/io/robot_json.hpp"
+#include "engine/io/tum.hpp"
+#include "hw_link/aseba.hpp"
+#include "hw_link/experiment.hpp"
+#include "hw_link/link.hpp"
+#include "hw_link/transports.hpp"
+#include "sim/scenario.hpp"
+#include "sim/world.hpp"
+#include "test_support.hpp"
+
+namespace slam::hw {
+namespace {
+
+CanFrame FrameWithId(uint32_t id, uint8_t len) {
+  CanFrame f;
+  f.id = id;
+  f.len = len;
+  return f;
+}
+
+TEST(CanBusModelTest, LowestIdWinsAndEachNodeKeepsItsOrder) {
+  CanBusModel bus;
+  bus.Send({FrameWithId(0x102, 8), FrameWithId(0x202, 8)}, 0.0);  // node 2
+  bus.Send({FrameWithId(0x101, 8), FrameWithId(0x201, 6)}, 0.0);  // node 1
+  std::vector<std::pair<double, CanFrame>> out;
+  bus.Deliver(1.0, out);
+  ASSERT_EQ(out.size(), 4u);
+  // Slot 1: 0x101 vs 0x102; slot 2: 0x102 vs 0x201; slot 3: 0x201 vs 0x202; then 0x202.
+  EXPECT_EQ(out[0].second.id, 0x101u);
+  EXPECT_EQ(out[1].second.id, 0x102u);
+  EXPECT_EQ(out[2].second.id, 0x201u);
+  EXPECT_EQ(out[3].second.id, 0x202u);
+  // Back-to-back transmissions: each frame ends one frame time after the previous.
+  EXPECT_NEAR(out[0].first, bus.FrameSeconds(out[0].second), 1e-12);
+  for (size_t i = 1; i < out.size(); ++i) {
+    EXPECT_NEAR(out[i].first - out[i - 1].first, bus.FrameSeconds(out[i].second), 1e-12);
+  }
+  EXPECT_NEAR(bus.FrameSeconds(FrameWithId(0x101, 8)), 122e-6, 1e-9);  // 1 Mbit/s
+  EXPECT_EQ(bus.pending(), 0u);
+}
+
+TEST(CanBusModelTest, DeliversOnlyTransmissionsStartingBeforeTheHorizon) {
+  CanBusModel bus;
+  bus.Send({FrameWithId(0x101, 8)}, 0.5);
+  std::vector<std::pair<double, CanFrame>> out;
+  bus.Deliver(0.5, out);
+  EXPECT_TRUE(out.empty());
+  EXPECT_EQ(bus.pending(), 1u);
+  bus.Deliver(0.5000001, out);
+  ASSERT_EQ(out.size(), 1u);
+  EXPECT_NEAR(out[0].first, 0.5 + 122e-6, 1e-12);
+}
+
+class ExperimentTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("slam_experiment_test_" + std::to_string(::getpid()));
+    std::filesystem::remove_all(dir_);
+    config_.duration_s = 20.0;
+    config_.seed = 5;
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+
+  std::filesystem::path dir_;
+  RobotDescription robot_ = testing::ShippedRobot();
+  sim::World world_ = *sim::BuiltinArena("cluttered");
+  sim::ScenarioConfig config_;
+};
+
+/// Every event a link delivers from `source`, until the source ends.
+std::vector<RobotEvent> DrainLink(std::unique_ptr<FrameSource> source,
+                                  const RobotDescription& robot, LinkStatus* status) {
+  LinkOptions options;
+  options.queue_capacity = 1 << 16;  // the whole run: no drop in these tests
+  Link link(std::move(source), robot, options);
+  link.Start();
+  std::vector<RobotEvent> events;
+  LinkEvent event;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  while (!link.Drained() && std::chrono::steady_clock::now() < deadline) {
+    while (link.PopWait(event, std::chrono::milliseconds(5))) events.push_back(event.event);
+  }
+  while (link.Pop(event)) events.push_back(event.event);
+  link.Stop();
+  if (status != nullptr) *status = link.Status();
+  return events;
+}
+
+/// Checks the decoded events against the simulator's readings: identical fields, in order, and
+/// times shifted only by the bus (the event's time is its last frame's).
+void ExpectSameEvents(const std::vector<RobotEvent>& got, const sim::ScenarioOutput& made,
+                      double time_offset) {
+  const std::vector<RobotEvent> expected = sim::MergeEvents(made.odometry, made.scanner);
+  ASSERT_EQ(got.size(), expected.size());
+  size_t odometry = 0, scanner = 0;
+  for (size_t i = 0; i < got.size(); ++i) {
+    // Events of both nodes at the same instant may swap places on the bus; compare per type.
+    if (const auto* o = std::get_if<OdometryReading>(&got[i])) {
+      OdometryReading want = made.odometry[odometry++];
+      ASSERT_NEAR(o->t - time_offset, want.t, 1e-3) << "odometry " << odometry;
+      want.t = o->t;
+      ASSERT_EQ(*o, want) << "odometry " << odometry;
+    } else {
+      const auto& s = std::get<ScannerReading>(got[i]);
+      ScannerReading want = made.scanner[scanner++];
+      ASSERT_NEAR(s.t - time_offset, want.t, 1e-3) << "sample " << scanner;
+      want.t = s.t;
+      ASSERT_EQ(s, want) << "sample " << scanner;
+    }
+  }
+  EXPECT_EQ(odometry, made.odometry.size());
+  EXPECT_EQ(scanner, made.scanner.size());
+}
+
+TEST_F(ExperimentTest, RecordedExperimentReadBackThroughTheLinkGivesTheSimulatorsEvents) {
+  ExperimentSummary summary;
+  ASSERT_FALSE(
+      WriteSimulatedExperiment(dir_.string(), world_, "cluttered", robot_, config_, &summary));
+  for (const char* name :
+       {"robot.json", "can.log", "groundtruth.tum", "meta.json", "world.json"}) {
+    EXPECT_TRUE(std::filesystem::exists(dir_ / name)) << name;
+  }
+  const sim::ScenarioOutput made = sim::RunScenario(world_, robot_, config_);
+  EXPECT_EQ(summary.events, made.odometry.size() + made.scanner.size());
+
+  auto robot = io::LoadRobot((dir_ / "robot.json").string());
+  ASSERT_TRUE(robot.ok()) << robot.Message();
+  auto source = OpenCandumpReplay((dir_ / "can.log").string());
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(source));
+  LinkStatus status;
+  const auto events =
+      DrainLink(std::move(std::get<std::unique_ptr<FrameSource>>(source)), robot.value(), &status);
+  ExpectSameEvents(events, made, static_cast<double>(kSimulationEpochUs) * 1e-6);
+  EXPECT_EQ(status.frames, summary.frames);
+  EXPECT_EQ(status.reassembly.Rejected(), 0u);
+  EXPECT_EQ(status.decoder.Rejected(), 0u);
+  EXPECT_EQ(status.queue_drops, 0u);
+
+  // The ground truth is the tracker's, at the log's times.
+  const auto truth = io::LoadTum((dir_ / "groundtruth.tum").string());
+  ASSERT_TRUE(truth.ok()) << truth.Message();
+  ASSERT_EQ(truth.value().size(), made.ground_truth.size());
+  for (size_t i = 0; i < made.ground_truth.size(); i += 97) {
+    EXPECT_NEAR(truth.value()[i].t - 1.7e9, made.ground_truth[i].t, 2e-6);
+    EXPECT_NEAR(truth.value()[i].pose.x, made.ground_truth[i].pose.x, 1e-6);
+    EXPECT_NEAR(truth.value()[i].pose.theta, made.ground_truth[i].pose.theta, 1e-6);
+  }
+  // The world and meta data.
+  const auto world = sim::LoadWorld((dir_ / "world.json").string());
+  ASSERT_TRUE(world.ok());
+  EXPECT_EQ(world.world->segments.size(), world_.segments.size());
+  std::ifstream meta_file(dir_ / "meta.json");
+  std::stringstream meta;
+  meta << meta_file.rdbuf();
+  EXPECT_NE(meta.str().find("\"source\": \"sim\""), std::string::npos);
+  EXPECT_NE(meta.str().find("\"seed\": 5"), std::string::npos);
+}
+
+TEST_F(ExperimentTest, SameSeedWritesIdenticalFiles) {
+  const auto a = dir_ / "a";
+  const auto b = dir_ / "b";
+  ASSERT_FALSE(WriteSimulatedExperiment(a.string(), world_, "cluttered", robot_, config_));
+  ASSERT_FALSE(WriteSimulatedExperiment(b.string(), world_, "cluttered", robot_, config_));
+  for (const char* name : {"can.log", "groundtruth.tum", "meta.json", "world.json"}) {
+    std::ifstream fa(a / name), fb(b / name);
+    std::stringstream sa, sb;
+    sa << fa.rdbuf();
+    sb << fb.rdbuf();
+    EXPECT_EQ(sa.str(), sb.str()) << name;
+    EXPECT_FALSE(sa.str().empty()) << name;
+  }
+}
+
+TEST_F(ExperimentTest, UnwritableDirectoryIsAnError) {
+  std::filesystem::create_directories(dir_);
+  std::ofstream(dir_ / "file") << "x";
+  const auto error =
+      WriteSimulatedExperiment((dir_ / "file" / "sub").string(), world_, "w", robot_, config_);
+  ASSERT_TRUE(error);
+  EXPECT_NE(error->find("file"), std::string::npos);
+}
+
+TEST_F(ExperimentTest, LiveVirtualMarxbotSpeaksTheSameFrames) {
+  config_.duration_s = 5.0;
+  VirtualMarxbotOptions options;
+  options.paced = false;
+  options.duration_s = config_.duration_s;
+  auto source = std::make_unique<VirtualMarxbotSource>(world_, "cluttered", robot_, config_,
+                                                       options);
+  LinkStatus status;
+  const auto events = DrainLink(std::move(source), robot_, &status);
+  const sim::ScenarioOutput made = sim::RunScenario(world_, robot_, config_);
+  // The live source stops at the duration: the last readings' frames end after it.
+  sim::ScenarioOutput trimmed = made;
+  const auto late = [&](const auto& r) { return r.t + 1e-3 > config_.duration_s; };
+  std::erase_if(trimmed.odometry, late);
+  std::erase_if(trimmed.scanner, late);
+  ExpectSameEvents(events, trimmed, 0.0);
+  EXPECT_EQ(status.source, "sim:cluttered");
+  EXPECT_EQ(status.reassembly.Rejected(), 0u);
+}
+
+TEST_F(ExperimentTest, LiveVirtualMarxbotIsPacedInRealTime) {
+  VirtualMarxbotOptions options;
+  options.paced = true;
+  options.speed = 4.0;
+  options.duration_s = 1.0;  // 1 s of robot time at 4x: about 250 ms
+  VirtualMarxbotSource source(world_, "cluttered", robot_, config_, options);
+  std::vector<TimedFrame> frames;
+  const auto start = std::chrono::steady_clock::now();
+  ReadOutcome outcome;
+  for (int i = 0; i < 200 && outcome.status != ReadStatus::kEnd; ++i) {
+    outcome = source.Read(frames, std::chrono::milliseconds(20));
+  }
+  const double elapsed =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_EQ(outcome.status, ReadStatus::kEnd);
+  EXPECT_GE(elapsed, 0.2);
+  EXPECT_LT(elapsed, 1.0);
+  // 1 s: about 50 odometry + 60 scanner events of two frames each.
+  EXPECT_GE(frames.size(), 210u);
+  EXPECT_LE(frames.size(), 222u);
+  for (size_t i = 1; i < frames.size(); ++i) EXPECT_GE(frames[i].t, frames[i - 1].t);
+  EXPECT_FALSE(source.GroundTruth().empty());
+}
+
+}  // namespace
+}  // namespace slam::hw
