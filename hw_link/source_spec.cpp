@@ -1,0 +1,77 @@
+#include "hw_link/source_spec.hpp"
+
+#include <charconv>
+#include <filesystem>
+#include <memory>
+
+#include "hw_link/virtual_marxbot.hpp"
+#include "sim/world.hpp"
+
+namespace slam::hw {
+namespace {
+
+constexpr const char* kForms =
+    "sim:WORLD, candump:FILE, slcan:DEVICE, udp:PORT, udp:ADDRESS:PORT or socketcan:IFACE";
+
+bool ParsePort(const std::string& text, uint16_t& port) {
+  unsigned value = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (ec != std::errc() || end != text.data() + text.size() || value > 65535) return false;
+  port = static_cast<uint16_t>(value);
+  return true;
+}
+
+}  // namespace
+
+OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& robot,
+                          const SourceSpecOptions& options) {
+  const size_t colon = spec.find(':');
+  if (colon == std::string::npos || colon + 1 == spec.size()) {
+    return "source '" + spec + "': expected " + kForms;
+  }
+  const std::string kind = spec.substr(0, colon);
+  const std::string value = spec.substr(colon + 1);
+  if (kind == "sim") {
+    const sim::WorldLoadResult world = sim::ResolveWorld(value);
+    if (!world.ok()) {
+      std::string error = "source '" + spec + "': ";
+      for (const std::string& e : world.errors) error += e + "; ";
+      return error.substr(0, error.size() - 2);
+    }
+    const std::string name = sim::BuiltinArena(value)
+                                 ? value
+                                 : std::filesystem::path(value).stem().string();
+    sim::ScenarioConfig config;
+    config.seed = options.seed;
+    config.duration_s = options.duration_s > 0.0 ? options.duration_s : 1.0;
+    VirtualMarxbotOptions vm;
+    vm.paced = options.paced;
+    vm.speed = options.speed;
+    vm.duration_s = options.duration_s;
+    return std::make_unique<VirtualMarxbotSource>(*world.world, name, robot, config, vm);
+  }
+  if (kind == "candump") {
+    CandumpReplayOptions replay;
+    replay.paced = options.paced;
+    replay.speed = options.speed;
+    return OpenCandumpReplay(value, replay);
+  }
+  if (kind == "slcan") return OpenSlcan(value);
+  if (kind == "socketcan") return OpenSocketCan(value);
+  if (kind == "udp") {
+    std::string address = "0.0.0.0";
+    std::string port_text = value;
+    if (const size_t c = value.rfind(':'); c != std::string::npos) {
+      address = value.substr(0, c);
+      port_text = value.substr(c + 1);
+    }
+    uint16_t port = 0;
+    if (!ParsePort(port_text, port)) {
+      return "source '" + spec + "': '" + port_text + "' is not a UDP port (0..65535)";
+    }
+    return OpenUdp(port, address);
+  }
+  return "source '" + spec + "': unknown kind '" + kind + "'; expected " + kForms;
+}
+
+}  // namespace slam::hw

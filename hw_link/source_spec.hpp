@@ -1,0 +1,28 @@
+#pragma once
+// Opening a frame source from its command-line form (slamd --source, DESIGN section 6):
+//   sim:WORLD          the virtual marXbot in a built-in arena or a world.json file
+//   candump:FILE       a candump -l log
+//   slcan:DEVICE       an slcan adapter (tty or pseudo-terminal)
+//   udp:PORT           cannelloni datagrams on PORT (any address), or udp:ADDRESS:PORT
+//   socketcan:IFACE    a SocketCAN interface
+
+#include <cstdint>
+#include <string>
+
+#include "engine/robot.hpp"
+#include "hw_link/transports.hpp"
+
+namespace slam::hw {
+
+struct SourceSpecOptions {
+  bool paced = true;     // sim and candump: in real time (times speed); false: as fast as read
+  double speed = 1.0;
+  uint64_t seed = 1;     // sim: the simulation's seed
+  double duration_s = 0.0;  // sim: 0 = endless
+};
+
+/// The source `spec` names, or a one-line error (unknown kind, bad port, missing file, ...).
+OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& robot,
+                          const SourceSpecOptions& options = {});
+
+}  // namespace slam::hw

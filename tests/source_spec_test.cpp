@@ -1,0 +1,57 @@
+#include "hw_link/source_spec.hpp"
+
+#include <gtest/gtest.h>
+
+#include <memory>
+#include <string>
+#include <variant>
+
+#include "test_support.hpp"
+
+namespace slam::hw {
+namespace {
+
+std::string ErrorOf(const OpenResult& result) {
+  const auto* error = std::get_if<std::string>(&result);
+  return error != nullptr ? *error : std::string();
+}
+
+TEST(SourceSpecTest, OpensTheVirtualMarxbotAndUdp) {
+  const RobotDescription robot = testing::ShippedRobot();
+  const OpenResult sim = OpenSourceSpec("sim:rooms", robot);
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(sim)) << ErrorOf(sim);
+  EXPECT_EQ(std::get<std::unique_ptr<FrameSource>>(sim)->Describe(), "sim:rooms");
+
+  const OpenResult udp = OpenSourceSpec("udp:127.0.0.1:0", robot);
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(udp)) << ErrorOf(udp);
+  EXPECT_GT(BoundUdpPort(*std::get<std::unique_ptr<FrameSource>>(udp)), 0);
+}
+
+TEST(SourceSpecTest, BadSpecsGiveClearErrors) {
+  const RobotDescription robot = testing::ShippedRobot();
+  const struct {
+    const char* spec;
+    const char* expected;
+  } cases[] = {
+      {"rooms", "expected sim:WORLD"},
+      {"sim:", "expected sim:WORLD"},
+      {"tcp:1234", "unknown kind 'tcp'"},
+      {"udp:70000", "'70000' is not a UDP port"},
+      {"udp:12ab", "'12ab' is not a UDP port"},
+      {"sim:/nonexistent/world.json", "/nonexistent/world.json"},
+      {"candump:/nonexistent/can.log", "/nonexistent/can.log"},
+  };
+  for (const auto& c : cases) {
+    const std::string error = ErrorOf(OpenSourceSpec(c.spec, robot));
+    EXPECT_NE(error.find(c.expected), std::string::npos) << c.spec << ": " << error;
+  }
+}
+
+TEST(SourceSpecTest, SocketCanFailsClearlyWithoutAfCan) {
+  if (SocketCanAvailable()) GTEST_SKIP() << "this kernel has AF_CAN";
+  const std::string error = ErrorOf(OpenSourceSpec("socketcan:can0", testing::ShippedRobot()));
+  EXPECT_NE(error.find("AF_CAN"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace slam::hw
