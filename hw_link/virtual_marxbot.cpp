@@ -116,21 +116,21 @@ ReadOutcome VirtualMarxbotSource::Read(std::vector<TimedFrame>& out,
   double target = 0.0;
   if (options_.paced) {
     target = static_cast<double>(now - start_ns_) * 1e-9 * options_.speed;
-    // Make sure something is due within the timeout, then wait for it.
     const double horizon = target + static_cast<double>(timeout.count()) * 1e-3 * options_.speed;
     if (ready_.empty() || ready_.front().first > target) Advance(horizon);
+    if (ready_.empty() || ready_.front().first > target) {
+      // Nothing due yet: wait for the next frame, at most the timeout.
+      double next_due = ready_.empty() ? horizon : std::min(ready_.front().first, horizon);
+      if (bounded) next_due = std::min(next_due, std::max(target, options_.duration_s));
+      std::this_thread::sleep_for(std::chrono::duration<double>((next_due - target) /
+                                                                options_.speed));
+      target = next_due;
+    }
   } else {
     target = simulator_.time() + kUnpacedChunkS;
     Advance(target);
   }
   if (bounded) target = std::min(target, options_.duration_s);
-  if (options_.paced && !ready_.empty() && ready_.front().first > target) {
-    const double wait_s = (ready_.front().first - target) / options_.speed;
-    const auto wait = std::chrono::duration<double>(
-        std::min(wait_s, static_cast<double>(timeout.count()) * 1e-3));
-    std::this_thread::sleep_for(wait);
-    target += wait.count() * options_.speed;
-  }
   const int64_t receive_ns = SteadyNowNs();
   while (!ready_.empty() && ready_.front().first <= target &&
          !(bounded && ready_.front().first > options_.duration_s)) {

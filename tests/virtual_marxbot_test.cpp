@@ -14,6 +14,7 @@
 #include "engine/io/tum.hpp"
 #include "hw_link/aseba.hpp"
 #include "hw_link/experiment.hpp"
+#include "hw_link/frame_decoder.hpp"
 #include "hw_link/link.hpp"
 #include "hw_link/transports.hpp"
 #include "sim/scenario.hpp"
@@ -149,6 +150,16 @@ TEST_F(ExperimentTest, RecordedExperimentReadBackThroughTheLinkGivesTheSimulator
   EXPECT_EQ(status.decoder.Rejected(), 0u);
   EXPECT_EQ(status.queue_drops, 0u);
 
+  // The same through the thread-less decoder that replays use.
+  auto again = OpenCandumpReplay((dir_ / "can.log").string());
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(again));
+  FrameDecoder decoder(robot.value());
+  std::vector<RobotEvent> direct;
+  EXPECT_FALSE(DecodeToEnd(*std::get<std::unique_ptr<FrameSource>>(again), decoder,
+                           [&](const RobotEvent& e) { direct.push_back(e); }));
+  ExpectSameEvents(direct, made, static_cast<double>(kSimulationEpochUs) * 1e-6);
+  EXPECT_EQ(decoder.frames(), summary.frames);
+
   // The ground truth is the tracker's, at the log's times.
   const auto truth = io::LoadTum((dir_ / "groundtruth.tum").string());
   ASSERT_TRUE(truth.ok()) << truth.Message();
@@ -222,7 +233,7 @@ TEST_F(ExperimentTest, LiveVirtualMarxbotIsPacedInRealTime) {
   std::vector<TimedFrame> frames;
   const auto start = std::chrono::steady_clock::now();
   ReadOutcome outcome;
-  for (int i = 0; i < 200 && outcome.status != ReadStatus::kEnd; ++i) {
+  for (int i = 0; i < 1000 && outcome.status != ReadStatus::kEnd; ++i) {
     outcome = source.Read(frames, std::chrono::milliseconds(20));
   }
   const double elapsed =

@@ -1,0 +1,21 @@
+#include "hw_link/frame_decoder.hpp"
+
+#include <vector>
+
+namespace slam::hw {
+
+std::optional<std::string> DecodeToEnd(FrameSource& source, FrameDecoder& decoder,
+                                       const std::function<void(const RobotEvent&)>& on_event) {
+  std::vector<TimedFrame> frames;
+  for (;;) {
+    frames.clear();
+    const ReadOutcome outcome = source.Read(frames, std::chrono::milliseconds(100));
+    for (const TimedFrame& frame : frames) {
+      if (auto event = decoder.Push(frame)) on_event(*event);
+    }
+    if (outcome.status == ReadStatus::kEnd) return std::nullopt;
+    if (outcome.status == ReadStatus::kError) return outcome.message;
+  }
+}
+
+}  // namespace slam::hw

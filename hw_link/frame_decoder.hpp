@@ -1,0 +1,45 @@
+#pragma once
+// The link's decoding pipeline without a thread: frames -> Aseba messages -> robot events. The
+// link thread runs it on live data; replays and tools run it directly on recorded data, so
+// that nothing is dropped and results do not depend on thread timing.
+
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+
+#include "engine/robot.hpp"
+#include "hw_link/aseba.hpp"
+#include "hw_link/event_decoder.hpp"
+#include "hw_link/frame_source.hpp"
+
+namespace slam::hw {
+
+class FrameDecoder {
+ public:
+  explicit FrameDecoder(const RobotDescription& robot) : decoder_(robot) {}
+
+  /// The robot event this frame completes, if any (timed by the frame's t).
+  std::optional<RobotEvent> Push(const TimedFrame& frame) {
+    ++frames_;
+    const auto message = reassembler_.Push(frame.frame, frame.t);
+    if (!message) return std::nullopt;
+    return decoder_.Decode(*message);
+  }
+
+  uint64_t frames() const { return frames_; }
+  const ReassemblyCounters& reassembly() const { return reassembler_.counters(); }
+  const DecoderCounters& decoder() const { return decoder_.counters(); }
+
+ private:
+  uint64_t frames_ = 0;
+  AsebaReassembler reassembler_;
+  EventDecoder decoder_;
+};
+
+/// Reads `source` to its end, handing every decoded event to `on_event` in order, with nothing
+/// dropped. Returns the source's error message if it fails before its end (kError), or nothing.
+std::optional<std::string> DecodeToEnd(FrameSource& source, FrameDecoder& decoder,
+                                       const std::function<void(const RobotEvent&)>& on_event);
+
+}  // namespace slam::hw

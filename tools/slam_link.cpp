@@ -1,0 +1,196 @@
+// slam-link: listens to the robot through any source and shows what the link and the scan
+// assembler make of it -- the first thing to run when connecting a real robot.
+//   slam-link --source slcan:/dev/ttyACM0            one status line per second
+//   slam-link --source candump:run/can.log --events  every decoded event, then the counters
+
+#include <CLI/CLI.hpp>
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "engine/io/robot_json.hpp"
+#include "engine/scan_assembler.hpp"
+#include "hw_link/frame_decoder.hpp"
+#include "hw_link/link.hpp"
+#include "hw_link/source_spec.hpp"
+
+namespace {
+
+std::atomic<bool> g_interrupted{false};
+
+void OnSignal(int) { g_interrupted = true; }
+
+nlohmann::json StatusJson(const slam::hw::LinkStatus& s, const slam::ScanAssemblerCounters& a) {
+  nlohmann::json j;
+  j["state"] = slam::hw::ToString(s.state);
+  j["source"] = s.source;
+  j["last_error"] = s.last_error;
+  j["source_errors"] = s.source_errors;
+  j["frames"] = s.frames;
+  const auto& r = s.reassembly;
+  j["reassembly"] = {{"frames", r.frames},
+                     {"messages", r.messages},
+                     {"extended", r.extended},
+                     {"remote", r.remote},
+                     {"fd", r.fd},
+                     {"bad_length", r.bad_length},
+                     {"middle_without_start", r.middle_without_start},
+                     {"stop_without_start", r.stop_without_start},
+                     {"oversize", r.oversize},
+                     {"abandoned", r.abandoned}};
+  const auto& d = s.decoder;
+  j["decoder"] = {{"messages", d.messages},         {"odometry", d.odometry},
+                  {"scanner", d.scanner},           {"unknown_node", d.unknown_node},
+                  {"unknown_type", d.unknown_type}, {"bad_size", d.bad_size}};
+  j["queue"] = {{"queued", s.events_queued}, {"drops", s.queue_drops}, {"size", s.queue_size}};
+  nlohmann::json source = nlohmann::json::object();
+  for (const auto& [name, value] : s.source_counters) source[name] = value;
+  j["source_counters"] = source;
+  j["scans"] = {{"scans", a.scans},
+                {"samples", a.samples},
+                {"odometry", a.odometry},
+                {"out_of_order", a.out_of_order},
+                {"samples_lost", a.samples_lost},
+                {"odometry_lost", a.odometry_lost},
+                {"sample_gaps", a.sample_gaps},
+                {"odometry_gaps", a.odometry_gaps},
+                {"samples_unposed", a.samples_unposed},
+                {"scans_discarded", a.scans_discarded}};
+  return j;
+}
+
+void PrintEvent(const slam::RobotEvent& event) {
+  if (const auto* o = std::get_if<slam::OdometryReading>(&event)) {
+    std::printf("%.6f odometry seq=%u left=%d right=%d gyro=%d\n", o->t, o->seq, o->left_ticks,
+                o->right_ticks, o->gyro_raw);
+  } else {
+    const auto& s = std::get<slam::ScannerReading>(event);
+    std::printf("%.6f scanner seq=%u angle=%u raw=%u,%u,%u,%u rectifier_mv=%u\n", s.t, s.seq,
+                s.angle_raw, s.raw[0], s.raw[1], s.raw[2], s.raw[3], s.rectifier_mv);
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "Listens to the robot through a source and reports what the link decodes: frames, Aseba "
+      "messages, robot events, every rejection, and the scans they assemble into. Ends when the "
+      "source ends, after --seconds, or on Ctrl-C, printing all counters as JSON on stdout."};
+  std::string spec;
+  std::string robot_path = std::string(SLAM_SOURCE_DIR) + "/config/marxbot.robot.json";
+  double seconds = 0.0;
+  bool events = false;
+  bool as_fast = false;
+  app.add_option("--source", spec,
+                 "sim:WORLD, candump:FILE, slcan:DEVICE, udp:PORT, udp:ADDRESS:PORT or "
+                 "socketcan:IFACE")
+      ->required();
+  app.add_option("--robot", robot_path, "robot description")->capture_default_str();
+  app.add_option("--seconds", seconds, "stop after this many seconds (0: never)")
+      ->check(CLI::Range(0.0, 1e9));
+  app.add_flag("--events", events, "print every decoded event on stdout");
+  app.add_flag("--as-fast", as_fast,
+               "sim and candump: decode as fast as possible on one thread, losing nothing, "
+               "instead of paced through the link thread (needs a source that ends: a log, or "
+               "sim with --seconds)");
+  CLI11_PARSE(app, argc, argv);
+
+  const auto robot = slam::io::LoadRobot(robot_path);
+  if (!robot.ok()) {
+    std::cerr << "slam-link: " << robot.Message() << "\n";
+    return 1;
+  }
+  slam::hw::SourceSpecOptions options;
+  options.paced = !as_fast;
+  if (as_fast) {
+    if (spec.rfind("sim:", 0) == 0 && seconds <= 0.0) {
+      std::cerr << "slam-link: --as-fast with a sim source needs --seconds (simulated time)\n";
+      return 2;
+    }
+    options.duration_s = seconds;
+  }
+  auto opened = slam::hw::OpenSourceSpec(spec, robot.value(), options);
+  if (auto* error = std::get_if<std::string>(&opened)) {
+    std::cerr << "slam-link: " << *error << "\n";
+    return 1;
+  }
+  std::signal(SIGINT, OnSignal);
+  std::signal(SIGTERM, OnSignal);
+  auto source = std::move(std::get<std::unique_ptr<slam::hw::FrameSource>>(opened));
+
+  if (as_fast) {
+    // Recorded data: decode on this thread, losing nothing (the link thread would drop events
+    // that arrive faster than they are consumed, as it must on live data).
+    slam::hw::FrameDecoder decoder(robot.value());
+    slam::ScanAssembler assembler(robot.value());
+    std::vector<slam::Scan> scans;
+    const auto error = slam::hw::DecodeToEnd(*source, decoder, [&](const slam::RobotEvent& e) {
+      if (events) PrintEvent(e);
+      scans.clear();
+      assembler.Add(e, scans);
+    });
+    slam::hw::LinkStatus status;
+    status.state = error ? slam::hw::LinkState::kSourceError : slam::hw::LinkState::kEnded;
+    status.source = source->Describe();
+    status.last_error = error.value_or("");
+    status.frames = decoder.frames();
+    status.reassembly = decoder.reassembly();
+    status.decoder = decoder.decoder();
+    status.source_counters = source->Counters();
+    std::fflush(stdout);
+    std::cout << StatusJson(status, assembler.counters()).dump(2) << "\n";
+    return error ? 1 : 0;
+  }
+
+  slam::hw::Link link(std::move(source), robot.value());
+  slam::ScanAssembler assembler(robot.value());
+  std::vector<slam::Scan> scans;
+  link.Start();
+  const auto start = std::chrono::steady_clock::now();
+  auto next_report = start + std::chrono::seconds(1);
+  uint64_t last_frames = 0;
+  slam::hw::LinkEvent event;
+  while (!g_interrupted && !link.Drained()) {
+    const auto now = std::chrono::steady_clock::now();
+    if (seconds > 0.0 && std::chrono::duration<double>(now - start).count() >= seconds) break;
+    if (link.PopWait(event, std::chrono::milliseconds(20))) {
+      if (events) PrintEvent(event.event);
+      scans.clear();
+      assembler.Add(event.event, scans);
+    }
+    if (now >= next_report) {
+      const slam::hw::LinkStatus s = link.Status();
+      const auto& c = assembler.counters();
+      std::fprintf(stderr,
+                   "[slam-link] %s %s: %llu frames/s, %llu odometry, %llu samples, %llu scans; "
+                   "rejected %llu frames, %llu messages; %llu queue drops%s%s\n",
+                   s.source.c_str(), slam::hw::ToString(s.state),
+                   static_cast<unsigned long long>(s.frames - last_frames),
+                   static_cast<unsigned long long>(c.odometry),
+                   static_cast<unsigned long long>(c.samples),
+                   static_cast<unsigned long long>(c.scans),
+                   static_cast<unsigned long long>(s.reassembly.Rejected()),
+                   static_cast<unsigned long long>(s.decoder.Rejected()),
+                   static_cast<unsigned long long>(s.queue_drops),
+                   s.last_error.empty() ? "" : "; last error: ", s.last_error.c_str());
+      last_frames = s.frames;
+      next_report += std::chrono::seconds(1);
+    }
+  }
+  link.Stop();
+  while (link.Pop(event)) {
+    if (events) PrintEvent(event.event);
+    scans.clear();
+    assembler.Add(event.event, scans);
+  }
+  std::fflush(stdout);
+  std::cout << StatusJson(link.Status(), assembler.counters()).dump(2) << "\n";
+  return 0;
+}
