@@ -114,10 +114,14 @@ class SlcanSource final : public FrameSource {
   SourceCounters Counters() const override {
     SlcanCounters total = previous_;
     total += parser_.counters();
-    return {{"bytes", total.bytes},         {"frames", total.frames},
-            {"acks", total.acks},           {"nacks", total.nacks},
-            {"bad_lines", total.bad_lines}, {"device_errors", device_errors_},
-            {"reopen_attempts", reopen_attempts_}, {"reopens", reopens_}};
+    return {{"bytes", total.bytes},
+            {"frames", total.frames},
+            {"acks", total.acks},
+            {"nacks", total.nacks},
+            {"bad_lines", total.bad_lines},
+            {"device_errors", device_errors_},
+            {"reopen_attempts", reopen_attempts_},
+            {"reopens", reopens_}};
   }
 
  private:

@@ -94,9 +94,12 @@ class SocketCanSource final : public FrameSource {
   std::string Describe() const override { return "socketcan:" + interface_; }
 
   SourceCounters Counters() const override {
-    return {{"frames", frames_},           {"fd_frames", fd_frames_},
-            {"error_frames", error_frames_}, {"short_reads", short_reads_},
-            {"reopen_attempts", reopen_attempts_}, {"reopens", reopens_}};
+    return {{"frames", frames_},
+            {"fd_frames", fd_frames_},
+            {"error_frames", error_frames_},
+            {"short_reads", short_reads_},
+            {"reopen_attempts", reopen_attempts_},
+            {"reopens", reopens_}};
   }
 
  private:

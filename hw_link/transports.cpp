@@ -1,6 +1,8 @@
 // The candump log replay. The live transports live beside it: slcan_source.cpp, udp_source.cpp
 // and socketcan_source.cpp.
 
+#include "hw_link/transports.hpp"
+
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -15,17 +17,16 @@
 
 #include "hw_link/candump.hpp"
 #include "hw_link/fd_util.hpp"
-#include "hw_link/transports.hpp"
 
 namespace slam::hw {
 namespace {
 
-constexpr size_t kMaxFramesPerRead = 256;      // one batch of an unpaced replay
-constexpr size_t kMaxLinesPerRead = 4096;      // bounds one Read on a file of garbage
-constexpr size_t kReadChunk = 64 * 1024;       // bytes read from the file at a time
-constexpr size_t kMaxLineBytes = 64 * 1024;    // longer lines are bad lines, not memory
-constexpr size_t kKeptErrors = 5;              // first bad lines kept for Describe()
-constexpr double kMaxOffsetNs = 1e18;          // paced: ~30 years, keeps the cast defined
+constexpr size_t kMaxFramesPerRead = 256;    // one batch of an unpaced replay
+constexpr size_t kMaxLinesPerRead = 4096;    // bounds one Read on a file of garbage
+constexpr size_t kReadChunk = 64 * 1024;     // bytes read from the file at a time
+constexpr size_t kMaxLineBytes = 64 * 1024;  // longer lines are bad lines, not memory
+constexpr size_t kKeptErrors = 5;            // first bad lines kept for Describe()
+constexpr double kMaxOffsetNs = 1e18;        // paced: ~30 years, keeps the cast defined
 
 // Splits a file into lines ('\n'-terminated; the last line may lack it), reading it in chunks.
 class LineReader {
@@ -116,8 +117,10 @@ class CandumpReplay final : public FrameSource {
   }
 
   SourceCounters Counters() const override {
-    return {{"lines", lines_read_},       {"frames", frames_},
-            {"ignored_lines", ignored_},  {"bad_lines", bad_},
+    return {{"lines", lines_read_},
+            {"frames", frames_},
+            {"ignored_lines", ignored_},
+            {"bad_lines", bad_},
             {"first_bad_line", first_bad_line_}};
   }
 
@@ -171,9 +174,11 @@ class CandumpReplay final : public FrameSource {
     }
   }
 
-  // What to return once the file gave no more frames in this call.
-  ReadOutcome EndOutcome(bool appended) const {
-    if (lines_.error() != 0) {
+  // What to return once the file gave no more frames in this call: a read error is reported
+  // once, then the log has ended.
+  ReadOutcome EndOutcome(bool appended) {
+    if (lines_.error() != 0 && !error_reported_) {
+      error_reported_ = true;
       return {ReadStatus::kError,
               "candump:" + path_ + ": read error: " + ErrnoText(lines_.error())};
     }
@@ -238,6 +243,7 @@ class CandumpReplay final : public FrameSource {
   LineReader lines_;
   CandumpReplayOptions options_;
   bool ended_ = false;
+  bool error_reported_ = false;
   uint64_t lines_read_ = 0;
   uint64_t frames_ = 0;
   uint64_t ignored_ = 0;

@@ -18,8 +18,8 @@
 namespace slam::hw {
 namespace {
 
-constexpr size_t kMaxDatagram = 65536;          // larger than any UDP payload
-constexpr int kReceiveBufferBytes = 1 << 20;    // absorbs bursts while the link is busy
+constexpr size_t kMaxDatagram = 65536;        // larger than any UDP payload
+constexpr int kReceiveBufferBytes = 1 << 20;  // absorbs bursts while the link is busy
 constexpr size_t kMaxDatagramsPerRead = 256;
 
 class UdpSource final : public FrameSource {
@@ -47,9 +47,7 @@ class UdpSource final : public FrameSource {
     }
   }
 
-  std::string Describe() const override {
-    return "udp:" + address_ + ":" + std::to_string(port_);
-  }
+  std::string Describe() const override { return "udp:" + address_ + ":" + std::to_string(port_); }
 
   SourceCounters Counters() const override {
     return {{"datagrams", datagrams_},

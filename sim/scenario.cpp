@@ -44,7 +44,6 @@ constexpr int kRawMax = 1023;
 constexpr double kRectifierMv = 6500.0;  // the scanner's supply after its rectifier
 constexpr double kRectifierNoiseMv = 15.0;
 constexpr int64_t kFullTurnRaw = 65536;
-constexpr int64_t kHalfTurnRaw = 32768;
 
 /// A zero-mean Gauss-Markov process with stationary deviation `sigma` and correlation time `tau`.
 class GaussMarkov {

@@ -60,9 +60,7 @@ class FakeSource final : public FrameSource {
   }
 
   std::string Describe() const override { return "fake"; }
-  SourceCounters Counters() const override {
-    return {{"reads", static_cast<uint64_t>(reads_)}};
-  }
+  SourceCounters Counters() const override { return {{"reads", static_cast<uint64_t>(reads_)}}; }
 
  private:
   Script script_;
@@ -293,7 +291,7 @@ TEST(LinkTest, DeliversDecodedEventsInOrderAndCountsAnomalies) {
 
   link.Stop();
   EXPECT_EQ(link.Status().state, LinkState::kEnded);  // ended stays ended
-  link.Stop();                                          // idempotent
+  link.Stop();                                        // idempotent
 }
 
 TEST(LinkTest, SurvivesSourceErrorsAndKeepsReading) {

@@ -140,10 +140,10 @@ TEST(CandumpReplayTest, ReplaysFramesInOrderWithTheLogsTimesAndCountsBadLines) {
     times.push_back(time_us);
     text += FormatCandumpLine(time_us, "can0", frames[i]);
     text += i == 3 ? "\r\n" : "\n";
-    if (i == 5) text += "(1700000000.100000) can0 12#00\n";        // bad id: 2 digits
-    if (i == 9) text += "(17000x0000.100000) can0 123#00\n";       // bad timestamp
-    if (i == 11) text += "  not a candump line at all\n";           // ignored, like canplayer
-    if (i == 13) text += "(1700000000.100000) can0 123#0\n";       // odd number of hex digits
+    if (i == 5) text += "(1700000000.100000) can0 12#00\n";   // bad id: 2 digits
+    if (i == 9) text += "(17000x0000.100000) can0 123#00\n";  // bad timestamp
+    if (i == 11) text += "  not a candump line at all\n";     // ignored, like canplayer
+    if (i == 13) text += "(1700000000.100000) can0 123#0\n";  // odd number of hex digits
   }
   text.pop_back();  // the last line without its '\n'
   const std::string path = dir.File("can.log");
@@ -192,6 +192,33 @@ TEST(CandumpReplayTest, UnpacedReadsComeInBoundedBatches) {
   EXPECT_EQ(ReadToEnd(*source, milliseconds(0)).size(), 1000u - 256u);
 }
 
+TEST(CandumpReplayTest, OverlongLinesAreBadLinesAndChunkBoundariesDoNotMatter) {
+  CanFrame frame;
+  frame.id = 0x1A5;
+  frame.len = 8;
+  TempDir dir;
+  std::string text = std::string(200'000, 'x') + "\n";  // far longer than any candump line
+  for (int i = 0; i < 5000; ++i) {  // ~220 kB: many read chunks, lines cut at their edges
+    frame.data[0] = static_cast<uint8_t>(i);
+    text += FormatCandumpLine(kLogStartUs + i, "vcan0", frame) + "\n";
+    if (i == 2500) text += "(" + std::string(100'000, '1') + ") can0 123#00\n";
+  }
+  const std::string path = dir.File("long.log");
+  WriteFile(path, text);
+  auto source = Unwrap(OpenCandumpReplay(path));
+  ASSERT_NE(source, nullptr);
+  const std::vector<TimedFrame> frames = ReadToEnd(*source, milliseconds(0));
+  ASSERT_EQ(frames.size(), 5000u);
+  for (size_t i = 0; i < frames.size(); ++i) {
+    ASSERT_EQ(frames[i].frame.data[0], static_cast<uint8_t>(i)) << i;
+  }
+  const SourceCounters counters = source->Counters();
+  EXPECT_EQ(Counter(counters, "bad_lines"), 2u);
+  EXPECT_EQ(Counter(counters, "lines"), 5002u);
+  EXPECT_EQ(Counter(counters, "first_bad_line"), 1u);
+  EXPECT_NE(source->Describe().find("line too long"), std::string::npos) << source->Describe();
+}
+
 TEST(CandumpReplayTest, EmptyFileEndsAtOnce) {
   TempDir dir;
   const std::string path = dir.File("empty.log");
@@ -228,8 +255,7 @@ TEST(CandumpReplayTest, PacedReplayFollowsTheLogsClockScaledBySpeed) {
   }
   const std::string path = dir.File("paced.log");
   WriteFile(path, text);
-  auto source =
-      Unwrap(OpenCandumpReplay(path, CandumpReplayOptions{.paced = true, .speed = 20.0}));
+  auto source = Unwrap(OpenCandumpReplay(path, CandumpReplayOptions{.paced = true, .speed = 20.0}));
   ASSERT_NE(source, nullptr);
   const auto start = std::chrono::steady_clock::now();
   const std::vector<TimedFrame> frames = ReadToEnd(*source, milliseconds(20));
@@ -346,14 +372,13 @@ TEST(SlcanSourceTest, ReceivesFramesSplitAnywhereOnAPseudoTerminal) {
       }
     }
     const std::optional<uint16_t> stamp =
-        i % 3 == 0 ? std::optional<uint16_t>(static_cast<uint16_t>(i * 199 % 60000))
-                   : std::nullopt;
+        i % 3 == 0 ? std::optional<uint16_t>(static_cast<uint16_t>(i * 199 % 60000)) : std::nullopt;
     frames.push_back(frame);
     stamps.push_back(stamp);
     stream += FormatSlcanFrame(frame, stamp);
-    if (i == 100) stream += "\r";       // ack
-    if (i == 150) stream += "\a";       // nack
-    if (i == 200) stream += "t12\r";    // truncated: a bad line
+    if (i == 100) stream += "\r";     // ack
+    if (i == 150) stream += "\a";     // nack
+    if (i == 200) stream += "t12\r";  // truncated: a bad line
   }
   std::thread writer([&] {
     std::mt19937 chunks(7);
@@ -432,8 +457,7 @@ TEST(SlcanSourceTest, ReportsAHangUpAndReopensTheDeviceWhenItComesBack) {
   std::optional<Pty> second = OpenPty();
   ASSERT_TRUE(second.has_value());
   PointLink(link, second->slave_path);
-  while (Counter(source->Counters(), "reopens") < 1 &&
-         std::chrono::steady_clock::now() < give_up) {
+  while (Counter(source->Counters(), "reopens") < 1 && std::chrono::steady_clock::now() < give_up) {
     source->Read(frames, milliseconds(50));
   }
   EXPECT_EQ(Counter(source->Counters(), "reopens"), 1u);
