@@ -157,9 +157,7 @@ void Link::Run() {
       outcome = source_->Read(frames, options_.read_timeout);
       for (const TimedFrame& frame : frames) {
         ++frame_count;
-        const std::optional<AsebaMessage> message = reassembler_.Push(frame.frame, frame.t);
-        if (!message) continue;
-        const std::optional<RobotEvent> event = decoder_.Decode(*message);
+        const std::optional<RobotEvent> event = decoder_.Push(frame);
         if (!event) continue;
         if (queue_.TryPush(LinkEvent{*event, frame.receive_ns})) {
           ++queued;
@@ -177,8 +175,8 @@ void Link::Run() {
     {
       std::lock_guard<std::mutex> lock(status_mutex_);
       status_.frames = frame_count;
-      status_.reassembly = reassembler_.counters();
-      status_.decoder = decoder_.counters();
+      status_.reassembly = decoder_.reassembly();
+      status_.decoder = decoder_.decoder();
       status_.events_queued = queued;
       status_.queue_drops = drops;
       try {

@@ -17,6 +17,7 @@
 #include "engine/robot.hpp"
 #include "hw_link/aseba.hpp"
 #include "hw_link/event_decoder.hpp"
+#include "hw_link/frame_decoder.hpp"
 #include "hw_link/frame_source.hpp"
 
 namespace slam::hw {
@@ -105,8 +106,7 @@ class Link {
 
   std::unique_ptr<FrameSource> source_;
   LinkOptions options_;
-  AsebaReassembler reassembler_;  // link thread only
-  EventDecoder decoder_;          // link thread only
+  FrameDecoder decoder_;  // link thread only
   EventQueue queue_;
   std::atomic<bool> stop_{false};
   std::atomic<LinkState> state_{LinkState::kIdle};
