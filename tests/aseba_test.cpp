@@ -7,16 +7,14 @@
 #include <vector>
 
 
+#include "can_test_support.hpp"
+
 namespace slam::hw {
 namespace {
 
-CanFrame Frame(uint32_t id, std::vector<uint8_t> bytes) {
-  CanFrame f;
-  f.id = id;
-  f.len = static_cast<uint8_t>(bytes.size());
-  std::copy(bytes.begin(), bytes.end(), f.data.begin());
-  return f;
-}
+using testing::Frame;
+using testing::Remote;
+
 
 // The worked example of notes/can-aseba.md: node 2, event 0x0020, words
 // [1, 0x4000, 300, 512, 280, 490, 6500].

@@ -7,27 +7,14 @@
 #include <string>
 #include <vector>
 
+#include "can_test_support.hpp"
+
 namespace slam::hw {
 namespace {
 
-CanFrame Frame(uint32_t id, std::vector<uint8_t> data, bool extended = false, bool fd = false) {
-  CanFrame f;
-  f.id = id;
-  f.extended = extended;
-  f.fd = fd;
-  f.len = static_cast<uint8_t>(data.size());
-  std::copy(data.begin(), data.end(), f.data.begin());
-  return f;
-}
+using testing::Frame;
+using testing::Remote;
 
-CanFrame Remote(uint32_t id, uint8_t len, bool extended = false) {
-  CanFrame f;
-  f.id = id;
-  f.len = len;
-  f.extended = extended;
-  f.remote = true;
-  return f;
-}
 
 TEST(CandumpTest, ParsesWorkedExample) {
   const auto line = ParseCandumpLine("(1700000000.123456) can0 102#2000010000402C01");

@@ -8,27 +8,14 @@
 #include <variant>
 #include <vector>
 
+#include "can_test_support.hpp"
+
 namespace slam::hw {
 namespace {
 
-CanFrame Frame(uint32_t id, std::vector<uint8_t> data, bool extended = false, bool fd = false) {
-  CanFrame f;
-  f.id = id;
-  f.extended = extended;
-  f.fd = fd;
-  f.len = static_cast<uint8_t>(data.size());
-  std::copy(data.begin(), data.end(), f.data.begin());
-  return f;
-}
+using testing::Frame;
+using testing::Remote;
 
-CanFrame Remote(uint32_t id, uint8_t len, bool extended = false) {
-  CanFrame f;
-  f.id = id;
-  f.len = len;
-  f.extended = extended;
-  f.remote = true;
-  return f;
-}
 
 // The decode error of `bytes`, or "" when they decode.
 std::string ErrorOf(const std::vector<uint8_t>& bytes) {

@@ -7,26 +7,14 @@
 #include <string>
 #include <vector>
 
+#include "can_test_support.hpp"
+
 namespace slam::hw {
 namespace {
 
-CanFrame Frame(uint32_t id, std::vector<uint8_t> data, bool extended = false) {
-  CanFrame f;
-  f.id = id;
-  f.extended = extended;
-  f.len = static_cast<uint8_t>(data.size());
-  std::copy(data.begin(), data.end(), f.data.begin());
-  return f;
-}
+using testing::Frame;
+using testing::Remote;
 
-CanFrame Remote(uint32_t id, uint8_t len, bool extended = false) {
-  CanFrame f;
-  f.id = id;
-  f.len = len;
-  f.extended = extended;
-  f.remote = true;
-  return f;
-}
 
 struct Result {
   std::vector<SlcanFrame> frames;
