@@ -1,6 +1,7 @@
 #include "hw_link/virtual_marxbot.hpp"
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <cmath>
