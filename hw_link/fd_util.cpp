@@ -5,12 +5,16 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <chrono>
 #include <cstring>
+#include <thread>
 
 #include "hw_link/can_frame.hpp"
 
 namespace slam::hw {
 namespace {
+
+constexpr int64_t kReopenIntervalNs = 200'000'000;
 
 // strerror_r comes in two flavours (GNU returns the text, XSI fills the buffer); take either.
 [[maybe_unused]] const char* StrerrorText(int /*result*/, const char* buffer) { return buffer; }
@@ -69,6 +73,30 @@ int WriteAll(int fd, const std::string& bytes, int64_t deadline_ns) {
     if ((revents & POLLOUT) == 0) return (revents & POLLHUP) != 0 ? EIO : EPIPE;
   }
   return 0;
+}
+
+void Reopener::Closed(std::string reason) {
+  reason_ = std::move(reason);
+  next_attempt_ns_ = SteadyNowNs() + kReopenIntervalNs;
+}
+
+OpenedFd Reopener::TryReopen(int64_t deadline_ns, const std::string& who,
+                             const std::function<OpenedFd()>& open) {
+  int64_t now_ns = SteadyNowNs();
+  if (now_ns < next_attempt_ns_) {
+    std::this_thread::sleep_for(
+        std::chrono::nanoseconds(std::min(next_attempt_ns_, deadline_ns) - now_ns));
+    now_ns = SteadyNowNs();
+    if (now_ns < next_attempt_ns_) return who + ": closed (" + reason_ + "), waiting to reopen";
+  }
+  ++attempts_;
+  next_attempt_ns_ = now_ns + kReopenIntervalNs;
+  OpenedFd opened = open();
+  if (auto* error = std::get_if<std::string>(&opened)) {
+    return who + ": closed (" + reason_ + "); reopen failed: " + *error;
+  }
+  ++reopens_;
+  return opened;
 }
 
 }  // namespace slam::hw

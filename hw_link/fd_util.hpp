@@ -3,8 +3,10 @@
 // an owning file descriptor, errno text, and poll() with a deadline.
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <utility>
+#include <variant>
 
 namespace slam::hw {
 
@@ -45,5 +47,30 @@ int PollReadable(int fd, int64_t deadline_ns);
 /// them until `deadline_ns`. Returns 0, or the errno value of the failure (ETIMEDOUT when the
 /// deadline passed).
 int WriteAll(int fd, const std::string& bytes, int64_t deadline_ns);
+
+/// A descriptor, or why it could not be opened.
+using OpenedFd = std::variant<UniqueFd, std::string>;
+
+/// The reopen policy of the live transports after their device fails: remember why it closed,
+/// and make an attempt at most every 200 ms, the first one 200 ms after the failure.
+class Reopener {
+ public:
+  /// Records that the device closed now, for `reason`.
+  void Closed(std::string reason);
+
+  /// Waits (until `deadline_ns` at most) for the next attempt and makes it with `open`: the new
+  /// descriptor, or the error to report, prefixed with `who`.
+  OpenedFd TryReopen(int64_t deadline_ns, const std::string& who,
+                     const std::function<OpenedFd()>& open);
+
+  uint64_t attempts() const { return attempts_; }
+  uint64_t reopens() const { return reopens_; }
+
+ private:
+  std::string reason_;
+  int64_t next_attempt_ns_ = 0;
+  uint64_t attempts_ = 0;
+  uint64_t reopens_ = 0;
+};
 
 }  // namespace slam::hw

@@ -3,7 +3,7 @@
 // Hang-up and reopening: when the device hangs up (POLLHUP, read() returning 0 or EIO) or fails,
 // Read closes it and returns kError("... hung up"). While the device is closed, every Read
 // returns kError: it first sleeps (at most its timeout) until the next reopen attempt is due
-// (attempts are at least kReopenInterval apart), tries to reopen, and on success carries on
+// (attempts are at least 200 ms apart), tries to reopen, and on success carries on
 // reading within the same call. So a link keeps showing "source_error" until the device is
 // back, and counts one error per Read meanwhile.
 
@@ -26,7 +26,6 @@
 namespace slam::hw {
 namespace {
 
-constexpr int64_t kReopenIntervalNs = 200'000'000;
 constexpr int64_t kOpenWriteTimeoutNs = 200'000'000;  // for the open commands
 constexpr size_t kReadChunk = 4096;
 constexpr size_t kMaxBytesPerRead = 64 * 1024;  // then return what we have
@@ -120,8 +119,8 @@ class SlcanSource final : public FrameSource {
             {"nacks", total.nacks},
             {"bad_lines", total.bad_lines},
             {"device_errors", device_errors_},
-            {"reopen_attempts", reopen_attempts_},
-            {"reopens", reopens_}};
+            {"reopen_attempts", reopener_.attempts()},
+            {"reopens", reopener_.reopens()}};
   }
 
  private:
@@ -144,31 +143,17 @@ class SlcanSource final : public FrameSource {
   ReadOutcome Fail(const std::string& reason) {
     fd_.Reset();
     ++device_errors_;
-    closed_reason_ = reason;
-    next_reopen_ns_ = SteadyNowNs() + kReopenIntervalNs;
+    reopener_.Closed(reason);
     return {ReadStatus::kError, Describe() + ": " + reason};
   }
 
   // Waits (until `deadline_ns` at most) for the next attempt and reopens; empty on success,
   // otherwise the error to report.
   std::string TryReopen(int64_t deadline_ns) {
-    int64_t now_ns = SteadyNowNs();
-    if (now_ns < next_reopen_ns_) {
-      std::this_thread::sleep_for(
-          std::chrono::nanoseconds(std::min(next_reopen_ns_, deadline_ns) - now_ns));
-      now_ns = SteadyNowNs();
-      if (now_ns < next_reopen_ns_) {
-        return Describe() + ": closed (" + closed_reason_ + "), waiting to reopen";
-      }
-    }
-    ++reopen_attempts_;
-    next_reopen_ns_ = now_ns + kReopenIntervalNs;
-    auto opened = OpenDevice(device_);
-    if (auto* error = std::get_if<std::string>(&opened)) {
-      return Describe() + ": closed (" + closed_reason_ + "); reopen failed: " + *error;
-    }
+    OpenedFd opened =
+        reopener_.TryReopen(deadline_ns, Describe(), [&] { return OpenDevice(device_); });
+    if (auto* error = std::get_if<std::string>(&opened)) return *error;
     fd_ = std::move(std::get<UniqueFd>(opened));
-    ++reopens_;
     previous_ += parser_.counters();
     parser_ = SlcanParser{};  // a line cut by the hang-up must not glue onto the new stream
     return {};
@@ -180,11 +165,8 @@ class SlcanSource final : public FrameSource {
   SlcanCounters previous_;  // counters of the parsers before the last reopen
   std::vector<SlcanFrame> parsed_;
   std::array<char, kReadChunk> buffer_{};
-  std::string closed_reason_;
-  int64_t next_reopen_ns_ = 0;
+  Reopener reopener_;
   uint64_t device_errors_ = 0;
-  uint64_t reopen_attempts_ = 0;
-  uint64_t reopens_ = 0;
 };
 
 }  // namespace

@@ -3,7 +3,7 @@
 //
 // Errors: ENETDOWN (interface down) is reported as kError and the socket is kept (it receives
 // again once the interface is up); any other read error closes the socket, reports kError, and
-// later Reads reopen it (attempts at least kReopenInterval apart; kError while closed).
+// later Reads reopen it (attempts at least 200 ms apart; kError while closed).
 
 #include <linux/can.h>
 #include <linux/can/raw.h>
@@ -24,7 +24,6 @@
 namespace slam::hw {
 namespace {
 
-constexpr int64_t kReopenIntervalNs = 200'000'000;
 constexpr size_t kMaxFramesPerRead = 256;
 
 // A raw CAN socket bound to `interface` (CAN FD frames enabled when possible), or why not.
@@ -98,8 +97,8 @@ class SocketCanSource final : public FrameSource {
             {"fd_frames", fd_frames_},
             {"error_frames", error_frames_},
             {"short_reads", short_reads_},
-            {"reopen_attempts", reopen_attempts_},
-            {"reopens", reopens_}};
+            {"reopen_attempts", reopener_.attempts()},
+            {"reopens", reopener_.reopens()}};
   }
 
  private:
@@ -133,44 +132,27 @@ class SocketCanSource final : public FrameSource {
   // Closes the socket after a failure; a later Read reopens it.
   ReadOutcome Fail(const std::string& reason) {
     fd_.Reset();
-    closed_reason_ = reason;
-    next_reopen_ns_ = SteadyNowNs() + kReopenIntervalNs;
+    reopener_.Closed(reason);
     return {ReadStatus::kError, Describe() + ": " + reason};
   }
 
   // Waits (until `deadline_ns` at most) for the next attempt and reopens; empty on success,
   // otherwise the error to report.
   std::string TryReopen(int64_t deadline_ns) {
-    int64_t now_ns = SteadyNowNs();
-    if (now_ns < next_reopen_ns_) {
-      std::this_thread::sleep_for(
-          std::chrono::nanoseconds(std::min(next_reopen_ns_, deadline_ns) - now_ns));
-      now_ns = SteadyNowNs();
-      if (now_ns < next_reopen_ns_) {
-        return Describe() + ": closed (" + closed_reason_ + "), waiting to reopen";
-      }
-    }
-    ++reopen_attempts_;
-    next_reopen_ns_ = now_ns + kReopenIntervalNs;
-    auto opened = OpenSocket(interface_);
-    if (auto* error = std::get_if<std::string>(&opened)) {
-      return Describe() + ": closed (" + closed_reason_ + "); reopen failed: " + *error;
-    }
+    OpenedFd opened =
+        reopener_.TryReopen(deadline_ns, Describe(), [&] { return OpenSocket(interface_); });
+    if (auto* error = std::get_if<std::string>(&opened)) return *error;
     fd_ = std::move(std::get<UniqueFd>(opened));
-    ++reopens_;
     return {};
   }
 
   std::string interface_;
   UniqueFd fd_;
-  std::string closed_reason_;
-  int64_t next_reopen_ns_ = 0;
+  Reopener reopener_;
   uint64_t frames_ = 0;
   uint64_t fd_frames_ = 0;
   uint64_t error_frames_ = 0;
   uint64_t short_reads_ = 0;
-  uint64_t reopen_attempts_ = 0;
-  uint64_t reopens_ = 0;
 };
 
 }  // namespace
