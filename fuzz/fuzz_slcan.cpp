@@ -15,19 +15,6 @@ namespace {
 using slam::fuzz::Check;
 using namespace slam::hw;
 
-bool SameFrames(const std::vector<SlcanFrame>& a, const std::vector<SlcanFrame>& b) {
-  if (a.size() != b.size()) return false;
-  for (size_t i = 0; i < a.size(); ++i) {
-    if (!(a[i].frame == b[i].frame) || a[i].timestamp_ms != b[i].timestamp_ms) return false;
-  }
-  return true;
-}
-
-bool SameCounters(const SlcanCounters& a, const SlcanCounters& b) {
-  return a.bytes == b.bytes && a.frames == b.frames && a.acks == b.acks && a.nacks == b.nacks &&
-         a.bad_lines == b.bad_lines;
-}
-
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
@@ -47,14 +34,14 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   std::vector<SlcanFrame> split_frames;
   split.Feed(input.substr(0, cut), split_frames);
   split.Feed(input.substr(cut), split_frames);
-  Check(SameFrames(whole_frames, split_frames), "split feed: different frames");
-  Check(SameCounters(c, split.counters()), "split feed: different counters");
+  Check(whole_frames == split_frames, "split feed: different frames");
+  Check(c == split.counters(), "split feed: different counters");
 
   SlcanParser bytewise;
   std::vector<SlcanFrame> bytewise_frames;
   for (size_t i = 0; i < input.size(); ++i) bytewise.Feed(input.substr(i, 1), bytewise_frames);
-  Check(SameFrames(whole_frames, bytewise_frames), "bytewise feed: different frames");
-  Check(SameCounters(c, bytewise.counters()), "bytewise feed: different counters");
+  Check(whole_frames == bytewise_frames, "bytewise feed: different frames");
+  Check(c == bytewise.counters(), "bytewise feed: different counters");
 
   for (const SlcanFrame& f : whole_frames) {
     Check(!f.frame.fd && f.frame.len <= kCanMaxData, "bad length");
@@ -64,7 +51,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     std::vector<SlcanFrame> out;
     again.Feed(FormatSlcanFrame(f.frame, f.timestamp_ms), out);
     Check(out.size() == 1 && again.counters().bad_lines == 0, "formatted frame does not parse");
-    Check(SameFrames(out, {f}), "frame does not round-trip");
+    Check(out == std::vector<SlcanFrame>{f}, "frame does not round-trip");
   }
   return 0;
 }

@@ -21,6 +21,8 @@ namespace slam::hw {
 struct SlcanFrame {
   CanFrame frame;
   std::optional<uint16_t> timestamp_ms;  // adapter time (0..59999) when time stamps are on
+
+  friend bool operator==(const SlcanFrame&, const SlcanFrame&) = default;
 };
 
 struct SlcanCounters {
@@ -29,6 +31,8 @@ struct SlcanCounters {
   uint64_t acks = 0;       // "\r", "z\r", "Z\r"
   uint64_t nacks = 0;      // "\a"
   uint64_t bad_lines = 0;  // malformed or too long: skipped
+
+  friend bool operator==(const SlcanCounters&, const SlcanCounters&) = default;
 };
 
 class SlcanParser {

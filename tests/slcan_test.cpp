@@ -29,19 +29,6 @@ Result FeedWhole(std::string_view bytes) {
   return r;
 }
 
-bool SameFrames(const std::vector<SlcanFrame>& a, const std::vector<SlcanFrame>& b) {
-  if (a.size() != b.size()) return false;
-  for (size_t i = 0; i < a.size(); ++i) {
-    if (!(a[i].frame == b[i].frame) || a[i].timestamp_ms != b[i].timestamp_ms) return false;
-  }
-  return true;
-}
-
-bool SameCounters(const SlcanCounters& a, const SlcanCounters& b) {
-  return a.bytes == b.bytes && a.frames == b.frames && a.acks == b.acks && a.nacks == b.nacks &&
-         a.bad_lines == b.bad_lines;
-}
-
 TEST(SlcanTest, ParsesFrameLines) {
   const auto r = FeedWhole(
       "t10282000010000402C01\r"
@@ -196,14 +183,14 @@ TEST(SlcanTest, SplittingAnywhereChangesNothing) {
     std::vector<SlcanFrame> frames;
     parser.Feed(std::string_view(stream).substr(0, cut), frames);
     parser.Feed(std::string_view(stream).substr(cut), frames);
-    ASSERT_TRUE(SameFrames(frames, whole.frames)) << "cut at " << cut;
-    ASSERT_TRUE(SameCounters(parser.counters(), whole.counters)) << "cut at " << cut;
+    ASSERT_TRUE(frames == whole.frames) << "cut at " << cut;
+    ASSERT_TRUE(parser.counters() == whole.counters) << "cut at " << cut;
   }
   SlcanParser parser;
   std::vector<SlcanFrame> frames;
   for (const char c : stream) parser.Feed(std::string_view(&c, 1), frames);
-  EXPECT_TRUE(SameFrames(frames, whole.frames));
-  EXPECT_TRUE(SameCounters(parser.counters(), whole.counters));
+  EXPECT_TRUE(frames == whole.frames);
+  EXPECT_TRUE(parser.counters() == whole.counters);
 }
 
 TEST(SlcanTest, RandomChunksChangeNothing) {
@@ -220,8 +207,8 @@ TEST(SlcanTest, RandomChunksChangeNothing) {
       parser.Feed(std::string_view(stream).substr(pos, n), frames);
       pos += n;
     }
-    ASSERT_TRUE(SameFrames(frames, whole.frames));
-    ASSERT_TRUE(SameCounters(parser.counters(), whole.counters));
+    ASSERT_TRUE(frames == whole.frames);
+    ASSERT_TRUE(parser.counters() == whole.counters);
   }
 }
 
@@ -264,7 +251,7 @@ TEST(SlcanTest, RoundTrips) {
     }
   }
   const auto all = FeedWhole(stream);
-  EXPECT_TRUE(SameFrames(all.frames, expected));
+  EXPECT_TRUE(all.frames == expected);
   EXPECT_EQ(all.counters.bad_lines, 0u);
 }
 
