@@ -1,5 +1,6 @@
 #include "sim/world.hpp"
 
+#include "engine/config_error.hpp"
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/json_reader.hpp"
 
@@ -68,17 +69,16 @@ std::string Pointer(std::string_view base, size_t index) {
 
 /// Reads an array of exactly n finite numbers at `pointer`, recording errors.
 std::optional<std::vector<double>> ReadNumbers(const Json& value, size_t n,
-                                               const std::string& pointer,
-                                               std::vector<std::string>& errors) {
+                                               const std::string& pointer, ConfigErrors& errors) {
   if (!value.is_array() || value.size() != n) {
-    errors.push_back(pointer + ": expected an array of " + std::to_string(n) + " numbers");
+    errors.push_back({pointer, "expected an array of " + std::to_string(n) + " numbers"});
     return std::nullopt;
   }
   std::vector<double> numbers;
   bool ok = true;
   for (size_t i = 0; i < n; ++i) {
     if (!value[i].is_number()) {
-      errors.push_back(Pointer(pointer, i) + ": expected a number");
+      errors.push_back({Pointer(pointer, i), "expected a number"});
       ok = false;
       continue;
     }
@@ -86,6 +86,35 @@ std::optional<std::vector<double>> ReadNumbers(const Json& value, size_t n,
   }
   if (!ok) return std::nullopt;
   return numbers;
+}
+
+/// The structural problems of a world, each with its pointer.
+ConfigErrors WorldErrors(const World& world) {
+  ConfigErrors errors;
+  const auto& b = world.bounds;
+  for (size_t i = 0; i < 4; ++i) {
+    if (!std::isfinite(b[i])) errors.push_back({Pointer("/bounds", i), "must be finite"});
+  }
+  if (!(b[0] < b[2]) || !(b[1] < b[3])) {
+    errors.push_back({"/bounds", "expected x0 < x1 and y0 < y1"});
+  }
+  for (size_t i = 0; i < world.segments.size(); ++i) {
+    const Segment& s = world.segments[i];
+    if (!s.a.allFinite() || !s.b.allFinite()) {
+      errors.push_back({Pointer("/segments", i), "coordinates must be finite"});
+    } else if ((s.b - s.a).norm() <= 0.0) {
+      errors.push_back({Pointer("/segments", i), "the two ends must differ"});
+    }
+  }
+  for (size_t i = 0; i < world.circles.size(); ++i) {
+    const Circle& c = world.circles[i];
+    if (!c.center.allFinite() || !std::isfinite(c.radius_m)) {
+      errors.push_back({Pointer("/circles", i), "values must be finite"});
+    } else if (c.radius_m <= 0.0) {
+      errors.push_back({Pointer("/circles", i) + "/2", "the radius must be positive"});
+    }
+  }
+  return errors;
 }
 
 
@@ -197,28 +226,8 @@ std::vector<Vec2> Corners(const World& world) {
 
 std::vector<std::string> Validate(const World& world) {
   std::vector<std::string> errors;
-  const auto& b = world.bounds;
-  for (size_t i = 0; i < 4; ++i) {
-    if (!std::isfinite(b[i])) errors.push_back(Pointer("/bounds", i) + ": must be finite");
-  }
-  if (!(b[0] < b[2]) || !(b[1] < b[3])) {
-    errors.push_back("/bounds: expected x0 < x1 and y0 < y1");
-  }
-  for (size_t i = 0; i < world.segments.size(); ++i) {
-    const Segment& s = world.segments[i];
-    if (!s.a.allFinite() || !s.b.allFinite()) {
-      errors.push_back(Pointer("/segments", i) + ": coordinates must be finite");
-    } else if ((s.b - s.a).norm() <= 0.0) {
-      errors.push_back(Pointer("/segments", i) + ": the two ends must differ");
-    }
-  }
-  for (size_t i = 0; i < world.circles.size(); ++i) {
-    const Circle& c = world.circles[i];
-    if (!c.center.allFinite() || !std::isfinite(c.radius_m)) {
-      errors.push_back(Pointer("/circles", i) + ": values must be finite");
-    } else if (c.radius_m <= 0.0) {
-      errors.push_back(Pointer("/circles", i) + "/2: the radius must be positive");
-    }
+  for (const ConfigError& error : WorldErrors(world)) {
+    errors.push_back(error.pointer + ": " + error.detail);
   }
   return errors;
 }
@@ -237,29 +246,29 @@ WorldLoadResult ParseWorld(std::string_view json_text, std::string_view source) 
     result.errors.push_back(prefix + "expected a JSON object");
     return result;
   }
-  std::vector<std::string> errors;
+  ConfigErrors errors;
   World world;
   for (const auto& [key, value] : doc.items()) {
     if (key != "name" && key != "bounds" && key != "segments" && key != "circles") {
-      errors.push_back(io::detail::Child("", key) + ": unknown key");
+      errors.push_back({io::detail::Child("", key), "unknown key"});
     }
   }
   if (!doc.contains("name")) {
-    errors.push_back("/name: missing");
+    errors.push_back({"/name", "missing"});
   } else if (!doc["name"].is_string()) {
-    errors.push_back("/name: expected a string");
+    errors.push_back({"/name", "expected a string"});
   } else {
     world.name = doc["name"].get<std::string>();
   }
   if (!doc.contains("bounds")) {
-    errors.push_back("/bounds: missing");
+    errors.push_back({"/bounds", "missing"});
   } else if (const auto b = ReadNumbers(doc["bounds"], 4, "/bounds", errors)) {
     std::copy(b->begin(), b->end(), world.bounds.begin());
   }
   if (doc.contains("segments")) {
     const Json& list = doc["segments"];
     if (!list.is_array()) {
-      errors.push_back("/segments: expected an array of [x1, y1, x2, y2]");
+      errors.push_back({"/segments", "expected an array of [x1, y1, x2, y2]"});
     } else {
       for (size_t i = 0; i < list.size(); ++i) {
         if (const auto v = ReadNumbers(list[i], 4, Pointer("/segments", i), errors)) {
@@ -271,7 +280,7 @@ WorldLoadResult ParseWorld(std::string_view json_text, std::string_view source) 
   if (doc.contains("circles")) {
     const Json& list = doc["circles"];
     if (!list.is_array()) {
-      errors.push_back("/circles: expected an array of [cx, cy, r]");
+      errors.push_back({"/circles", "expected an array of [cx, cy, r]"});
     } else {
       for (size_t i = 0; i < list.size(); ++i) {
         if (const auto v = ReadNumbers(list[i], 3, Pointer("/circles", i), errors)) {
@@ -280,9 +289,15 @@ WorldLoadResult ParseWorld(std::string_view json_text, std::string_view source) 
       }
     }
   }
-  if (errors.empty()) errors = Validate(world);
+  if (errors.empty()) errors = WorldErrors(world);
   if (!errors.empty()) {
-    for (const std::string& e : errors) result.errors.push_back(prefix + e);
+    io::detail::AddLines(errors, json_text);
+    for (const ConfigError& e : errors) {
+      // "source:line: /pointer: detail", or "source: /pointer: detail" when the line is unknown.
+      const std::string at = e.line > 0 ? std::string(source) + ':' + std::to_string(e.line) + ": "
+                                        : prefix;
+      result.errors.push_back(at + e.pointer + ": " + e.detail);
+    }
     return result;
   }
   result.world = std::move(world);

@@ -51,7 +51,8 @@ std::vector<std::string> Validate(const World& world);
 /// A world read from JSON, or the reasons it could not be read.
 struct WorldLoadResult {
   std::optional<World> world;
-  std::vector<std::string> errors;  // "source: /pointer: detail", one per problem
+  std::vector<std::string> errors;  // "source:line: /pointer: detail" ("source: /pointer: detail"
+                                    // when the line is unknown), one per problem
   bool ok() const { return world.has_value(); }
 };
 

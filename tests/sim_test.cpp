@@ -6,7 +6,9 @@
 #include <cstdio>
 #include <fstream>
 #include <set>
+#include <sstream>
 #include <string>
+#include <vector>
 
 #include "engine/pose.hpp"
 #include "engine/robot.hpp"
@@ -263,31 +265,31 @@ TEST(WorldJsonTest, ErrorsNameTheSourceAndThePointer) {
                "w.json: invalid JSON");
   EXPECT_PRED2(Contains, ErrorsOf("[1, 2]"), "w.json: expected a JSON object");
   EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "colour/x": 1})"),
-               "w.json: /colour~1x: unknown key");
-  EXPECT_PRED2(Contains, ErrorsOf(R"({"bounds": [0, 0, 1, 1]})"), "w.json: /name: missing");
+               "w.json:1: /colour~1x: unknown key");
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"bounds": [0, 0, 1, 1]})"), "w.json:1: /name: missing");
   EXPECT_PRED2(Contains, ErrorsOf(R"({"name": 3, "bounds": [0, 0, 1, 1]})"),
-               "w.json: /name: expected a string");
-  EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x"})"), "w.json: /bounds: missing");
+               "w.json:1: /name: expected a string");
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x"})"), "w.json:1: /bounds: missing");
   EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1]})"),
-               "w.json: /bounds: expected an array of 4 numbers");
+               "w.json:1: /bounds: expected an array of 4 numbers");
   EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x", "bounds": [1, 0, 0, 1]})"),
-               "w.json: /bounds: expected x0 < x1 and y0 < y1");
+               "w.json:1: /bounds: expected x0 < x1 and y0 < y1");
   EXPECT_PRED2(
       Contains,
       ErrorsOf(
           R"({"name": "x", "bounds": [0, 0, 1, 1], "segments": [[0, 0, 1, 1], [0, 0, "a", 1]]})"),
-      "w.json: /segments/1/2: expected a number");
+      "w.json:1: /segments/1/2: expected a number");
   EXPECT_PRED2(Contains,
                ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "segments": [[0, 0, 0, 0]]})"),
-               "w.json: /segments/0: the two ends must differ");
+               "w.json:1: /segments/0: the two ends must differ");
   EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "circles": {"a": 1}})"),
-               "w.json: /circles: expected an array");
+               "w.json:1: /circles: expected an array");
   EXPECT_PRED2(Contains,
                ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "circles": [[0.5, 0.5]]})"),
-               "w.json: /circles/0: expected an array of 3 numbers");
+               "w.json:1: /circles/0: expected an array of 3 numbers");
   EXPECT_PRED2(Contains,
                ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "circles": [[0.5, 0.5, -1]]})"),
-               "w.json: /circles/0/2: the radius must be positive");
+               "w.json:1: /circles/0/2: the radius must be positive");
 }
 
 TEST(WorldJsonTest, ReportsEveryErrorAtOnce) {
@@ -295,6 +297,44 @@ TEST(WorldJsonTest, ReportsEveryErrorAtOnce) {
       ParseWorld(R"({"extra": 1, "bounds": [0, 0, 1, 1], "segments": [[0, 0, 1], [1]]})", "w");
   EXPECT_FALSE(r.ok());
   EXPECT_EQ(r.errors.size(), 4u);  // /extra, /name, /segments/0, /segments/1
+}
+
+TEST(WorldJsonTest, FileErrorsNameTheLine) {
+  // A saved arena has one obstacle per line: edit known lines and read the file back.
+  const std::string path = ::testing::TempDir() + "sim_test_lines.world.json";
+  const std::string text = WorldToJson(*BuiltinArena("box"));
+  std::vector<std::string> lines;
+  std::istringstream in(text);
+  for (std::string line; std::getline(in, line);) lines.push_back(line);
+  ASSERT_EQ(lines[1].rfind("  \"name\": ", 0), 0u) << text;
+  ASSERT_EQ(lines[4].rfind("    [0.0, 0.0, 2.0, 0.0],", 0), 0u) << text;  // /segments/0
+  lines.insert(lines.begin() + 2, "  \"colour\": \"red\",");  // line 3
+  lines[5] = "    [0, 0, \"2\", 0],";                         // /segments/0, now on line 6
+  const auto load = [&] {
+    std::ofstream out(path, std::ios::binary);
+    for (const std::string& line : lines) out << line << "\n";
+    out.close();
+    return LoadWorld(path);
+  };
+  WorldLoadResult r = load();
+  ASSERT_EQ(r.errors.size(), 2u);
+  EXPECT_EQ(r.errors[0], path + ":3: /colour: unknown key");
+  EXPECT_EQ(r.errors[1], path + ":6: /segments/0/2: expected a number");
+  EXPECT_PRED2(Contains, r.errors[0], "world.json:3: /colour");
+
+  // Validation errors too; a missing key names the line of the object that lacks it.
+  lines.erase(lines.begin() + 2);
+  lines[4] = "    [0, 0, 0, 0],";
+  lines[1] = "  \"nom\": \"box\",";
+  r = load();
+  ASSERT_EQ(r.errors.size(), 2u);
+  EXPECT_EQ(r.errors[0], path + ":2: /nom: unknown key");
+  EXPECT_EQ(r.errors[1], path + ":1: /name: missing");
+  lines[1] = "  \"name\": \"box\",";
+  r = load();
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_EQ(r.errors[0], path + ":5: /segments/0: the two ends must differ");
+  std::remove(path.c_str());
 }
 
 TEST(WorldJsonTest, MissingFileAndUnwritableDirectory) {

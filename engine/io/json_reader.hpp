@@ -1,7 +1,7 @@
 #pragma once
 // Internal to engine/io: strict reading of JSON documents shared by the robot and params
 // adapters. Unknown keys, duplicate keys, missing keys and wrong types become ConfigErrors that
-// carry the JSON pointer of the offending value; nothing throws.
+// carry the JSON pointer of the offending value (and, read from a file, its line); nothing throws.
 
 #include <cerrno>
 #include <cmath>
@@ -11,12 +11,16 @@
 #include <fstream>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <string>
+#include <string_view>
+#include <utility>
 #include <vector>
 
 #include "engine/config_error.hpp"
+#include "engine/io/json_locate.hpp"
 #include "engine/io/result.hpp"
 
 namespace slam::io::detail {
@@ -226,8 +230,17 @@ class DuplicateKeyFinder {
   std::vector<Frame> frames_;
 };
 
+/// Sets the line of every error that has none from the text its JSON was parsed from: the line of
+/// the value at its pointer, or of the nearest enclosing value (for a missing key, its object).
+inline void AddLines(ConfigErrors& errors, std::string_view text) {
+  for (ConfigError& error : errors) {
+    if (error.line > 0) continue;
+    if (const std::optional<int> line = LineOfNearestValue(text, error.pointer)) error.line = *line;
+  }
+}
+
 /// Parses `text`; `source` (a file path, or a description) prefixes syntax errors, which carry
-/// nlohmann's "line L, column C" message. Duplicate keys are errors.
+/// nlohmann's "line L, column C" message. Duplicate keys are errors, with their line.
 inline Result<Json> ParseJsonText(const std::string& text, const std::string& source) {
   ConfigErrors errors;
   Json json;
@@ -242,26 +255,65 @@ inline Result<Json> ParseJsonText(const std::string& text, const std::string& so
     }
     return Result<Json>(ConfigErrors{{"", source + ": " + what}}, source);
   }
-  if (!errors.empty()) return Result<Json>(std::move(errors), source);
+  if (!errors.empty()) {
+    AddLines(errors, text);
+    return Result<Json>(std::move(errors), source);
+  }
   return Result<Json>(std::move(json));
 }
 
-/// Reads and parses a JSON file; errors name the path.
-inline Result<Json> ReadJsonFile(const std::string& path) {
+/// The bytes of a file; errors name the path.
+inline Result<std::string> ReadTextFile(const std::string& path) {
   std::error_code ec;
   if (std::filesystem::is_directory(path, ec)) {
-    return Result<Json>(ConfigErrors{{"", path + ": is a directory, not a JSON file"}}, path);
+    return Result<std::string>(ConfigErrors{{"", path + ": is a directory, not a JSON file"}},
+                               path);
   }
   std::ifstream in(path, std::ios::binary);
   if (!in) {
     const int error = errno;
-    return Result<Json>(ConfigErrors{{"", path + ": cannot open (" + std::strerror(error) + ")"}},
-                        path);
+    return Result<std::string>(
+        ConfigErrors{{"", path + ": cannot open (" + std::strerror(error) + ")"}}, path);
   }
   std::ostringstream text;
   text << in.rdbuf();
-  if (in.bad()) return Result<Json>(ConfigErrors{{"", path + ": read error"}}, path);
-  return ParseJsonText(text.str(), path);
+  if (in.bad()) return Result<std::string>(ConfigErrors{{"", path + ": read error"}}, path);
+  return Result<std::string>(text.str());
+}
+
+/// A parsed JSON document and the text it was parsed from (to find the lines of errors).
+struct JsonDocument {
+  Json json;
+  std::string text;
+};
+
+/// Reads and parses a JSON file; errors name the path.
+inline Result<JsonDocument> ReadJsonDocument(const std::string& path) {
+  Result<std::string> text = ReadTextFile(path);
+  if (!text.ok()) return {text.errors(), path};
+  Result<Json> json = ParseJsonText(text.value(), path);
+  if (!json.ok()) return {json.errors(), path};
+  return JsonDocument{std::move(json).value(), std::move(text).value()};
+}
+
+/// Reads and parses a JSON file; errors name the path.
+inline Result<Json> ReadJsonFile(const std::string& path) {
+  Result<JsonDocument> document = ReadJsonDocument(path);
+  if (!document.ok()) return {document.errors(), path};
+  return std::move(document.value().json);
+}
+
+/// Reads a JSON file and converts it with `convert` (const Json& -> Result<T>); every error names
+/// the path and, when it can be found in the text, the line.
+template <typename T, typename Convert>
+Result<T> LoadJsonFile(const std::string& path, Convert&& convert) {
+  Result<JsonDocument> document = ReadJsonDocument(path);
+  if (!document.ok()) return {document.errors(), path};
+  Result<T> value = convert(document.value().json);
+  if (value.ok()) return value;
+  ConfigErrors errors = value.errors();
+  AddLines(errors, document.value().text);
+  return {std::move(errors), path};
 }
 
 }  // namespace slam::io::detail

@@ -40,11 +40,7 @@ Result<SlamParams> ParamsFromJson(const nlohmann::json& json) {
 }
 
 Result<SlamParams> LoadParams(const std::string& path) {
-  Result<Json> json = detail::ReadJsonFile(path);
-  if (!json.ok()) return {json.errors(), path};
-  Result<SlamParams> params = ParamsFromJson(json.value());
-  if (!params.ok()) return {params.errors(), path};
-  return params;
+  return detail::LoadJsonFile<SlamParams>(path, ParamsFromJson);
 }
 
 nlohmann::json ParamsToJson(const SlamParams& params) {

@@ -15,7 +15,8 @@ namespace slam::io {
 /// keys, wrong types and non-integral integers are errors) and validates them.
 Result<SlamParams> ParamsFromJson(const nlohmann::json& json);
 
-/// Reads and validates a parameters file; errors name the path (syntax errors with line/column).
+/// Reads and validates a parameters file; errors name the path and, when known, the
+/// line (syntax errors also the column).
 Result<SlamParams> LoadParams(const std::string& path);
 
 /// The JSON object of the parameters (every key written).

@@ -45,19 +45,9 @@ class Result {
   /// Where the input came from, when known (a file path); empty otherwise.
   const std::string& error_context() const { return error_context_; }
 
-  /// One line per error, "context#pointer: detail" (errors without a pointer name their source).
-  std::string Message() const {
-    std::string text;
-    for (const ConfigError& error : errors_) {
-      if (!text.empty()) text += '\n';
-      if (!error.pointer.empty()) {
-        if (!error_context_.empty()) text += error_context_ + '#';
-        text += error.pointer + ": ";
-      }
-      text += error.detail;
-    }
-    return text;
-  }
+  /// One line per error (FormatErrors): "context:line: pointer: detail" when the line is known,
+  /// else "context#pointer: detail"; errors without a pointer name their source themselves.
+  std::string Message() const { return FormatErrors(errors_, error_context_); }
 
  private:
   std::optional<T> value_;

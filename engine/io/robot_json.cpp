@@ -122,11 +122,7 @@ Result<RobotDescription> RobotFromJson(const nlohmann::json& json) {
 }
 
 Result<RobotDescription> LoadRobot(const std::string& path) {
-  Result<Json> json = detail::ReadJsonFile(path);
-  if (!json.ok()) return {json.errors(), path};
-  Result<RobotDescription> robot = RobotFromJson(json.value());
-  if (!robot.ok()) return {robot.errors(), path};
-  return robot;
+  return detail::LoadJsonFile<RobotDescription>(path, RobotFromJson);
 }
 
 nlohmann::json RobotToJson(const RobotDescription& robot) {

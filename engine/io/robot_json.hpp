@@ -13,7 +13,8 @@ namespace slam::io {
 /// Reads a robot description from parsed JSON and validates it.
 Result<RobotDescription> RobotFromJson(const nlohmann::json& json);
 
-/// Reads and validates a robot.json file; errors name the path (syntax errors with line/column).
+/// Reads and validates a robot.json file; errors name the path and, when known, the
+/// line (syntax errors also the column).
 Result<RobotDescription> LoadRobot(const std::string& path);
 
 /// The robot.json document of a description (every key written, sigma_m included).
