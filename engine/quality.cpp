@@ -10,6 +10,24 @@ Vec2 RigidTransform2::Apply(const Vec2& p) const {
   return {c * p.x() - s * p.y() + translation.x(), s * p.x() + c * p.y() + translation.y()};
 }
 
+RigidTransform2 RigidTransform2::Inverse() const {
+  const double c = std::cos(rotation_rad), s = std::sin(rotation_rad);
+  const Vec2& t = translation;
+  return {-rotation_rad, {-(c * t.x() + s * t.y()), -(-s * t.x() + c * t.y())}};
+}
+
+std::vector<TimedPose> TransformTrajectory(const RigidTransform2& transform,
+                                           const std::vector<TimedPose>& trajectory) {
+  std::vector<TimedPose> out;
+  out.reserve(trajectory.size());
+  for (const TimedPose& p : trajectory) {
+    const Vec2 position = transform.Apply(p.pose.translation());
+    out.push_back({p.t,
+                   {position.x(), position.y(), NormalizeAngle(p.pose.theta + transform.rotation_rad)}});
+  }
+  return out;
+}
+
 RigidTransform2 AlignRigid2D(const std::vector<Vec2>& source, const std::vector<Vec2>& target) {
   const auto n = static_cast<double>(source.size());
   Vec2 mean_s = Vec2::Zero(), mean_t = Vec2::Zero();

@@ -13,7 +13,13 @@ struct RigidTransform2 {
   double rotation_rad = 0.0;
   Vec2 translation = Vec2::Zero();
   Vec2 Apply(const Vec2& p) const;
+  /// The transform undoing this one.
+  RigidTransform2 Inverse() const;
 };
+
+/// Every pose of `trajectory` moved by `transform` (positions and headings).
+std::vector<TimedPose> TransformTrajectory(const RigidTransform2& transform,
+                                           const std::vector<TimedPose>& trajectory);
 
 /// The rigid transform minimising sum |A(source_i) - target_i|^2 (closed form, eq. 7).
 /// Precondition: equal sizes, at least one point.

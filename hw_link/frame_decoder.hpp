@@ -21,18 +21,24 @@ class FrameDecoder {
 
   /// The robot event this frame completes, if any (timed by the frame's t).
   std::optional<RobotEvent> Push(const TimedFrame& frame) {
-    ++frames_;
+    if (frames_++ == 0) first_time_ = frame.t;
+    last_time_ = frame.t;
     const auto message = reassembler_.Push(frame.frame, frame.t);
     if (!message) return std::nullopt;
     return decoder_.Decode(*message);
   }
 
   uint64_t frames() const { return frames_; }
+  /// Times of the first and last frame pushed (0 before any).
+  double first_time() const { return first_time_; }
+  double last_time() const { return last_time_; }
   const ReassemblyCounters& reassembly() const { return reassembler_.counters(); }
   const DecoderCounters& decoder() const { return decoder_.counters(); }
 
  private:
   uint64_t frames_ = 0;
+  double first_time_ = 0.0;
+  double last_time_ = 0.0;
   AsebaReassembler reassembler_;
   EventDecoder decoder_;
 };

@@ -16,11 +16,19 @@
 #include "engine/cell_encoding.hpp"
 #include "engine/grid_geometry.hpp"
 #include "engine/occupancy_grid.hpp"
+#include "tests/map_file_support.hpp"
 
 namespace slam::io {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::CountColor;
+using testing::ParsePgm;
+using testing::Pgm;
+using testing::ParseYaml;
+using testing::Pixel;
+using testing::ReadFile;
+using testing::ReadPng;
 
 /// A fresh empty directory for one test's files.
 std::string TestDir(const std::string& name) {
@@ -28,13 +36,6 @@ std::string TestDir(const std::string& name) {
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir.string();
-}
-
-std::string ReadFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
 }
 
 /// A 5 cm grid with known cells on both sides of the origin.
@@ -91,37 +92,6 @@ TEST(GridImageTest, EmptyGridIsOneUnknownPixel) {
 }
 
 /// A parsed binary PGM: header fields and pixels, comments skipped.
-struct Pgm {
-  std::string magic;
-  int width = 0, height = 0, maxval = 0;
-  std::string pixels;
-};
-
-Pgm ParsePgm(const std::string& bytes) {
-  Pgm pgm;
-  size_t pos = 0;
-  const auto token = [&] {
-    while (pos < bytes.size()) {
-      if (bytes[pos] == '#') {
-        while (pos < bytes.size() && bytes[pos] != '\n') ++pos;
-      } else if (std::isspace(static_cast<unsigned char>(bytes[pos]))) {
-        ++pos;
-      } else {
-        break;
-      }
-    }
-    const size_t start = pos;
-    while (pos < bytes.size() && !std::isspace(static_cast<unsigned char>(bytes[pos]))) ++pos;
-    return bytes.substr(start, pos - start);
-  };
-  pgm.magic = token();
-  pgm.width = std::stoi(token());
-  pgm.height = std::stoi(token());
-  pgm.maxval = std::stoi(token());
-  pgm.pixels = bytes.substr(pos + 1);  // exactly one whitespace after maxval
-  return pgm;
-}
-
 TEST(MapFilesTest, PgmReadsBackWithTheSameValues) {
   const std::string dir = TestDir("pgm");
   const GridImage image = MakeGridImage(SampleGrid());
@@ -139,18 +109,6 @@ TEST(MapFilesTest, PgmReadsBackWithTheSameValues) {
   EXPECT_EQ(static_cast<uint8_t>(pgm.pixels[63 * 128 + 66]), 205);
   // Nothing but the map is left in the directory (no temporary files).
   EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
-}
-
-/// "key: value" lines of a flat YAML file.
-std::map<std::string, std::string> ParseYaml(const std::string& text) {
-  std::map<std::string, std::string> values;
-  std::istringstream in(text);
-  std::string line;
-  while (std::getline(in, line)) {
-    const size_t colon = line.find(": ");
-    if (colon != std::string::npos) values[line.substr(0, colon)] = line.substr(colon + 2);
-  }
-  return values;
 }
 
 TEST(MapFilesTest, YamlFollowsMapServer) {
@@ -207,37 +165,6 @@ TEST(MapFilesTest, WriteReplacesAnExistingFile) {
   ASSERT_FALSE(WriteMapYaml(dir + "/map.yaml", "map.pgm", MakeGridImage(SampleGrid())));
   EXPECT_EQ(ReadFile(dir + "/map.yaml").find("stale"), std::string::npos);
   EXPECT_EQ(ParseYaml(ReadFile(dir + "/map.yaml")).at("image"), "map.pgm");
-}
-
-/// An RGB image decoded by libpng's simplified API; width 0 on failure.
-RgbImage ReadPng(const std::string& path) {
-  png_image png{};
-  png.version = PNG_IMAGE_VERSION;
-  RgbImage image;
-  if (!png_image_begin_read_from_file(&png, path.c_str())) return image;
-  png.format = PNG_FORMAT_RGB;
-  std::vector<uint8_t> pixels(PNG_IMAGE_SIZE(png));
-  if (!png_image_finish_read(&png, nullptr, pixels.data(), 0, nullptr)) return image;
-  image.width = static_cast<int>(png.width);
-  image.height = static_cast<int>(png.height);
-  image.rgb = std::move(pixels);
-  return image;
-}
-
-std::array<uint8_t, 3> Pixel(const RgbImage& image, int x, int y) {
-  const size_t i =
-      (static_cast<size_t>(y) * static_cast<size_t>(image.width) + static_cast<size_t>(x)) * 3;
-  return {image.rgb[i], image.rgb[i + 1], image.rgb[i + 2]};
-}
-
-int CountColor(const RgbImage& image, int x0, int y0, int x1, int y1,
-               const std::array<uint8_t, 3>& color) {
-  int n = 0;
-  for (int y = std::max(0, y0); y < std::min(image.height, y1); ++y) {
-    for (int x = std::max(0, x0); x < std::min(image.width, x1); ++x)
-      n += Pixel(image, x, y) == color;
-  }
-  return n;
 }
 
 TEST(PngTest, EncodedBytesAreAValidPng) {

@@ -77,3 +77,26 @@ TEST(PoseAt, InterpolatesTheShortWayRound) {
 
 }  // namespace
 }  // namespace slam
+
+TEST(RigidTransform2, InverseUndoesAndTransformsTrajectories) {
+  const slam::RigidTransform2 a{0.7, {1.5, -2.0}};
+  const slam::RigidTransform2 back = a.Inverse();
+  const slam::Vec2 p{0.3, 0.4};
+  const slam::Vec2 round_trip = back.Apply(a.Apply(p));
+  EXPECT_NEAR(round_trip.x(), 0.3, 1e-12);
+  EXPECT_NEAR(round_trip.y(), 0.4, 1e-12);
+
+  const std::vector<slam::TimedPose> trajectory{{1.0, {1.0, 0.0, 0.0}}, {2.0, {0.0, 1.0, 3.0}}};
+  const auto moved = slam::TransformTrajectory(a, trajectory);
+  ASSERT_EQ(moved.size(), 2u);
+  const slam::Vec2 expected = a.Apply({1.0, 0.0});
+  EXPECT_NEAR(moved[0].pose.x, expected.x(), 1e-12);
+  EXPECT_NEAR(moved[0].pose.y, expected.y(), 1e-12);
+  EXPECT_NEAR(moved[0].pose.theta, 0.7, 1e-12);
+  EXPECT_NEAR(moved[1].pose.theta, slam::NormalizeAngle(3.7), 1e-12);
+  EXPECT_EQ(moved[1].t, 2.0);
+  const auto restored = slam::TransformTrajectory(back, moved);
+  EXPECT_NEAR(restored[1].pose.x, 0.0, 1e-12);
+  EXPECT_NEAR(restored[1].pose.y, 1.0, 1e-12);
+  EXPECT_NEAR(restored[1].pose.theta, 3.0, 1e-12);
+}

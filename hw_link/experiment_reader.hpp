@@ -1,0 +1,81 @@
+#pragma once
+// Reading recorded experiments (DESIGN section 5) for replays and the tuner: the directory's
+// files are checked, can.log goes through the same decoding as live data (candump replay ->
+// Aseba reassembly -> event decoder -> scan assembler), nothing is dropped for lack of time.
+//
+// What is an error and what is a counted skip:
+// - robot.json, can.log and meta.json are required; a missing, unreadable or malformed one is
+//   an error naming the file (and the line, for JSON with a known position).
+// - groundtruth.tum and world.json are optional; when present they must be well formed
+//   (groundtruth.tum: times strictly increasing, errors give file:line).
+// - Inside can.log, garbled lines (a truncated last line too), malformed Aseba fragments and
+//   unknown messages are counted and skipped, as on a live link. A log that yields no scan at all
+//   is an error, with the counters that explain why.
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "engine/pose.hpp"
+#include "engine/robot.hpp"
+#include "engine/scan.hpp"
+#include "engine/scan_assembler.hpp"
+#include "hw_link/aseba.hpp"
+#include "hw_link/event_decoder.hpp"
+#include "hw_link/frame_source.hpp"
+#include "sim/world.hpp"
+
+namespace slam::hw {
+
+/// meta.json: {"name", "world", "duration_s", "source": "sim"|"robot", "seed"}. Only "name" is
+/// required; other keys are kept for the record and unknown keys are allowed.
+struct ExperimentMeta {
+  std::string name;
+  std::string world;
+  std::optional<double> duration_s;
+  std::string source;
+  std::optional<uint64_t> seed;
+};
+
+/// What decoding can.log counted.
+struct ExperimentCounters {
+  uint64_t frames = 0;           // frames read from the log
+  uint64_t bad_lines = 0;        // garbled log lines skipped
+  uint64_t ignored_lines = 0;    // comments and blank lines
+  ReassemblyCounters reassembly;
+  DecoderCounters decoder;
+  ScanAssemblerCounters assembler;
+
+  /// Frames, lines and messages rejected anywhere on the way: garbled lines, frames the Aseba
+  /// reassembly dropped, messages the decoder did not recognise.
+  uint64_t FramesRejected() const {
+    return bad_lines + reassembly.Rejected() + decoder.Rejected();
+  }
+};
+
+struct Experiment {
+  std::string dir;
+  ExperimentMeta meta;
+  RobotDescription robot;
+  std::vector<Scan> scans;
+  std::vector<TimedPose> ground_truth;  // empty without groundtruth.tum
+  std::optional<sim::World> world;      // simulated experiments only
+  double t_first = 0.0;                 // times of the first and last frame of can.log
+  double t_last = 0.0;
+  ExperimentCounters counters;
+
+  /// Recorded time covered by can.log, seconds.
+  double duration_s() const { return t_last - t_first; }
+};
+
+struct ExperimentLoad {
+  std::optional<Experiment> experiment;
+  std::string error;  // one or more lines, each naming its file; empty on success
+  bool ok() const { return experiment.has_value(); }
+};
+
+/// Reads and decodes the experiment in `dir`.
+ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig& assembler = {});
+
+}  // namespace slam::hw

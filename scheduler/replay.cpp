@@ -1,0 +1,75 @@
+#include "scheduler/replay.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <ctime>
+#include <time.h>
+
+#include "scheduler/fixed_plan.hpp"
+
+namespace slam {
+namespace {
+
+/// CPU time so far: the whole process's when the engine may use worker threads, else this
+/// thread's (so that replays running side by side each measure their own).
+double CpuSeconds(bool whole_process) {
+  timespec now{};
+  ::clock_gettime(whole_process ? CLOCK_PROCESS_CPUTIME_ID : CLOCK_THREAD_CPUTIME_ID, &now);
+  return static_cast<double>(now.tv_sec) + 1e-9 * static_cast<double>(now.tv_nsec);
+}
+
+}  // namespace
+
+std::vector<TimedPose> DeadReckoning(const std::vector<Scan>& scans) {
+  std::vector<TimedPose> trajectory;
+  if (scans.empty()) return trajectory;
+  Pose2 start;
+  trajectory.push_back({scans.front().t_begin, start});
+  for (const Scan& scan : scans) {
+    // As the engine's history: a sample at the scan's start is the previous end pose, and the
+    // end pose is added unless the last sample is at the scan's end.
+    const size_t first = trajectory.size();
+    for (const ScanSample& sample : scan.samples) {
+      if (sample.t <= scan.t_begin) continue;
+      trajectory.push_back({sample.t, Compose(start, Between(scan.odom_begin, sample.odom))});
+    }
+    start = Compose(start, Between(scan.odom_begin, scan.odom_end));
+    if (trajectory.size() == first || trajectory.back().t < scan.t_end) {
+      trajectory.push_back({scan.t_end, start});
+    }
+  }
+  return trajectory;
+}
+
+ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scans,
+                    const std::vector<TimedPose>& ground_truth, const ReplayOptions& options) {
+  Slam engine(robot, options.params, options.config);
+  int64_t rays_total = 0, rays_max = 0, resamplings = 0;
+  const auto wall_start = std::chrono::steady_clock::now();
+  const double cpu_start = CpuSeconds(options.config.parallel);
+  for (size_t k = 0; k < scans.size(); ++k) {
+    ScanPlan plan = FixedPlan(engine.Summarize(scans[k]), options.rays_per_scan, options.params);
+    plan.refine = options.refine;
+    const ScanReport report = engine.ProcessScan(scans[k], plan);
+    rays_total += report.rays.total();
+    rays_max = std::max(rays_max, report.rays.total());
+    resamplings += report.resampled ? 1 : 0;
+    if (options.progress) options.progress(k + 1, scans.size());
+  }
+  const double cpu_s = CpuSeconds(options.config.parallel) - cpu_start;
+  const double wall_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+
+  ReplayResult result(engine.Best().map);
+  result.trajectory = engine.Trajectory();
+  if (!ground_truth.empty()) result.quality = EvaluateTrajectory(result.trajectory, ground_truth);
+  result.scans = static_cast<int64_t>(scans.size());
+  result.rays_total = rays_total;
+  result.rays_per_scan_max = rays_max;
+  result.resamplings = resamplings;
+  result.wall_s = wall_s;
+  result.cpu_s = cpu_s;
+  return result;
+}
+
+}  // namespace slam

@@ -1,0 +1,55 @@
+#pragma once
+// Runs the engine over the scans of a recorded experiment at a ray budget, as slam-replay, the
+// reference table and the tuner's fitness do. Deterministic: the same inputs and seed give the
+// same trajectory and map, with the engine's parallel path or without.
+
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <utility>
+#include <vector>
+
+#include "engine/occupancy_grid.hpp"
+#include "engine/params.hpp"
+#include "engine/pose.hpp"
+#include "engine/quality.hpp"
+#include "engine/robot.hpp"
+#include "engine/scan.hpp"
+#include "engine/slam.hpp"
+
+namespace slam {
+
+struct ReplayOptions {
+  SlamParams params;
+  SlamConfig config;            // seed and parallel among others
+  int64_t rays_per_scan = 65000;  // the paper's budgets: 8125, 16250, 32500, 65000
+  bool refine = true;           // false: phase B off, odometry-only mapping
+  /// Called after every scan with (scans done, scans in all); may be empty.
+  std::function<void(size_t, size_t)> progress;
+};
+
+struct ReplayResult {
+  std::vector<TimedPose> trajectory;  // best particle's, from the first scan's start
+  OccupancyGrid map;                  // best particle's
+  std::optional<TrajectoryQuality> quality;  // against the ground truth, when there is one
+  int64_t scans = 0;
+  int64_t rays_total = 0;
+  int64_t rays_per_scan_max = 0;
+  int64_t resamplings = 0;
+  double wall_s = 0.0;
+  double cpu_s = 0.0;  // CPU time of the run: this thread's with a serial engine, else the process's
+
+  explicit ReplayResult(OccupancyGrid final_map) : map(std::move(final_map)) {}
+};
+
+/// The odometry-only trajectory of `scans`, as the engine with phase B off builds it: from the
+/// origin at the first scan's start, every sample's pose and each scan's end pose, scans chained
+/// end to end.
+std::vector<TimedPose> DeadReckoning(const std::vector<Scan>& scans);
+
+/// Replays `scans` through the engine with the paper's budget policy (FixedPlan).
+/// Preconditions: robot, params and config valid.
+ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scans,
+                    const std::vector<TimedPose>& ground_truth, const ReplayOptions& options);
+
+}  // namespace slam

@@ -1,0 +1,324 @@
+// Replays of small generated experiments end to end: determinism (same seed, parallel or
+// serial), the files slam-replay writes read back by independent parsers, the evaluation table,
+// and the slam-replay command line on good and bad experiments.
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "engine/io/map_image.hpp"
+#include "engine/io/tum.hpp"
+#include "hw_link/experiment.hpp"
+#include "hw_link/experiment_reader.hpp"
+#include "scheduler/replay.hpp"
+#include "sim/scenario.hpp"
+#include "tests/map_file_support.hpp"
+#include "tests/test_support.hpp"
+#include "tools/evaluation.hpp"
+#include "tools/replay_report.hpp"
+
+namespace slam {
+namespace {
+
+namespace fs = std::filesystem;
+using Json = nlohmann::json;
+
+/// Experiments generated once for the whole suite: a 40 s run in two arenas.
+class ReplayTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    root_ = fs::path(::testing::TempDir()) / ("slam_replay_test_" + std::to_string(::getpid()));
+    fs::remove_all(root_);
+    const RobotDescription robot = testing::ShippedRobot();
+    int seed = 1;
+    for (const char* arena : {"box", "rooms"}) {
+      sim::ScenarioConfig config;
+      config.duration_s = 40.0;
+      config.seed = static_cast<uint64_t>(seed++);
+      const std::string dir = (root_ / arena).string();
+      ASSERT_FALSE(hw::WriteSimulatedExperiment(dir, *sim::BuiltinArena(arena), arena, robot,
+                                                config));
+      hw::ExperimentLoad load = hw::LoadExperiment(dir);
+      ASSERT_TRUE(load.ok()) << load.error;
+      experiments_->push_back(std::move(*load.experiment));
+    }
+  }
+  static void TearDownTestSuite() {
+    fs::remove_all(root_);
+    experiments_->clear();
+  }
+
+  static const hw::Experiment& Box() { return experiments_->at(0); }
+
+  static ReplayResult Run(const hw::Experiment& e, int64_t budget, bool refine, uint64_t seed,
+                          bool parallel, int particles = 1) {
+    ReplayOptions options;
+    options.rays_per_scan = budget;
+    options.refine = refine;
+    options.config.seed = seed;
+    options.config.parallel = parallel;
+    options.params.particles = particles;
+    return Replay(e.robot, e.scans, e.ground_truth, options);
+  }
+
+  static inline fs::path root_;
+  static inline std::vector<hw::Experiment>* experiments_ = new std::vector<hw::Experiment>();
+};
+
+/// Every cell of the map, for exact comparisons.
+std::vector<std::pair<TileIndex, std::array<LogOdds, kTileCells>>> Cells(const OccupancyGrid& g) {
+  std::vector<std::pair<TileIndex, std::array<LogOdds, kTileCells>>> cells;
+  for (const TileRef& t : g.Tiles()) cells.emplace_back(t.index, t.tile->cells);
+  std::sort(cells.begin(), cells.end(), [](const auto& a, const auto& b) {
+    return std::tie(a.first.y, a.first.x) < std::tie(b.first.y, b.first.x);
+  });
+  return cells;
+}
+
+void ExpectSameRun(const ReplayResult& a, const ReplayResult& b) {
+  ASSERT_EQ(a.trajectory.size(), b.trajectory.size());
+  for (size_t i = 0; i < a.trajectory.size(); ++i) {
+    ASSERT_EQ(a.trajectory[i].t, b.trajectory[i].t) << i;
+    ASSERT_EQ(a.trajectory[i].pose.x, b.trajectory[i].pose.x) << i;
+    ASSERT_EQ(a.trajectory[i].pose.y, b.trajectory[i].pose.y) << i;
+    ASSERT_EQ(a.trajectory[i].pose.theta, b.trajectory[i].pose.theta) << i;
+  }
+  EXPECT_EQ(a.rays_total, b.rays_total);
+  EXPECT_TRUE(Cells(a.map) == Cells(b.map));
+}
+
+TEST_F(ReplayTest, SameSeedSameOutputParallelOrSerial) {
+  const ReplayResult serial = Run(Box(), 16250, true, 7, false, 3);
+  const ReplayResult parallel = Run(Box(), 16250, true, 7, true, 3);
+  const ReplayResult again = Run(Box(), 16250, true, 7, true, 3);
+  ExpectSameRun(serial, parallel);
+  ExpectSameRun(parallel, again);
+  // And the seed matters: another one gives another trajectory.
+  const ReplayResult other = Run(Box(), 16250, true, 8, true, 3);
+  ASSERT_EQ(other.trajectory.size(), serial.trajectory.size());
+  EXPECT_NE(other.trajectory.back().pose.x, serial.trajectory.back().pose.x);
+}
+
+TEST_F(ReplayTest, BudgetBoundsEveryScanAndPhaseBOffFollowsOdometry) {
+  const ReplayResult slam = Run(Box(), 8125, true, 1, true);
+  EXPECT_EQ(slam.scans, static_cast<int64_t>(Box().scans.size()));
+  EXPECT_LE(slam.rays_per_scan_max, 8125);
+  EXPECT_GT(slam.rays_total, slam.scans * 8125 * 9 / 10);
+  // Phase B off: the trajectory is dead reckoning, pose for pose.
+  const ReplayResult odometry = Run(Box(), 8125, false, 1, true);
+  const std::vector<TimedPose> dead = DeadReckoning(Box().scans);
+  ASSERT_EQ(odometry.trajectory.size(), dead.size());
+  for (size_t i = 0; i < dead.size(); ++i) {
+    ASSERT_EQ(odometry.trajectory[i].t, dead[i].t) << i;
+    ASSERT_NEAR(odometry.trajectory[i].pose.x, dead[i].pose.x, 1e-12) << i;
+    ASSERT_NEAR(odometry.trajectory[i].pose.y, dead[i].pose.y, 1e-12) << i;
+    ASSERT_NEAR(odometry.trajectory[i].pose.theta, dead[i].pose.theta, 1e-12) << i;
+  }
+}
+
+TEST_F(ReplayTest, PoseRefinementBeatsOdometryAtTheLargestBudget) {
+  for (const hw::Experiment& e : *experiments_) {
+    const ReplayResult slam = Run(e, 65000, true, 1, true);
+    const ReplayResult odometry = Run(e, 65000, false, 1, true);
+    ASSERT_TRUE(slam.quality && odometry.quality);
+    EXPECT_LT(slam.quality->ate_rmse_m, odometry.quality->ate_rmse_m) << e.meta.name;
+  }
+}
+
+TEST_F(ReplayTest, SummaryHasTheContractKeysAndMapQuality) {
+  ReplayOptions options;
+  options.rays_per_scan = 8125;
+  const ReplayResult run = Replay(Box().robot, Box().scans, Box().ground_truth, options);
+  const Json summary = tools::ReplaySummary(Box(), run, options);
+  for (const char* key : {"q", "e", "ate_rmse_m", "scans", "rays_total", "rays_per_scan_max",
+                          "budget", "wall_s", "realtime_factor", "frames", "frames_rejected"}) {
+    ASSERT_TRUE(summary.contains(key)) << key;
+    EXPECT_TRUE(summary[key].is_number()) << key;
+  }
+  EXPECT_EQ(summary["budget"], 8125);
+  EXPECT_EQ(summary["frames"], Box().counters.frames);
+  EXPECT_EQ(summary["frames_rejected"], 0);
+  EXPECT_DOUBLE_EQ(summary["e"].get<double>(), std::log(1.0 - summary["q"].get<double>()));
+  const Json& m = summary["map_quality"];
+  ASSERT_TRUE(m.is_object());
+  EXPECT_GT(m["precision"].get<double>(), 0.8);
+  EXPECT_GT(m["recall"].get<double>(), 0.8);
+  EXPECT_LE(m["recall"].get<double>(), 1.0);
+}
+
+TEST_F(ReplayTest, WrittenMapFilesReadBackWithTheDocumentedValues) {
+  const fs::path dir = root_ / "out";
+  fs::create_directories(dir);
+  const ReplayResult run = Run(Box(), 8125, true, 1, true);
+  const auto written = tools::WriteReplayOutputs(dir.string(), Box(), run, false, 8125);
+  ASSERT_TRUE(written.errors.empty()) << written.errors.front();
+
+  // map.yaml: map_server's keys and values.
+  const auto yaml = testing::ParseYaml(testing::ReadFile((dir / "map.yaml").string()));
+  EXPECT_EQ(yaml.at("image"), "map.pgm");
+  EXPECT_DOUBLE_EQ(std::stod(yaml.at("resolution")), 0.01);
+  EXPECT_EQ(yaml.at("negate"), "0");
+  EXPECT_DOUBLE_EQ(std::stod(yaml.at("occupied_thresh")), 0.65);
+  EXPECT_DOUBLE_EQ(std::stod(yaml.at("free_thresh")), 0.196);
+  const io::GridImage image = io::MakeGridImage(run.map);
+  char origin[128];
+  std::snprintf(origin, sizeof(origin), "[%.17g, %.17g, 0.0]", image.origin_m.x(),
+                image.origin_m.y());
+  double ox = 0, oy = 0, oz = 1;
+  ASSERT_EQ(std::sscanf(yaml.at("origin").c_str(), "[%lf, %lf, %lf]", &ox, &oy, &oz), 3);
+  EXPECT_DOUBLE_EQ(ox, image.origin_m.x());
+  EXPECT_DOUBLE_EQ(oy, image.origin_m.y());
+  EXPECT_EQ(oz, 0.0);
+
+  // map.pgm: only the three map_server values, each present, matching the grid.
+  const testing::Pgm pgm = testing::ParsePgm(testing::ReadFile((dir / "map.pgm").string()));
+  EXPECT_EQ(pgm.magic, "P5");
+  EXPECT_EQ(pgm.width, image.width);
+  EXPECT_EQ(pgm.height, image.height);
+  EXPECT_EQ(pgm.maxval, 255);
+  ASSERT_EQ(pgm.pixels.size(), static_cast<size_t>(pgm.width) * static_cast<size_t>(pgm.height));
+  std::map<uint8_t, int> histogram;
+  for (char c : pgm.pixels) ++histogram[static_cast<uint8_t>(c)];
+  EXPECT_EQ(histogram.size(), 3u);
+  EXPECT_GT(histogram[0], 500);     // walls
+  EXPECT_GT(histogram[254], 10000); // free space
+  EXPECT_GT(histogram[205], 1000);  // unknown around
+  // The cell under the robot's start is free.
+  const int col = static_cast<int>(std::floor((0.0 - image.origin_m.x()) / 0.01));
+  const int row = image.height - 1 - static_cast<int>(std::floor((0.0 - image.origin_m.y()) / 0.01));
+  EXPECT_EQ(static_cast<uint8_t>(pgm.pixels[static_cast<size_t>(row * pgm.width + col)]), 254);
+
+  // map.png: the rendered picture, with the trajectory and the ground truth drawn.
+  const io::RgbImage png = testing::ReadPng((dir / "map.png").string());
+  ASSERT_GT(png.width, 0);
+  EXPECT_GE(png.width, image.width * 3);
+  EXPECT_GT(png.height, image.height * 3);  // the map plus the legend strip
+  EXPECT_GT(testing::CountColor(png, 0, 0, png.width, image.height * 3, {230, 0, 0}), 1000);
+  EXPECT_GT(testing::CountColor(png, 0, 0, png.width, image.height * 3, {0, 90, 255}), 300);
+  EXPECT_GT(testing::CountColor(png, 0, 0, png.width, image.height * 3, {150, 150, 150}), 300);
+
+  // trajectory.tum: the run's trajectory.
+  const auto tum = io::LoadTum((dir / "trajectory.tum").string());
+  ASSERT_TRUE(tum.ok()) << tum.Message();
+  ASSERT_EQ(tum.value().size(), run.trajectory.size());
+  EXPECT_NEAR(tum.value().back().pose.x, run.trajectory.back().pose.x, 1e-6);
+}
+
+TEST_F(ReplayTest, EvaluationIsTheSameWithOneJobOrTwo) {
+  tools::EvaluationPlan plan;
+  plan.budgets = {8125, 2000};
+  plan.jobs = 1;
+  const auto serial = tools::Evaluate(*experiments_, plan);
+  plan.jobs = 2;
+  size_t calls = 0;
+  const auto parallel =
+      tools::Evaluate(*experiments_, plan, [&](const tools::EvaluationRun&, size_t done, size_t total) {
+        ++calls;
+        EXPECT_EQ(done, calls);
+        EXPECT_EQ(total, 8u);
+      });
+  EXPECT_EQ(calls, 8u);
+  ASSERT_EQ(serial.size(), 8u);
+  ASSERT_EQ(parallel.size(), 8u);
+  for (size_t i = 0; i < serial.size(); ++i) {
+    Json a = serial[i].summary, b = parallel[i].summary;
+    for (const char* timing : {"wall_s", "cpu_s", "cpu_ms_per_scan", "realtime_factor"}) {
+      a.erase(timing);
+      b.erase(timing);
+    }
+    EXPECT_EQ(a, b) << i;
+    EXPECT_EQ(serial[i].budget, parallel[i].budget);
+  }
+  // Plan order: experiment, SLAM before odometry, budgets as given.
+  EXPECT_EQ(serial[0].experiment, 0u);
+  EXPECT_TRUE(serial[0].refine);
+  EXPECT_EQ(serial[0].budget, 8125);
+  EXPECT_FALSE(serial[2].refine);
+  EXPECT_EQ(serial[4].experiment, 1u);
+
+  const std::string csv = tools::EvaluationCsv(*experiments_, serial);
+  EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 9);
+  EXPECT_EQ(csv.rfind("experiment,world,mode,budget,ate_rmse_m,q,e,", 0), 0u);
+  const std::string md = tools::EvaluationMarkdown(*experiments_, serial);
+  EXPECT_NE(md.find("| 8125 | SLAM |"), std::string::npos) << md;
+  EXPECT_NE(md.find("| box-seed1 |"), std::string::npos) << md;
+  const tools::EvaluationChecks checks = tools::CheckEvaluation(serial);
+  EXPECT_EQ(checks.largest_budget, 8125);
+  EXPECT_EQ(checks.smallest_budget, 2000);
+  EXPECT_EQ(checks.experiments_compared, 2);
+  EXPECT_NE(md.find("SLAM beats odometry-only on " + std::to_string(checks.slam_beats_odometry) +
+                    " of 2 experiments"),
+            std::string::npos)
+      << md;
+}
+
+/// Runs a command; its exit status, stdout and stderr.
+struct CommandResult {
+  int status = -1;
+  std::string out;
+  std::string err;
+};
+
+CommandResult RunCommand(const std::string& command, const fs::path& scratch) {
+  const std::string out = (scratch / "stdout").string(), err = (scratch / "stderr").string();
+  const int raw = std::system((command + " >" + out + " 2>" + err).c_str());
+  CommandResult result;
+  result.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
+  result.out = testing::ReadFile(out);
+  result.err = testing::ReadFile(err);
+  return result;
+}
+
+TEST_F(ReplayTest, CommandLineReplaysAndReportsBadExperiments) {
+  const fs::path scratch = root_ / "cli";
+  fs::create_directories(scratch);
+  const std::string tool = SLAM_REPLAY_BIN;
+
+  const CommandResult help = RunCommand(tool + " --help", scratch);
+  EXPECT_EQ(help.status, 0);
+  EXPECT_NE(help.out.find("--no-refine"), std::string::npos);
+
+  const CommandResult ok = RunCommand(tool + " " + (root_ / "rooms").string() +
+                                          " --budget 4000 --no-refine --quiet --out " +
+                                          (scratch / "rooms-out").string(),
+                                      scratch);
+  ASSERT_EQ(ok.status, 0) << ok.err;
+  const Json summary = Json::parse(ok.out);
+  EXPECT_EQ(summary["budget"], 4000);
+  EXPECT_EQ(summary["refine"], false);
+  EXPECT_EQ(summary["ate_rmse_m"], summary["odometry_ate_rmse_m"]);
+  for (const char* file : {"map.pgm", "map.yaml", "map.png", "trajectory.tum"}) {
+    EXPECT_TRUE(fs::exists(scratch / "rooms-out" / file)) << file;
+  }
+
+  // A broken copy: the error names the file and the line, and the exit status is not 0.
+  const fs::path broken = scratch / "broken";
+  fs::copy(root_ / "rooms", broken);
+  {
+    std::string tum = testing::ReadFile((broken / "groundtruth.tum").string());
+    tum.insert(0, "1700000010.0 0 0 0 0 0 0 1\n");  // before the first line's time: not increasing
+    std::ofstream((broken / "groundtruth.tum").string(), std::ios::trunc) << tum;
+  }
+  const CommandResult bad = RunCommand(tool + " " + broken.string() + " --quiet", scratch);
+  EXPECT_EQ(bad.status, 1);
+  EXPECT_TRUE(bad.out.empty());
+  EXPECT_NE(bad.err.find("groundtruth.tum:2:"), std::string::npos) << bad.err;
+
+  const CommandResult params = RunCommand(
+      tool + " " + (root_ / "rooms").string() + " --params " + (scratch / "none.json").string(),
+      scratch);
+  EXPECT_EQ(params.status, 1);
+  EXPECT_NE(params.err.find("none.json"), std::string::npos) << params.err;
+
+  const CommandResult usage = RunCommand(tool + " " + (root_ / "rooms").string() + " --budget 0", scratch);
+  EXPECT_NE(usage.status, 0);
+  EXPECT_NE(usage.err.find("--budget"), std::string::npos) << usage.err;
+}
+
+}  // namespace
+}  // namespace slam

@@ -1,0 +1,131 @@
+#include "tools/replay_report.hpp"
+
+#include <cstdio>
+
+#include "engine/io/atomic_file.hpp"
+#include "engine/io/map_image.hpp"
+#include "engine/io/params_json.hpp"
+#include "engine/io/tum.hpp"
+#include "sim/map_quality.hpp"
+
+namespace slam::tools {
+namespace {
+
+using Json = nlohmann::json;
+
+Json CountersJson(const hw::ExperimentCounters& c) {
+  const hw::ReassemblyCounters& r = c.reassembly;
+  const hw::DecoderCounters& d = c.decoder;
+  const ScanAssemblerCounters& a = c.assembler;
+  return {
+      {"bad_lines", c.bad_lines},
+      {"ignored_lines", c.ignored_lines},
+      {"reassembly",
+       {{"frames", r.frames}, {"messages", r.messages}, {"extended", r.extended},
+        {"remote", r.remote}, {"fd", r.fd}, {"bad_length", r.bad_length},
+        {"middle_without_start", r.middle_without_start},
+        {"stop_without_start", r.stop_without_start}, {"oversize", r.oversize},
+        {"abandoned", r.abandoned}}},
+      {"decoder",
+       {{"messages", d.messages}, {"odometry", d.odometry}, {"scanner", d.scanner},
+        {"unknown_node", d.unknown_node}, {"unknown_type", d.unknown_type},
+        {"bad_size", d.bad_size}}},
+      {"assembler",
+       {{"odometry", a.odometry}, {"samples", a.samples}, {"samples_in_scans", a.samples_in_scans},
+        {"scans", a.scans}, {"out_of_order", a.out_of_order}, {"odometry_lost", a.odometry_lost},
+        {"samples_lost", a.samples_lost}, {"odometry_gaps", a.odometry_gaps},
+        {"sample_gaps", a.sample_gaps}, {"samples_unposed", a.samples_unposed},
+        {"scans_discarded", a.scans_discarded}}},
+  };
+}
+
+std::string Centimetres(double metres) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.1f cm", 100.0 * metres);
+  return text;
+}
+
+}  // namespace
+
+nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResult& run,
+                             const ReplayOptions& options) {
+  Json j;
+  j["experiment"] = experiment.meta.name;
+  j["dir"] = experiment.dir;
+  j["budget"] = options.rays_per_scan;
+  j["refine"] = options.refine;
+  j["seed"] = options.config.seed;
+  if (run.quality) {
+    j["q"] = run.quality->q_cm2;
+    j["e"] = run.quality->e;
+    j["ate_rmse_m"] = run.quality->ate_rmse_m;
+    j["matched_poses"] = run.quality->matched;
+  } else {
+    j["q"] = j["e"] = j["ate_rmse_m"] = nullptr;
+  }
+  const auto odometry = EvaluateTrajectory(DeadReckoning(experiment.scans), experiment.ground_truth);
+  j["odometry_ate_rmse_m"] = odometry ? Json(odometry->ate_rmse_m) : Json(nullptr);
+  j["scans"] = run.scans;
+  j["rays_total"] = run.rays_total;
+  j["rays_per_scan_max"] = run.rays_per_scan_max;
+  j["rays_per_scan_mean"] =
+      run.scans > 0 ? static_cast<double>(run.rays_total) / static_cast<double>(run.scans) : 0.0;
+  j["resamplings"] = run.resamplings;
+  j["duration_s"] = experiment.duration_s();
+  j["wall_s"] = run.wall_s;
+  j["cpu_s"] = run.cpu_s;
+  j["cpu_ms_per_scan"] =
+      run.scans > 0 ? 1000.0 * run.cpu_s / static_cast<double>(run.scans) : 0.0;
+  j["realtime_factor"] = run.wall_s > 0.0 ? experiment.duration_s() / run.wall_s : 0.0;
+  j["frames"] = experiment.counters.frames;
+  j["frames_rejected"] = experiment.counters.FramesRejected();
+  if (experiment.world && run.quality) {
+    const sim::MapQuality m =
+        sim::EvaluateMap(run.map, run.quality->alignment, *experiment.world, experiment.ground_truth);
+    j["map_quality"] = {{"precision", m.precision},
+                        {"recall", m.recall},
+                        {"f1", m.f1},
+                        {"tolerance_m", m.tolerance_m},
+                        {"occupied_cells", m.occupied_cells},
+                        {"true_occupied_cells", m.true_occupied_cells},
+                        {"surface_points", m.surface_points},
+                        {"surface_points_found", m.surface_points_found}};
+  } else {
+    j["map_quality"] = nullptr;
+  }
+  j["params"] = io::ParamsToJson(options.params);
+  j["counters"] = CountersJson(experiment.counters);
+  return j;
+}
+
+ReplayOutputs WriteReplayOutputs(const std::string& dir, const hw::Experiment& experiment,
+                                 const ReplayResult& run, bool odometry_only, int64_t budget) {
+  ReplayOutputs outputs;
+  const auto check = [&](std::optional<std::string> error) {
+    if (error) outputs.errors.push_back(*error);
+  };
+  const std::string base = dir + "/";
+  const io::GridImage grid = io::MakeGridImage(run.map);
+  check(io::WritePgm(base + "map.pgm", grid));
+  check(io::WriteMapYaml(base + "map.yaml", "map.pgm", grid));
+  check(io::WriteFileAtomic(base + "trajectory.tum", io::FormatTum(run.trajectory)));
+
+  // The picture: odometry for comparison, the aligned ground truth, then the estimate on top.
+  std::vector<io::TrajectoryLayer> layers;
+  if (!odometry_only) {
+    layers.push_back({"odometry only", DeadReckoning(experiment.scans), {150, 150, 150}});
+  }
+  if (run.quality) {
+    layers.push_back({"ground truth, aligned (ATE " + Centimetres(run.quality->ate_rmse_m) + ")",
+                      TransformTrajectory(run.quality->alignment.Inverse(), experiment.ground_truth),
+                      {0, 90, 255}});
+  }
+  layers.push_back({odometry_only ? "odometry only (phase B off)"
+                                  : "SLAM, " + std::to_string(budget) + " rays/scan",
+                    run.trajectory,
+                    {230, 0, 0}});
+  check(io::WritePng(base + "map.png", io::RenderMapPicture(run.map, layers, 3)));
+  return outputs;
+}
+
+}  // namespace slam::tools

@@ -1,0 +1,29 @@
+#pragma once
+// What slam-replay and slam-reference report about one replay: the JSON summary (DESIGN
+// section 6 keys and more) and the files (trajectory.tum, map.pgm + map.yaml, map.png).
+
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "hw_link/experiment_reader.hpp"
+#include "scheduler/replay.hpp"
+
+namespace slam::tools {
+
+/// The JSON summary of a replay: q, e, ate_rmse_m (null without ground truth), scans,
+/// rays_total, rays_per_scan_max, budget, wall_s, realtime_factor, frames, frames_rejected, and
+/// the odometry-only ATE, map quality against world.json (when present), the parameters and
+/// every decoding counter.
+nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResult& run,
+                             const ReplayOptions& options);
+
+struct ReplayOutputs {
+  std::vector<std::string> errors;  // one per file that could not be written
+};
+
+/// Writes trajectory.tum, map.pgm, map.yaml and map.png into `dir` (atomically, each).
+ReplayOutputs WriteReplayOutputs(const std::string& dir, const hw::Experiment& experiment,
+                                 const ReplayResult& run, bool odometry_only, int64_t budget);
+
+}  // namespace slam::tools

@@ -1,0 +1,164 @@
+// slam-evaluate: replays recorded experiments at several ray budgets, with and without phase B,
+// in parallel, and writes the results as a table (Markdown and CSV) plus every run's JSON
+// summary. scripts/reference runs it on the reference set for the README.
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "engine/io/atomic_file.hpp"
+#include "engine/io/params_json.hpp"
+#include "hw_link/experiment_reader.hpp"
+#include "tools/evaluation.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+/// The experiment directories named by `paths`: an experiment itself (it holds can.log), or a
+/// dataset whose subdirectories are experiments (sorted by name).
+std::vector<std::string> ExperimentDirs(const std::vector<std::string>& paths,
+                                        std::string& error) {
+  std::vector<std::string> dirs;
+  for (const std::string& path : paths) {
+    std::error_code ec;
+    if (fs::exists(fs::path(path) / "can.log", ec)) {
+      dirs.push_back(path);
+      continue;
+    }
+    if (!fs::is_directory(path, ec)) {
+      error = path + ": not an experiment or dataset directory";
+      return {};
+    }
+    std::vector<std::string> found;
+    for (const fs::directory_entry& entry : fs::directory_iterator(path, ec)) {
+      if (entry.is_directory() && fs::exists(entry.path() / "can.log")) {
+        found.push_back(entry.path().string());
+      }
+    }
+    if (ec || found.empty()) {
+      error = path + ": no experiment in it (no subdirectory with a can.log)";
+      return {};
+    }
+    std::sort(found.begin(), found.end());
+    dirs.insert(dirs.end(), found.begin(), found.end());
+  }
+  return dirs;
+}
+
+int Fail(const std::string& message) {
+  std::cerr << "slam-evaluate: " << message << "\n";
+  return 1;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "Replays recorded experiments at each ray budget, with phase B (SLAM) and without "
+      "(odometry only), and writes results.md, results.csv and runs.json into --out."};
+  std::vector<std::string> inputs;
+  std::string out_dir, params_path;
+  std::vector<int64_t> budgets{8125, 16250, 32500, 65000};
+  std::vector<std::string> modes{"slam", "odometry"};
+  uint64_t seed = 1;
+  int jobs = 0;
+  bool maps = false;
+  bool require = false;
+  app.add_option("DIRS", inputs, "experiment directories, or datasets of them")->required();
+  app.add_option("--out", out_dir, "output directory, created if needed")->required();
+  app.add_option("--budgets", budgets, "rays per scan")
+      ->delimiter(',')
+      ->capture_default_str()
+      ->check(CLI::Range(int64_t{1}, int64_t{1'000'000'000}));
+  app.add_option("--modes", modes, "slam (phase B on) and/or odometry (phase B off)")
+      ->delimiter(',')
+      ->capture_default_str()
+      ->check(CLI::IsMember({"slam", "odometry"}));
+  app.add_option("--params", params_path, "SLAM parameters (JSON, Table II keys) [defaults]");
+  app.add_option("--seed", seed, "seed of the particle filter")->capture_default_str();
+  app.add_option("--jobs", jobs, "replays at once, one thread each (0: one per core)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 256));
+  app.add_flag("--maps", maps, "also write each run's map and trajectory under OUT/runs/");
+  app.add_flag("--require-checks", require,
+               "exit with status 3 unless SLAM beats odometry-only on every experiment at the "
+               "largest budget, halves its mean ATE, and mean q improves with the budget");
+  CLI11_PARSE(app, argc, argv);
+
+  slam::tools::EvaluationPlan plan;
+  plan.budgets = budgets;
+  std::sort(plan.budgets.begin(), plan.budgets.end());
+  plan.budgets.erase(std::unique(plan.budgets.begin(), plan.budgets.end()), plan.budgets.end());
+  plan.slam = std::count(modes.begin(), modes.end(), "slam") > 0;
+  plan.odometry_only = std::count(modes.begin(), modes.end(), "odometry") > 0;
+  plan.seed = seed;
+  plan.jobs = jobs;
+  if (!params_path.empty()) {
+    const auto loaded = slam::io::LoadParams(params_path);
+    if (!loaded.ok()) return Fail(loaded.Message());
+    plan.params = loaded.value();
+  }
+  std::string error;
+  const std::vector<std::string> dirs = ExperimentDirs(inputs, error);
+  if (dirs.empty()) return Fail(error);
+  std::error_code ec;
+  fs::create_directories(out_dir, ec);
+  if (ec) return Fail("cannot create " + out_dir + ": " + ec.message());
+  if (maps) plan.outputs_dir = (fs::path(out_dir) / "runs").string();
+
+  // Decode every experiment once.
+  std::vector<slam::hw::Experiment> experiments;
+  for (const std::string& dir : dirs) {
+    slam::hw::ExperimentLoad load = slam::hw::LoadExperiment(dir);
+    if (!load.ok()) return Fail("cannot read " + dir + ":\n" + load.error);
+    std::fprintf(stderr, "%s: %zu scans, %.0f s\n", load.experiment->meta.name.c_str(),
+                 load.experiment->scans.size(), load.experiment->duration_s());
+    experiments.push_back(std::move(*load.experiment));
+  }
+
+  const auto start = std::chrono::steady_clock::now();
+  const auto runs = slam::tools::Evaluate(
+      experiments, plan, [&](const slam::tools::EvaluationRun& run, size_t done, size_t total) {
+        const double elapsed =
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        const auto& s = run.summary;
+        std::fprintf(stderr, "[%zu/%zu] %s %s %lld: ATE %s cm, %.1f s elapsed\n", done, total,
+                     experiments[run.experiment].meta.name.c_str(),
+                     run.refine ? "slam" : "odometry", static_cast<long long>(run.budget),
+                     s["ate_rmse_m"].is_number()
+                         ? std::to_string(100.0 * s["ate_rmse_m"].get<double>()).c_str()
+                         : "-",
+                     elapsed);
+        for (const std::string& e : run.errors) std::fprintf(stderr, "  %s\n", e.c_str());
+      });
+
+  nlohmann::json all = nlohmann::json::array();
+  bool write_errors = false;
+  for (const auto& run : runs) {
+    all.push_back(run.summary);
+    write_errors = write_errors || !run.errors.empty();
+  }
+  const std::string md = slam::tools::EvaluationMarkdown(experiments, runs);
+  const fs::path out(out_dir);
+  for (const auto& [name, text] :
+       {std::pair<std::string, std::string>{"results.md", md},
+        {"results.csv", slam::tools::EvaluationCsv(experiments, runs)},
+        {"runs.json", all.dump(2) + "\n"}}) {
+    if (auto e = slam::io::WriteFileAtomic((out / name).string(), text)) return Fail(*e);
+  }
+  std::cout << md;
+  std::fprintf(stderr, "slam-evaluate: %zu runs in %.1f s; results in %s/results.{md,csv}\n",
+               runs.size(),
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(),
+               out_dir.c_str());
+  if (write_errors) return 1;
+  if (require && !slam::tools::CheckEvaluation(runs).all_pass()) return 3;
+  return 0;
+}
