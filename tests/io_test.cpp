@@ -18,11 +18,13 @@
 #include "engine/io/robot_json.hpp"
 #include "engine/params.hpp"
 #include "engine/robot.hpp"
+#include "tests/test_support.hpp"
 
 namespace slam::io {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::TempDir;
 using Json = nlohmann::json;
 
 const fs::path kSourceDir = SLAM_SOURCE_DIR;
@@ -59,26 +61,6 @@ Json DefaultRobotJson() {
   std::ifstream in(kDefaultRobot);
   return Json::parse(in);
 }
-
-// A fresh directory for the files a test writes, removed by the destructor.
-class TempDir {
- public:
-  explicit TempDir(const std::string& name)
-      : path_(fs::path(::testing::TempDir()) /
-              ("slam_io_test_" + std::to_string(::getpid()) + "_" + name)) {
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string File(const std::string& name) const { return (path_ / name).string(); }
-  const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
-};
 
 void WriteText(const std::string& path, const std::string& text) {
   std::ofstream out(path, std::ios::binary);

@@ -19,11 +19,13 @@
 #include "engine/config_error.hpp"
 #include "engine/io/params_json.hpp"
 #include "engine/io/robot_json.hpp"
+#include "tests/test_support.hpp"
 
 namespace slam::io {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::TempDir;
 
 const fs::path kConfigDir = fs::path(SLAM_SOURCE_DIR) / "config";
 
@@ -231,24 +233,6 @@ TEST(ConfigErrorsWithLines, FormatNamesTheContextAndTheLine) {
 }
 
 // --- Loaders: copies of the shipped files, edited on known lines --------------------------------
-
-class TempDir {
- public:
-  explicit TempDir(const std::string& name)
-      : path_(fs::path(::testing::TempDir()) /
-              ("slam_json_locate_test_" + std::to_string(::getpid()) + "_" + name)) {
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string File(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
 
 /// The lines of a file, without their '\n'.
 std::vector<std::string> ReadLines(const fs::path& path) {
