@@ -47,6 +47,9 @@ std::optional<ExperimentMeta> LoadMeta(const std::string& path, std::string& err
     const auto line = 1 + std::count(text->begin(), text->begin() + static_cast<long>(end), '\n');
     error = path + ":" + std::to_string(line) + ": not valid JSON";
     return std::nullopt;
+  } catch (const Json::exception& e) {  // out_of_range: a number too large for a double
+    error = path + ": not valid JSON (" + e.what() + ")";
+    return std::nullopt;
   }
   if (!json.is_object()) {
     error = path + ": expected a JSON object, got " + json.type_name();

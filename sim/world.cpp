@@ -238,7 +238,7 @@ WorldLoadResult ParseWorld(std::string_view json_text, std::string_view source) 
   Json doc;
   try {
     doc = Json::parse(json_text);
-  } catch (const Json::parse_error& e) {
+  } catch (const Json::exception& e) {  // parse_error, and out_of_range for 1e400
     result.errors.push_back(prefix + "invalid JSON: " + e.what());
     return result;
   }

@@ -130,6 +130,8 @@ TEST_F(ExperimentReaderTest, GarbledMetaJsonNamesFileAndLine) {
   EXPECT_NE(LoadError().find("meta.json#/name: expected a string, got number"), std::string::npos);
   WriteFile(dir_ / "meta.json", "{\"name\": \"x\", \"source\": \"tape\"}");
   EXPECT_NE(LoadError().find("#/source"), std::string::npos);
+  WriteFile(dir_ / "meta.json", "{\"name\": \"x\", \"duration_s\": 1e400}");  // beyond a double
+  EXPECT_NE(LoadError().find("meta.json: not valid JSON"), std::string::npos);
   WriteFile(dir_ / "meta.json", "{\"world\": \"x\"}");
   EXPECT_NE(LoadError().find("missing key \"name\""), std::string::npos);
 }

@@ -681,3 +681,13 @@ TEST(BuildScansTest, InterpolatesBetweenOdometryReadings) {
 
 }  // namespace
 }  // namespace slam::sim
+
+// Found by fuzz_json_config: a number beyond a double made nlohmann throw out_of_range, which
+// escaped ParseWorld and ended the program.
+TEST(WorldJsonRegression, NumberTooLargeIsAnErrorNotACrash) {
+  const slam::sim::WorldLoadResult result = slam::sim::ParseWorld(
+      R"({"name": "w", "bounds": [0, 0, 1e400, 1], "segments": [], "circles": []})", "w.json");
+  EXPECT_FALSE(result.ok());
+  ASSERT_EQ(result.errors.size(), 1u);
+  EXPECT_NE(result.errors[0].find("w.json: invalid JSON"), std::string::npos) << result.errors[0];
+}
