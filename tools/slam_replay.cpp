@@ -16,13 +16,9 @@
 #include <string>
 #include <vector>
 
-#include "engine/io/atomic_file.hpp"
-#include "engine/io/map_image.hpp"
 #include "engine/io/params_json.hpp"
-#include "engine/io/tum.hpp"
 #include "hw_link/experiment_reader.hpp"
 #include "scheduler/replay.hpp"
-#include "sim/map_quality.hpp"
 #include "tools/replay_report.hpp"
 
 namespace {
