@@ -1,13 +1,8 @@
 #include "hw_link/experiment_reader.hpp"
 
-#include <algorithm>
-#include <cerrno>
-#include <cstring>
 #include <filesystem>
-#include <fstream>
-#include <nlohmann/json.hpp>
-#include <sstream>
 
+#include "engine/io/experiment_meta.hpp"
 #include "engine/io/robot_json.hpp"
 #include "engine/io/tum.hpp"
 #include "hw_link/frame_decoder.hpp"
@@ -15,79 +10,6 @@
 
 namespace slam::hw {
 namespace {
-
-using Json = nlohmann::json;
-
-/// The whole file, or an error naming it.
-std::optional<std::string> ReadText(const std::string& path, std::string& error) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    error = path + ": cannot open (" + std::strerror(errno) + ")";
-    return std::nullopt;
-  }
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (in.bad()) {
-    error = path + ": read error";
-    return std::nullopt;
-  }
-  return text.str();
-}
-
-/// meta.json, or an error naming the file and what is wrong.
-std::optional<ExperimentMeta> LoadMeta(const std::string& path, std::string& error) {
-  const auto text = ReadText(path, error);
-  if (!text) return std::nullopt;
-  Json json;
-  try {
-    json = Json::parse(*text);
-  } catch (const Json::parse_error& e) {
-    // e.byte is 1-based; count the lines up to it.
-    const size_t end = std::min(text->size(), static_cast<size_t>(e.byte));
-    const auto line = 1 + std::count(text->begin(), text->begin() + static_cast<long>(end), '\n');
-    error = path + ":" + std::to_string(line) + ": not valid JSON";
-    return std::nullopt;
-  } catch (const Json::exception& e) {  // out_of_range: a number too large for a double
-    error = path + ": not valid JSON (" + e.what() + ")";
-    return std::nullopt;
-  }
-  if (!json.is_object()) {
-    error = path + ": expected a JSON object, got " + json.type_name();
-    return std::nullopt;
-  }
-  ExperimentMeta meta;
-  const auto wrong = [&](const char* key, const char* expected) {
-    error = path + "#/" + key + ": expected " + expected + ", got " + json[key].type_name();
-    return std::nullopt;
-  };
-  if (!json.contains("name")) {
-    error = path + ": missing key \"name\"";
-    return std::nullopt;
-  }
-  if (!json["name"].is_string()) return wrong("name", "a string");
-  meta.name = json["name"].get<std::string>();
-  if (json.contains("world")) {
-    if (!json["world"].is_string()) return wrong("world", "a string");
-    meta.world = json["world"].get<std::string>();
-  }
-  if (json.contains("source")) {
-    if (!json["source"].is_string()) return wrong("source", "a string");
-    meta.source = json["source"].get<std::string>();
-    if (meta.source != "sim" && meta.source != "robot") {
-      error = path + "#/source: expected \"sim\" or \"robot\", got \"" + meta.source + "\"";
-      return std::nullopt;
-    }
-  }
-  if (json.contains("duration_s")) {
-    if (!json["duration_s"].is_number()) return wrong("duration_s", "a number");
-    meta.duration_s = json["duration_s"].get<double>();
-  }
-  if (json.contains("seed")) {
-    if (!json["seed"].is_number_unsigned()) return wrong("seed", "a non-negative integer");
-    meta.seed = json["seed"].get<uint64_t>();
-  }
-  return meta;
-}
 
 uint64_t Counter(const SourceCounters& counters, const std::string& name) {
   for (const auto& [key, value] : counters) {
@@ -119,11 +41,11 @@ ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig&
   } else {
     experiment.robot = robot.value();
   }
-  std::string error;
-  if (auto meta = LoadMeta(file("meta.json"), error)) {
-    experiment.meta = *meta;
+  auto meta = io::LoadExperimentMeta(file("meta.json"));
+  if (!meta.ok()) {
+    errors.push_back(meta.Message());
   } else {
-    errors.push_back(error);
+    experiment.meta = std::move(meta).value();
   }
   if (std::filesystem::exists(file("groundtruth.tum"), ec)) {
     auto truth = io::LoadTum(file("groundtruth.tum"));

@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/io/experiment_meta.hpp"
 #include "engine/pose.hpp"
 #include "engine/robot.hpp"
 #include "engine/scan.hpp"
@@ -27,16 +28,6 @@
 #include "sim/world.hpp"
 
 namespace slam::hw {
-
-/// meta.json: {"name", "world", "duration_s", "source": "sim"|"robot", "seed"}. Only "name" is
-/// required; other keys are kept for the record and unknown keys are allowed.
-struct ExperimentMeta {
-  std::string name;
-  std::string world;
-  std::optional<double> duration_s;
-  std::string source;
-  std::optional<uint64_t> seed;
-};
 
 /// What decoding can.log counted.
 struct ExperimentCounters {
@@ -56,7 +47,7 @@ struct ExperimentCounters {
 
 struct Experiment {
   std::string dir;
-  ExperimentMeta meta;
+  io::ExperimentMeta meta;
   RobotDescription robot;
   std::vector<Scan> scans;
   std::vector<TimedPose> ground_truth;  // empty without groundtruth.tum
