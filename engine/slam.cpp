@@ -20,6 +20,17 @@ constexpr uint64_t kStreamMotion = 0;
 constexpr uint64_t kStreamResampling = 1;
 constexpr uint64_t kStreamCandidate = 2;  // + candidate index
 
+/// Particle weights normalised to sum to 1 (from log weights, without overflow).
+std::vector<double> NormalizedWeights(const std::vector<Particle>& particles) {
+  double max_lw = -std::numeric_limits<double>::infinity();
+  for (const Particle& p : particles) max_lw = std::max(max_lw, p.log_weight);
+  std::vector<double> weight(particles.size());
+  double total = 0.0;
+  for (size_t p = 0; p < particles.size(); ++p) total += weight[p] = std::exp(particles[p].log_weight - max_lw);
+  for (double& w : weight) w /= total;
+  return weight;
+}
+
 // Runs body(i) for i in [0, n), across threads or in order; each i must be independent.
 template <typename Body>
 void ForEach(bool parallel, size_t n, const Body& body) {
@@ -272,12 +283,41 @@ ScanSummary Slam::Summarize(const Scan& scan) const {
   return {static_cast<int>(usable.size()), static_cast<int>(ThinByAngle(scan, usable).size())};
 }
 
+void Slam::Resample(size_t wanted, uint64_t step, uint64_t stream) {
+  Rng rng = Rng::ForStream(config_.seed, step, stream, kStreamResampling);
+  const size_t n = particles_.size();
+  const std::vector<double> weight = NormalizedWeights(particles_);
+  std::vector<size_t> order(n);
+  std::iota(order.begin(), order.end(), size_t{0});
+  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return weight[a] > weight[b]; });
+  const double u0 = rng.Uniform() / static_cast<double>(wanted);
+  std::vector<Particle> next;
+  next.reserve(wanted);
+  double cumulative = weight[order[0]];
+  size_t k = 0;
+  for (size_t j = 0; j < wanted; ++j) {
+    const double target = u0 + static_cast<double>(j) / static_cast<double>(wanted);
+    while (cumulative < target && k + 1 < n) cumulative += weight[order[++k]];
+    next.push_back(particles_[order[k]]);
+    next.back().log_weight = 0.0;
+  }
+  particles_ = std::move(next);
+  scans_since_resampling_ = 0;
+}
+
 ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   const uint64_t step = static_cast<uint64_t>(scans_processed_);
   ScanReport report;
   report.scan = scan.index;
   for (Particle& p : particles_) {
     if (!p.history) p.history = std::make_shared<TrajectoryChunk>(TrajectoryChunk{{{scan.t_begin, p.pose}}, nullptr});
+  }
+
+  // A new particle count applies from this scan: drawn from the current weights.
+  const auto wanted = static_cast<size_t>(std::max(1, plan.particles));
+  if (wanted != particles_.size()) {
+    Resample(wanted, step, 1);
+    report.resampled = true;
   }
 
   const std::vector<Measurement> usable = CollectMeasurements(scan);
@@ -338,6 +378,7 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
       candidate_pose[index] = end;
       candidate_ll[index] = ll;
     });
+    double ambiguity = 0.0;
     for (size_t p = 0; p < n_particles; ++p) {
       size_t best = p * n_candidates;
       for (size_t c = 1; c < n_candidates; ++c) {
@@ -345,7 +386,20 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
       }
       chosen[p] = candidate_pose[best];
       chosen_ll[p] = candidate_ll[best];
+      if (n_candidates > 1) {
+        // The candidates' posterior (weights exp(ll - best ll)) around the winner.
+        double weight_sum = 0.0, spread_sq = 0.0;
+        for (size_t c = 0; c < n_candidates; ++c) {
+          const size_t i = p * n_candidates + c;
+          const double w = std::exp(candidate_ll[i] - candidate_ll[best]);
+          const double dx = candidate_pose[i].x - chosen[p].x, dy = candidate_pose[i].y - chosen[p].y;
+          weight_sum += w;
+          spread_sq += w * (dx * dx + dy * dy);
+        }
+        ambiguity += std::sqrt(spread_sq / weight_sum) / (std::sqrt(2.0) * sigma_pos);
+      }
     }
+    report.refinement_ambiguity = ambiguity / static_cast<double>(n_particles);
     report.rays.matching = static_cast<int64_t>(n_particles * n_candidates * matching.size());
     report.matching_measurements = static_cast<int>(matching.size());
   }
@@ -380,41 +434,16 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   report.update_rays = static_cast<int>(updates.size());
   report.rays.update = static_cast<int64_t>(updates.size() * n_particles);
 
-  // Phase D: resampling every N scans (sort by weight, draw proportionally), or when the plan
-  // changes the particle count.
-  double max_lw = -std::numeric_limits<double>::infinity();
-  for (const Particle& p : particles_) max_lw = std::max(max_lw, p.log_weight);
-  std::vector<double> weight(n_particles);
-  double total = 0.0;
-  for (size_t p = 0; p < n_particles; ++p) total += weight[p] = std::exp(particles_[p].log_weight - max_lw);
+  // Phase D: resampling every N scans (sort by weight, draw proportionally).
+  const std::vector<double> weight = NormalizedWeights(particles_);
   double sum_sq = 0.0;
-  for (double& w : weight) {
-    w /= total;
-    sum_sq += w * w;
-  }
+  for (double w : weight) sum_sq += w * w;
   report.effective_sample_size = 1.0 / sum_sq;
   report.best_log_likelihood = chosen_ll[static_cast<size_t>(&Best() - particles_.data())];
 
   ++scans_since_resampling_;
-  const auto wanted = static_cast<size_t>(std::max(1, plan.particles));
-  if ((n_particles > 1 && scans_since_resampling_ >= params_.resampling_period_scans) || wanted != n_particles) {
-    std::vector<size_t> order(n_particles);
-    std::iota(order.begin(), order.end(), size_t{0});
-    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return weight[a] > weight[b]; });
-    Rng rng = Rng::ForStream(config_.seed, step, 0, kStreamResampling);
-    const double u0 = rng.Uniform() / static_cast<double>(wanted);
-    std::vector<Particle> next;
-    next.reserve(wanted);
-    double cumulative = weight[order[0]];
-    size_t k = 0;
-    for (size_t j = 0; j < wanted; ++j) {
-      const double target = u0 + static_cast<double>(j) / static_cast<double>(wanted);
-      while (cumulative < target && k + 1 < n_particles) cumulative += weight[order[++k]];
-      next.push_back(particles_[order[k]]);
-      next.back().log_weight = 0.0;
-    }
-    particles_ = std::move(next);
-    scans_since_resampling_ = 0;
+  if (n_particles > 1 && scans_since_resampling_ >= params_.resampling_period_scans) {
+    Resample(n_particles, step, 0);
     report.resampled = true;
   }
   report.particles = static_cast<int>(particles_.size());

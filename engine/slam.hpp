@@ -37,7 +37,8 @@ struct SlamConfig {
 /// What the engine may spend on one scan (produced by the scheduler).
 struct ScanPlan {
   static constexpr int kUnlimited = std::numeric_limits<int>::max();
-  int particles = 1;                          // particle count from this scan on
+  int particles = 1;                          // particle count from this scan on (a change
+                                              // resamples before the scan)
   int candidates = 1;                         // pose candidates per particle (1 = no refinement)
   int matching_measurements = kUnlimited;     // cap on measurements matched per candidate
   int update_rays = kUnlimited;               // cap on grid-update rays per particle
@@ -69,6 +70,11 @@ struct ScanReport {
   bool resampled = false;
   double effective_sample_size = 0.0;
   double best_log_likelihood = 0.0;   // of the best particle's chosen candidate
+  /// How little the measurements told the candidates apart, averaged over particles: the
+  /// likelihood-weighted RMS distance of the candidates from the chosen one, over the RMS
+  /// distance the proposal alone gives (sqrt(2) sigma). About 0 when one candidate dominates,
+  /// about 1 when the likelihood is flat; 0 without refinement.
+  double refinement_ambiguity = 0.0;
 };
 
 /// History of a particle: one chunk per scan, shared with the ancestors it was copied from.
@@ -123,6 +129,9 @@ class Slam {
                        const std::vector<const Measurement*>& matching) const;
   std::vector<Measurement> CollectMeasurements(const Scan& scan) const;
   std::vector<size_t> ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable) const;
+  /// Phase D: draws `wanted` particles in proportion to their weights (random stream `stream`
+  /// of scan `step`); the drawn particles share maps and histories with their parents.
+  void Resample(size_t wanted, uint64_t step, uint64_t stream);
 
   RobotDescription robot_;
   SlamParams params_;

@@ -13,11 +13,18 @@ int64_t PlannedRays(const ScanPlan& plan, const ScanSummary& summary) {
   return particles * (updates + (matches ? int64_t{std::max(1, plan.candidates)} * matching : 0));
 }
 
-ScanPlan FixedPlan(const ScanSummary& summary, int64_t rays_per_scan, const SlamParams& params) {
+bool FillsQuota(const ScanSummary& summary, int64_t quota, int particles) {
+  const int64_t n = std::max(1, particles);
+  // Each particle's share is rounded down, so the quota also needs room for 20 rays per particle.
+  return summary.matching_measurements > 0 && quota >= 20 * n &&
+         quota >= n * (summary.usable_measurements + 2 * int64_t{summary.matching_measurements});
+}
+
+ScanPlan SplitQuota(const ScanSummary& summary, int64_t quota, int particles) {
   ScanPlan plan;
-  plan.particles = std::max(1, params.particles);
-  const int64_t particles = plan.particles;
-  const int64_t per_particle = std::max<int64_t>(0, rays_per_scan) / particles;
+  plan.particles = std::max(1, particles);
+  const int64_t n = plan.particles;
+  const int64_t per_particle = std::max<int64_t>(0, quota) / n;
   const int64_t usable = summary.usable_measurements;
   const int64_t matching = summary.matching_measurements;
 
@@ -27,20 +34,31 @@ ScanPlan FixedPlan(const ScanSummary& summary, int64_t rays_per_scan, const Slam
   const int64_t left = per_particle - updates;
   // One candidate only refines nothing: refinement needs at least two (the prediction and one
   // alternative), unless several particles need weights.
-  const int64_t min_candidates = particles > 1 ? 1 : 2;
+  const int64_t min_candidates = n > 1 ? 1 : 2;
   if (matching == 0 || left < min_candidates) {
     plan.candidates = 1;
     plan.matching_measurements = 0;
     return plan;
   }
-  if (left >= min_candidates * matching) {
-    plan.matching_measurements = static_cast<int>(matching);
-    plan.candidates = static_cast<int>(left / matching);
-  } else {
+  if (left < min_candidates * matching) {
     plan.matching_measurements = static_cast<int>(left / min_candidates);
     plan.candidates = static_cast<int>(min_candidates);
+    return plan;
   }
+  int64_t candidates = left / matching;
+  int64_t measurements = matching;
+  if (left - candidates * matching > per_particle / 20) {
+    // Whole candidates leave too much unused: one more candidate, slightly fewer measurements.
+    ++candidates;
+    measurements = left / candidates;
+  }
+  plan.candidates = static_cast<int>(candidates);
+  plan.matching_measurements = static_cast<int>(measurements);
   return plan;
+}
+
+ScanPlan FixedPlan(const ScanSummary& summary, int64_t rays_per_scan, const SlamParams& params) {
+  return SplitQuota(summary, rays_per_scan, params.particles);
 }
 
 }  // namespace slam

@@ -5,7 +5,6 @@
 #include <ctime>
 #include <time.h>
 
-#include "scheduler/fixed_plan.hpp"
 
 namespace slam {
 namespace {
@@ -44,13 +43,21 @@ std::vector<TimedPose> DeadReckoning(const std::vector<Scan>& scans) {
 ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scans,
                     const std::vector<TimedPose>& ground_truth, const ReplayOptions& options) {
   Slam engine(robot, options.params, options.config);
+  RayBudgetScheduler scheduler(options.budget, options.scheduler);
   int64_t rays_total = 0, rays_max = 0, resamplings = 0;
+  std::vector<PlanRecord> plans;
+  plans.reserve(scans.size());
   const auto wall_start = std::chrono::steady_clock::now();
   const double cpu_start = CpuSeconds(options.config.parallel);
   for (size_t k = 0; k < scans.size(); ++k) {
-    ScanPlan plan = FixedPlan(engine.Summarize(scans[k]), options.rays_per_scan, options.params);
+    const Scan& scan = scans[k];
+    const double scan_cpu_start = CpuSeconds(options.config.parallel);
+    ScanSummary summary = engine.Summarize(scan);
+    if (!options.refine) summary.matching_measurements = 0;  // phase B off: nothing to match
+    ScanPlan plan = scheduler.Plan(summary, scan.t_end - scan.t_begin, engine.params());
     plan.refine = options.refine;
-    const ScanReport report = engine.ProcessScan(scans[k], plan);
+    const ScanReport report = engine.ProcessScan(scan, plan);
+    plans.push_back(scheduler.Record(report, CpuSeconds(options.config.parallel) - scan_cpu_start));
     rays_total += report.rays.total();
     rays_max = std::max(rays_max, report.rays.total());
     resamplings += report.resampled ? 1 : 0;
@@ -67,6 +74,7 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   result.rays_total = rays_total;
   result.rays_per_scan_max = rays_max;
   result.resamplings = resamplings;
+  result.plans = std::move(plans);
   result.wall_s = wall_s;
   result.cpu_s = cpu_s;
   return result;

@@ -1,7 +1,8 @@
 #pragma once
 // Runs the engine over the scans of a recorded experiment at a ray budget, as slam-replay, the
-// reference table and the tuner's fitness do. Deterministic: the same inputs and seed give the
-// same trajectory and map, with the engine's parallel path or without.
+// reference table and the tuner's fitness do. Deterministic in rays-per-scan mode: the same
+// inputs and seed give the same trajectory and map, with the engine's parallel path or without
+// (CPU-share mode depends on measured time by design).
 
 #include <cstdint>
 #include <functional>
@@ -16,13 +17,15 @@
 #include "engine/robot.hpp"
 #include "engine/scan.hpp"
 #include "engine/slam.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
 
 namespace slam {
 
 struct ReplayOptions {
   SlamParams params;
   SlamConfig config;            // seed and parallel among others
-  int64_t rays_per_scan = 65000;  // the paper's budgets: 8125, 16250, 32500, 65000
+  BudgetSettings budget;        // rays per scan or CPU share, fixed or adaptive policy
+  SchedulerConfig scheduler;
   bool refine = true;           // false: phase B off, odometry-only mapping
   /// Called after every scan with (scans done, scans in all); may be empty.
   std::function<void(size_t, size_t)> progress;
@@ -36,6 +39,7 @@ struct ReplayResult {
   int64_t rays_total = 0;
   int64_t rays_per_scan_max = 0;
   int64_t resamplings = 0;
+  std::vector<PlanRecord> plans;  // one per scan: the scheduler's plan and what it used
   double wall_s = 0.0;
   double cpu_s = 0.0;  // CPU time of the run: this thread's with a serial engine, else the process's
 
@@ -47,7 +51,8 @@ struct ReplayResult {
 /// end to end.
 std::vector<TimedPose> DeadReckoning(const std::vector<Scan>& scans);
 
-/// Replays `scans` through the engine with the paper's budget policy (FixedPlan).
+/// Replays `scans` through the engine under the ray-budget scheduler. In CPU-share mode the cost
+/// per ray is measured on this thread's CPU time with a serial engine, else on the process's.
 /// Preconditions: robot, params and config valid.
 ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scans,
                     const std::vector<TimedPose>& ground_truth, const ReplayOptions& options);

@@ -161,17 +161,26 @@ TEST(Resampling, CopiesShareTilesAndHistoryUntilWritten) {
   const sim::World room = TestRoom();
   Slam slam(robot, NoMotionNoise(), SlamConfig{});
   slam.ProcessScan(ScanAt(robot, room, {}, 0, {}, {}), ScanPlan{});
+  // The new count applies from this scan on (resampled before it); a scan that writes nothing
+  // leaves every tile shared, and the histories share everything before it.
   ScanPlan four;
   four.particles = 4;
+  four.update_rays = 0;
+  four.refine = false;
   const ScanReport grown = slam.ProcessScan(ScanAt(robot, room, {}, 1, {}, {}), four);
   EXPECT_TRUE(grown.resampled);
+  EXPECT_EQ(grown.particles, 4);
+  EXPECT_EQ(grown.rays.update, 0);
   ASSERT_EQ(slam.particles().size(), 4u);
   const auto tiles = slam.particles()[0].map.Tiles();
   ASSERT_FALSE(tiles.empty());
   for (const Particle& p : slam.particles()) {
     for (const TileRef& t : tiles) EXPECT_TRUE(p.map.SharesTileWith(slam.particles()[0].map, t.index));
-    EXPECT_EQ(p.history, slam.particles()[0].history);
+    ASSERT_TRUE(p.history && p.history->parent);
+    EXPECT_EQ(p.history->parent, slam.particles()[0].history->parent);
   }
+  four.update_rays = ScanPlan::kUnlimited;
+  four.refine = true;
   const std::vector<TileRef> before = slam.particles()[1].map.Tiles();
   std::vector<uint64_t> versions_before;
   for (const TileRef& t : before) versions_before.push_back(t.tile->version);

@@ -120,10 +120,13 @@ std::vector<EvaluationRun> Evaluate(
             EvaluationRun& run = runs[order[k]];
             const hw::Experiment& experiment = experiments[run.experiment];
             ReplayOptions options;
-            options.params = plan.params;
+            const auto tuned = plan.params_by_budget.find(run.budget);
+            options.params = tuned != plan.params_by_budget.end() ? tuned->second : plan.params;
             options.config.seed = plan.seed;
             options.config.parallel = false;  // one thread per run; runs are the parallelism
-            options.rays_per_scan = run.budget;
+            options.budget.rays_per_scan = run.budget;
+            options.budget.policy = plan.policy;
+            options.budget.max_particles = plan.max_particles;
             options.refine = run.refine;
             const ReplayResult result =
                 Replay(experiment.robot, experiment.scans, experiment.ground_truth, options);
@@ -138,7 +141,7 @@ std::vector<EvaluationRun> Evaluate(
                 run.errors.push_back("cannot create " + dir.string() + ": " + ec.message());
               } else {
                 run.errors = WriteReplayOutputs(dir.string(), experiment, result, !run.refine,
-                                                run.budget)
+                                                options.budget)
                                  .errors;
               }
             }

@@ -5,12 +5,15 @@
 
 #include <cstdint>
 #include <functional>
-#include <nlohmann/json.hpp>
+#include <map>
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "engine/params.hpp"
 #include "hw_link/experiment_reader.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
 
 namespace slam::tools {
 
@@ -19,6 +22,9 @@ struct EvaluationPlan {
   bool slam = true;           // with phase B
   bool odometry_only = true;  // phase B off (--no-refine)
   SlamParams params;
+  std::map<int64_t, SlamParams> params_by_budget;  // tuned per budget; overrides `params`
+  BudgetPolicy policy = BudgetPolicy::kFixed;
+  int max_particles = BudgetSettings{}.max_particles;
   uint64_t seed = 1;
   int jobs = 0;               // concurrent replays; 0: one per core
   std::string outputs_dir;    // when set: each run's map and trajectory in a subdirectory

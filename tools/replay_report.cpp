@@ -39,6 +39,46 @@ Json CountersJson(const hw::ExperimentCounters& c) {
   };
 }
 
+std::string BudgetLabel(const BudgetSettings& budget) {
+  char text[64];
+  if (budget.mode == QuotaMode::kCpuShare) {
+    std::snprintf(text, sizeof(text), "%.3g of a core", budget.cpu_share);
+  } else {
+    std::snprintf(text, sizeof(text), "%lld rays/scan", static_cast<long long>(budget.rays_per_scan));
+  }
+  return std::string(text) + (budget.policy == BudgetPolicy::kAdaptive ? ", adaptive" : "");
+}
+
+/// What the scheduler planned and the engine used, over the run.
+Json SchedulerSummary(const ReplayResult& run) {
+  int64_t over = 0, filling = 0, quota_total = 0, particles_max = 0;
+  double used_share = 0.0, used_share_min = 1.0, particles_sum = 0.0, candidates_sum = 0.0;
+  for (const PlanRecord& r : run.plans) {
+    over += r.used_rays > r.quota ? 1 : 0;
+    quota_total += r.quota;
+    particles_sum += r.plan.particles;
+    candidates_sum += r.plan.candidates;
+    particles_max = std::max<int64_t>(particles_max, r.plan.particles);
+    if (r.fills_quota && r.quota > 0) {
+      const double share = static_cast<double>(r.used_rays) / static_cast<double>(r.quota);
+      ++filling;
+      used_share += share;
+      used_share_min = std::min(used_share_min, share);
+    }
+  }
+  const double n = std::max<double>(1.0, static_cast<double>(run.plans.size()));
+  Json j;
+  j["over_quota_scans"] = over;
+  j["quota_mean"] = static_cast<double>(quota_total) / n;
+  j["scans_filling_quota"] = filling;
+  j["quota_used_mean"] = filling > 0 ? Json(used_share / static_cast<double>(filling)) : Json(nullptr);
+  j["quota_used_min"] = filling > 0 ? Json(used_share_min) : Json(nullptr);
+  j["particles_mean"] = particles_sum / n;
+  j["particles_max"] = particles_max;
+  j["candidates_mean"] = candidates_sum / n;
+  return j;
+}
+
 std::string Centimetres(double metres) {
   char text[32];
   std::snprintf(text, sizeof(text), "%.1f cm", 100.0 * metres);
@@ -52,7 +92,13 @@ nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResul
   Json j;
   j["experiment"] = experiment.meta.name;
   j["dir"] = experiment.dir;
-  j["budget"] = options.rays_per_scan;
+  // budget: rays per scan in that mode (the DESIGN contract), null under a CPU share.
+  const BudgetSettings& budget = options.budget;
+  j["budget"] = budget.mode == QuotaMode::kRaysPerScan ? Json(budget.rays_per_scan) : Json(nullptr);
+  j["quota_mode"] = std::string(ToString(budget.mode));
+  if (budget.mode == QuotaMode::kCpuShare) j["cpu_share"] = budget.cpu_share;
+  j["policy"] = std::string(ToString(budget.policy));
+  if (budget.policy == BudgetPolicy::kAdaptive) j["max_particles"] = budget.max_particles;
   j["refine"] = options.refine;
   j["seed"] = options.config.seed;
   if (run.quality) {
@@ -71,9 +117,11 @@ nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResul
   j["rays_per_scan_mean"] =
       run.scans > 0 ? static_cast<double>(run.rays_total) / static_cast<double>(run.scans) : 0.0;
   j["resamplings"] = run.resamplings;
+  j["scheduler"] = SchedulerSummary(run);
   j["duration_s"] = experiment.duration_s();
   j["wall_s"] = run.wall_s;
   j["cpu_s"] = run.cpu_s;
+  j["ns_per_ray"] = run.rays_total > 0 ? 1e9 * run.cpu_s / static_cast<double>(run.rays_total) : 0.0;
   j["cpu_ms_per_scan"] =
       run.scans > 0 ? 1000.0 * run.cpu_s / static_cast<double>(run.scans) : 0.0;
   j["realtime_factor"] = run.wall_s > 0.0 ? experiment.duration_s() / run.wall_s : 0.0;
@@ -99,7 +147,8 @@ nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResul
 }
 
 ReplayOutputs WriteReplayOutputs(const std::string& dir, const hw::Experiment& experiment,
-                                 const ReplayResult& run, bool odometry_only, int64_t budget) {
+                                 const ReplayResult& run, bool odometry_only,
+                                 const BudgetSettings& budget) {
   ReplayOutputs outputs;
   const auto check = [&](std::optional<std::string> error) {
     if (error) outputs.errors.push_back(*error);
@@ -121,7 +170,7 @@ ReplayOutputs WriteReplayOutputs(const std::string& dir, const hw::Experiment& e
                       {0, 90, 255}});
   }
   layers.push_back({odometry_only ? "odometry only (phase B off)"
-                                  : "SLAM, " + std::to_string(budget) + " rays/scan",
+                                  : "SLAM, " + BudgetLabel(budget),
                     run.trajectory,
                     {230, 0, 0}});
   check(io::WritePng(base + "map.png", io::RenderMapPicture(run.map, layers, 3)));

@@ -24,6 +24,7 @@ struct ReplayOutputs {
 
 /// Writes trajectory.tum, map.pgm, map.yaml and map.png into `dir` (atomically, each).
 ReplayOutputs WriteReplayOutputs(const std::string& dir, const hw::Experiment& experiment,
-                                 const ReplayResult& run, bool odometry_only, int64_t budget);
+                                 const ReplayResult& run, bool odometry_only,
+                                 const BudgetSettings& budget);
 
 }  // namespace slam::tools

@@ -71,6 +71,8 @@ int main(int argc, char** argv) {
   int jobs = 0;
   bool maps = false;
   bool require = false;
+  std::string policy_name = "fixed";
+  int max_particles = slam::BudgetSettings{}.max_particles;
   app.add_option("DIRS", inputs, "experiment directories, or datasets of them")->required();
   app.add_option("--out", out_dir, "output directory, created if needed")->required();
   app.add_option("--budgets", budgets, "rays per scan")
@@ -81,7 +83,15 @@ int main(int argc, char** argv) {
       ->delimiter(',')
       ->capture_default_str()
       ->check(CLI::IsMember({"slam", "odometry"}));
-  app.add_option("--params", params_path, "SLAM parameters (JSON, Table II keys) [defaults]");
+  app.add_option("--params", params_path,
+                 "SLAM parameters (JSON, Table II keys), or a directory of them per budget "
+                 "(<budget>.json, as slam-tune writes in OUT/params) [defaults]");
+  app.add_option("--policy", policy_name, "fixed (the paper's) or adaptive particle count")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"fixed", "adaptive"}));
+  app.add_option("--max-particles", max_particles, "adaptive policy: most particles")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000));
   app.add_option("--seed", seed, "seed of the particle filter")->capture_default_str();
   app.add_option("--jobs", jobs, "replays at once, one thread each (0: one per core)")
       ->capture_default_str()
@@ -100,7 +110,17 @@ int main(int argc, char** argv) {
   plan.odometry_only = std::count(modes.begin(), modes.end(), "odometry") > 0;
   plan.seed = seed;
   plan.jobs = jobs;
-  if (!params_path.empty()) {
+  plan.policy = *slam::ParseBudgetPolicy(policy_name);
+  plan.max_particles = max_particles;
+  if (!params_path.empty() && fs::is_directory(params_path)) {
+    // One file per budget; a budget without one is an error, not a silent default.
+    for (int64_t budget : plan.budgets) {
+      const std::string path = (fs::path(params_path) / (std::to_string(budget) + ".json")).string();
+      const auto loaded = slam::io::LoadParams(path);
+      if (!loaded.ok()) return Fail(loaded.Message());
+      plan.params_by_budget[budget] = loaded.value();
+    }
+  } else if (!params_path.empty()) {
     const auto loaded = slam::io::LoadParams(params_path);
     if (!loaded.ok()) return Fail(loaded.Message());
     plan.params = loaded.value();

@@ -73,6 +73,9 @@ int main(int argc, char** argv) {
       "map.pgm, map.yaml and map.png into the output directory."};
   std::string experiment_dir, params_path, out_dir;
   int64_t budget = 65000;
+  double cpu_share = 0.0;
+  std::string policy_name = "fixed";
+  int max_particles = slam::BudgetSettings{}.max_particles;
   bool no_refine = false;
   uint64_t seed = 1;
   int threads = 0;
@@ -82,6 +85,17 @@ int main(int argc, char** argv) {
   app.add_option("--budget", budget, "rays per scan (paper: 8125, 16250, 32500, 65000)")
       ->capture_default_str()
       ->check(CLI::Range(int64_t{1}, int64_t{1'000'000'000}));
+  app.add_option("--cpu-share", cpu_share,
+                 "quota as a share of one core instead of rays per scan (0.125 ... 1.0), through "
+                 "the measured cost per ray; the engine then runs serially on one thread")
+      ->check(CLI::Range(0.0, 1.0))
+      ->excludes("--budget");
+  app.add_option("--policy", policy_name, "fixed (the paper's) or adaptive particle count")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"fixed", "adaptive"}));
+  app.add_option("--max-particles", max_particles, "adaptive policy: most particles")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000));
   app.add_flag("--no-refine", no_refine,
                "phase B off: odometry-only mapping (the paper's Fig. 9 bottom)");
   app.add_option("--seed", seed, "seed of the particle filter")->capture_default_str();
@@ -129,7 +143,14 @@ int main(int argc, char** argv) {
   slam::ReplayOptions options;
   options.params = params;
   options.config.seed = seed;
-  options.rays_per_scan = budget;
+  options.budget.rays_per_scan = budget;
+  options.budget.policy = *slam::ParseBudgetPolicy(policy_name);
+  options.budget.max_particles = max_particles;
+  if (cpu_share > 0.0) {
+    options.budget.mode = slam::QuotaMode::kCpuShare;
+    options.budget.cpu_share = cpu_share;
+    options.config.parallel = false;  // one core's share is measured on this thread
+  }
   options.refine = !no_refine;
   ProgressLine progress(experiment.meta.name + (no_refine ? " (odometry only)" : ""));
   if (!quiet) options.progress = [&](size_t done, size_t total) { progress.Update(done, total); };
@@ -137,7 +158,7 @@ int main(int argc, char** argv) {
       slam::Replay(experiment.robot, experiment.scans, experiment.ground_truth, options);
 
   slam::tools::ReplayOutputs outputs =
-      slam::tools::WriteReplayOutputs(out_dir, experiment, run, no_refine, budget);
+      slam::tools::WriteReplayOutputs(out_dir, experiment, run, no_refine, options.budget);
   Json summary = slam::tools::ReplaySummary(experiment, run, options);
   summary["out"] = out_dir;
   std::cout << summary.dump(2) << "\n";
