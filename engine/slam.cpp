@@ -396,7 +396,7 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
           weight_sum += w;
           spread_sq += w * (dx * dx + dy * dy);
         }
-        ambiguity += std::sqrt(spread_sq / weight_sum) / (std::sqrt(2.0) * sigma_pos);
+        ambiguity += std::sqrt(spread_sq / weight_sum) / std::max(std::sqrt(2.0) * sigma_pos, 1e-9);
       }
     }
     report.refinement_ambiguity = ambiguity / static_cast<double>(n_particles);

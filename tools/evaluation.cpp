@@ -81,6 +81,34 @@ std::vector<double> Column(const std::vector<EvaluationRun>& runs, int64_t budge
 
 }  // namespace
 
+std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& paths, std::string& error) {
+  std::vector<std::string> dirs;
+  for (const std::string& path : paths) {
+    std::error_code ec;
+    if (std::filesystem::exists(std::filesystem::path(path) / "can.log", ec)) {
+      dirs.push_back(path);
+      continue;
+    }
+    if (!std::filesystem::is_directory(path, ec)) {
+      error = path + ": not an experiment or dataset directory";
+      return {};
+    }
+    std::vector<std::string> found;
+    for (const std::filesystem::directory_entry& entry : std::filesystem::directory_iterator(path, ec)) {
+      if (entry.is_directory() && std::filesystem::exists(entry.path() / "can.log")) {
+        found.push_back(entry.path().string());
+      }
+    }
+    if (ec || found.empty()) {
+      error = path + ": no experiment in it (no subdirectory with a can.log)";
+      return {};
+    }
+    std::sort(found.begin(), found.end());
+    dirs.insert(dirs.end(), found.begin(), found.end());
+  }
+  return dirs;
+}
+
 std::vector<EvaluationRun> PlanRuns(size_t experiments, const EvaluationPlan& plan) {
   std::vector<EvaluationRun> runs;
   for (size_t e = 0; e < experiments; ++e) {

@@ -17,6 +17,10 @@
 
 namespace slam::tools {
 
+/// The experiment directories named by `paths`: each is an experiment (it holds a can.log) or a
+/// dataset of them (its subdirectories holding one, sorted). Empty with `error` set otherwise.
+std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& paths, std::string& error);
+
 struct EvaluationPlan {
   std::vector<int64_t> budgets{8125, 16250, 32500, 65000};
   bool slam = true;           // with phase B

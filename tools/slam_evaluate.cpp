@@ -23,35 +23,6 @@ namespace fs = std::filesystem;
 
 /// The experiment directories named by `paths`: an experiment itself (it holds can.log), or a
 /// dataset whose subdirectories are experiments (sorted by name).
-std::vector<std::string> ExperimentDirs(const std::vector<std::string>& paths,
-                                        std::string& error) {
-  std::vector<std::string> dirs;
-  for (const std::string& path : paths) {
-    std::error_code ec;
-    if (fs::exists(fs::path(path) / "can.log", ec)) {
-      dirs.push_back(path);
-      continue;
-    }
-    if (!fs::is_directory(path, ec)) {
-      error = path + ": not an experiment or dataset directory";
-      return {};
-    }
-    std::vector<std::string> found;
-    for (const fs::directory_entry& entry : fs::directory_iterator(path, ec)) {
-      if (entry.is_directory() && fs::exists(entry.path() / "can.log")) {
-        found.push_back(entry.path().string());
-      }
-    }
-    if (ec || found.empty()) {
-      error = path + ": no experiment in it (no subdirectory with a can.log)";
-      return {};
-    }
-    std::sort(found.begin(), found.end());
-    dirs.insert(dirs.end(), found.begin(), found.end());
-  }
-  return dirs;
-}
-
 int Fail(const std::string& message) {
   std::cerr << "slam-evaluate: " << message << "\n";
   return 1;
@@ -126,7 +97,7 @@ int main(int argc, char** argv) {
     plan.params = loaded.value();
   }
   std::string error;
-  const std::vector<std::string> dirs = ExperimentDirs(inputs, error);
+  const std::vector<std::string> dirs = slam::tools::FindExperimentDirs(inputs, error);
   if (dirs.empty()) return Fail(error);
   std::error_code ec;
   fs::create_directories(out_dir, ec);

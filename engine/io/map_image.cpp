@@ -13,6 +13,7 @@
 
 #include "engine/cell_encoding.hpp"
 #include "engine/grid_geometry.hpp"
+#include "engine/io/canvas.hpp"
 
 namespace slam::io {
 namespace {
@@ -137,149 +138,7 @@ PngBytes Encode(int width, int height, int color_type, int channels, const uint8
 }
 
 // ---------------------------------------------------------------------------------------------
-// Drawing.
-
-using Rgb = std::array<uint8_t, 3>;
-
-class Canvas {
- public:
-  Canvas(int width, int height, Rgb background) {
-    image_.width = width;
-    image_.height = height;
-    image_.rgb.resize(static_cast<size_t>(width) * static_cast<size_t>(height) * 3);
-    for (size_t i = 0; i < image_.rgb.size(); i += 3) {
-      std::copy(background.begin(), background.end(), image_.rgb.begin() + static_cast<long>(i));
-    }
-  }
-
-  void Set(int64_t x, int64_t y, const Rgb& c) {
-    if (x < 0 || y < 0 || x >= image_.width || y >= image_.height) return;
-    const size_t i =
-        (static_cast<size_t>(y) * static_cast<size_t>(image_.width) + static_cast<size_t>(x)) * 3;
-    image_.rgb[i] = c[0];
-    image_.rgb[i + 1] = c[1];
-    image_.rgb[i + 2] = c[2];
-  }
-
-  void FillRect(int64_t x, int64_t y, int64_t w, int64_t h, const Rgb& c) {
-    for (int64_t j = 0; j < h; ++j) {
-      for (int64_t i = 0; i < w; ++i) Set(x + i, y + j, c);
-    }
-  }
-
-  /// A line of `thickness` pixels between two pixel positions (Bresenham, square pen).
-  void Line(int64_t x0, int64_t y0, int64_t x1, int64_t y1, int thickness, const Rgb& c) {
-    const int64_t dx = std::abs(x1 - x0), dy = -std::abs(y1 - y0);
-    const int64_t sx = x0 < x1 ? 1 : -1, sy = y0 < y1 ? 1 : -1;
-    const int64_t half = (thickness - 1) / 2;
-    int64_t err = dx + dy;
-    while (true) {
-      FillRect(x0 - half, y0 - half, thickness, thickness, c);
-      if (x0 == x1 && y0 == y1) break;
-      const int64_t e2 = 2 * err;
-      if (e2 >= dy) {
-        err += dy;
-        x0 += sx;
-      }
-      if (e2 <= dx) {
-        err += dx;
-        y0 += sy;
-      }
-    }
-  }
-
-  /// Text in the 5x7 font, each font pixel drawn as a `size` x `size` square; returns the width.
-  int Text(int x, int y, const std::string& text, int size, const Rgb& c);
-
-  RgbImage Take() { return std::move(image_); }
-
- private:
-  RgbImage image_;
-};
-
-// A 5x7 bitmap font: 7 rows per glyph, the 5 low bits of each row from left (bit 4) to right.
-struct Glyph {
-  char c;
-  uint8_t rows[7];
-};
-
-constexpr Glyph kFont[] = {
-    {'A', {0x0E, 0x11, 0x11, 0x1F, 0x11, 0x11, 0x11}},
-    {'B', {0x1E, 0x11, 0x11, 0x1E, 0x11, 0x11, 0x1E}},
-    {'C', {0x0E, 0x11, 0x10, 0x10, 0x10, 0x11, 0x0E}},
-    {'D', {0x1C, 0x12, 0x11, 0x11, 0x11, 0x12, 0x1C}},
-    {'E', {0x1F, 0x10, 0x10, 0x1E, 0x10, 0x10, 0x1F}},
-    {'F', {0x1F, 0x10, 0x10, 0x1E, 0x10, 0x10, 0x10}},
-    {'G', {0x0E, 0x11, 0x10, 0x17, 0x11, 0x11, 0x0F}},
-    {'H', {0x11, 0x11, 0x11, 0x1F, 0x11, 0x11, 0x11}},
-    {'I', {0x0E, 0x04, 0x04, 0x04, 0x04, 0x04, 0x0E}},
-    {'J', {0x07, 0x02, 0x02, 0x02, 0x02, 0x12, 0x0C}},
-    {'K', {0x11, 0x12, 0x14, 0x18, 0x14, 0x12, 0x11}},
-    {'L', {0x10, 0x10, 0x10, 0x10, 0x10, 0x10, 0x1F}},
-    {'M', {0x11, 0x1B, 0x15, 0x15, 0x11, 0x11, 0x11}},
-    {'N', {0x11, 0x11, 0x19, 0x15, 0x13, 0x11, 0x11}},
-    {'O', {0x0E, 0x11, 0x11, 0x11, 0x11, 0x11, 0x0E}},
-    {'P', {0x1E, 0x11, 0x11, 0x1E, 0x10, 0x10, 0x10}},
-    {'Q', {0x0E, 0x11, 0x11, 0x11, 0x15, 0x12, 0x0D}},
-    {'R', {0x1E, 0x11, 0x11, 0x1E, 0x14, 0x12, 0x11}},
-    {'S', {0x0F, 0x10, 0x10, 0x0E, 0x01, 0x01, 0x1E}},
-    {'T', {0x1F, 0x04, 0x04, 0x04, 0x04, 0x04, 0x04}},
-    {'U', {0x11, 0x11, 0x11, 0x11, 0x11, 0x11, 0x0E}},
-    {'V', {0x11, 0x11, 0x11, 0x11, 0x11, 0x0A, 0x04}},
-    {'W', {0x11, 0x11, 0x11, 0x15, 0x15, 0x15, 0x0A}},
-    {'X', {0x11, 0x11, 0x0A, 0x04, 0x0A, 0x11, 0x11}},
-    {'Y', {0x11, 0x11, 0x11, 0x0A, 0x04, 0x04, 0x04}},
-    {'Z', {0x1F, 0x01, 0x02, 0x04, 0x08, 0x10, 0x1F}},
-    {'0', {0x0E, 0x11, 0x13, 0x15, 0x19, 0x11, 0x0E}},
-    {'1', {0x04, 0x0C, 0x04, 0x04, 0x04, 0x04, 0x0E}},
-    {'2', {0x0E, 0x11, 0x01, 0x02, 0x04, 0x08, 0x1F}},
-    {'3', {0x1F, 0x02, 0x04, 0x02, 0x01, 0x11, 0x0E}},
-    {'4', {0x02, 0x06, 0x0A, 0x12, 0x1F, 0x02, 0x02}},
-    {'5', {0x1F, 0x10, 0x1E, 0x01, 0x01, 0x11, 0x0E}},
-    {'6', {0x06, 0x08, 0x10, 0x1E, 0x11, 0x11, 0x0E}},
-    {'7', {0x1F, 0x01, 0x02, 0x04, 0x08, 0x08, 0x08}},
-    {'8', {0x0E, 0x11, 0x11, 0x0E, 0x11, 0x11, 0x0E}},
-    {'9', {0x0E, 0x11, 0x11, 0x0F, 0x01, 0x02, 0x0C}},
-    {' ', {0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00}},
-    {'-', {0x00, 0x00, 0x00, 0x1F, 0x00, 0x00, 0x00}},
-    {'.', {0x00, 0x00, 0x00, 0x00, 0x00, 0x0C, 0x0C}},
-    {',', {0x00, 0x00, 0x00, 0x00, 0x0C, 0x04, 0x08}},
-    {':', {0x00, 0x0C, 0x0C, 0x00, 0x0C, 0x0C, 0x00}},
-    {'(', {0x02, 0x04, 0x08, 0x08, 0x08, 0x04, 0x02}},
-    {')', {0x08, 0x04, 0x02, 0x02, 0x02, 0x04, 0x08}},
-    {'/', {0x00, 0x01, 0x02, 0x04, 0x08, 0x10, 0x00}},
-    {'_', {0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x1F}},
-    {'+', {0x00, 0x04, 0x04, 0x1F, 0x04, 0x04, 0x00}},
-    {'%', {0x18, 0x19, 0x02, 0x04, 0x08, 0x13, 0x03}},
-    {'?', {0x0E, 0x11, 0x01, 0x02, 0x04, 0x00, 0x04}},
-};
-
-constexpr int kGlyphWidth = 5;
-constexpr int kGlyphHeight = 7;
-constexpr int kGlyphAdvance = 6;
-
-const Glyph& GlyphFor(char c) {
-  if (c >= 'a' && c <= 'z') c = static_cast<char>(c - 'a' + 'A');
-  for (const Glyph& g : kFont) {
-    if (g.c == c) return g;
-  }
-  return kFont[std::size(kFont) - 1];  // '?'
-}
-
-int Canvas::Text(int x, int y, const std::string& text, int size, const Rgb& c) {
-  for (size_t k = 0; k < text.size(); ++k) {
-    const Glyph& g = GlyphFor(text[k]);
-    const int gx = x + static_cast<int>(k) * kGlyphAdvance * size;
-    for (int row = 0; row < kGlyphHeight; ++row) {
-      for (int col = 0; col < kGlyphWidth; ++col) {
-        if (g.rows[row] & (1 << (kGlyphWidth - 1 - col))) {
-          FillRect(gx + col * size, y + row * size, size, size, c);
-        }
-      }
-    }
-  }
-  return static_cast<int>(text.size()) * kGlyphAdvance * size;
-}
+// The map picture's colours.
 
 constexpr Rgb kUnknownColor{205, 210, 220};
 constexpr Rgb kLegendBackground{255, 255, 255};
@@ -396,11 +255,11 @@ RgbImage RenderMapPicture(const OccupancyGrid& grid, const std::vector<Trajector
   const int map_width = static_cast<int>(window.width) * scale;
   const int map_height = static_cast<int>(window.height) * scale;
   const int font = map_width >= 300 ? 2 : 1;
-  const int line_height = (kGlyphHeight + 4) * font;
-  const int swatch = 6 * kGlyphAdvance * font / 2;
+  const int line_height = (Canvas::kGlyphHeight + 4) * font;
+  const int swatch = 6 * Canvas::kGlyphAdvance * font / 2;
   int legend_width = 0;
   for (const TrajectoryLayer& layer : layers) {
-    const int text_width = static_cast<int>(layer.name.size()) * kGlyphAdvance * font;
+    const int text_width = Canvas::TextWidth(layer.name, font);
     legend_width = std::max(legend_width, swatch + text_width + 8 * font);
   }
   const int legend_height =

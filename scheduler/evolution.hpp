@@ -1,0 +1,68 @@
+#pragma once
+// The paper's evolution strategy over the SLAM parameters (section VI-B): a population of
+// parameter sets; each generation keeps the best quarter unchanged (elitism) and fills the rest
+// with Gaussian mutations of them (sigmas of DESIGN section 3), clamped to bounds, the integer
+// parameters rounded. Every random draw depends only on (seed, stream, generation), so a run
+// gives the same result whatever the thread count, and resumes exactly from a saved generation.
+
+#include <cstdint>
+#include <string_view>
+#include <vector>
+
+#include "engine/params.hpp"
+#include "engine/random.hpp"
+
+namespace slam {
+
+/// One tuned parameter: its JSON key, mutation sigma and search bounds.
+struct ParameterSpec {
+  std::string_view key;
+  double sigma;
+  double lo, hi;
+  bool integer;
+};
+
+/// The nine parameters of Table II, in its order.
+const std::vector<ParameterSpec>& TunedParameters();
+
+/// A parameter's value by its position in TunedParameters(), and the reverse.
+double GetParameter(const SlamParams& params, size_t index);
+void SetParameter(SlamParams& params, size_t index, double value);
+
+struct EvolutionConfig {
+  int population = 48;
+  int generations = 40;
+  double elite_fraction = 0.25;
+  uint64_t seed = 1;
+
+  /// Individuals kept unchanged from one generation to the next (at least 1).
+  int elites() const;
+};
+
+/// Empty when valid.
+ConfigErrors Validate(const EvolutionConfig& config);
+
+struct Individual {
+  SlamParams params;
+  double fitness = 0.0;  // lower is better (the tuner's: mean e over the experiments)
+  bool evaluated = false;
+};
+
+/// `params` with every tuned parameter moved by a Gaussian draw of its sigma, clamped to its
+/// bounds, integers rounded.
+SlamParams Mutate(const SlamParams& params, Rng& rng);
+
+/// Generation 0: `start` itself, then mutations of it. `stream` tells budgets apart.
+std::vector<Individual> InitialPopulation(const SlamParams& start, const EvolutionConfig& config,
+                                          uint64_t stream);
+
+/// Ranks an evaluated population, best first (stable: ties keep their order).
+std::vector<Individual> Ranked(std::vector<Individual> population);
+
+/// Generation `generation` (>= 1) from the evaluated previous one: its elites unchanged (with
+/// their fitness, not evaluated again), then mutations of elites drawn uniformly.
+std::vector<Individual> NextGeneration(const std::vector<Individual>& previous,
+                                       const EvolutionConfig& config, uint64_t stream,
+                                       int generation);
+
+}  // namespace slam

@@ -1,0 +1,84 @@
+#pragma once
+// The offline tuner (DESIGN section 4, paper section VI-B): for each ray budget on its own, the
+// evolution strategy searches the SLAM parameters that minimise the mean of e = log(1 - q) over
+// recorded experiments held in memory. Evaluations run in parallel under oneTBB; results depend
+// only on the settings and seed, never on the thread count. The state after every generation is
+// complete enough to resume from.
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "engine/params.hpp"
+#include "engine/pose.hpp"
+#include "engine/robot.hpp"
+#include "engine/scan.hpp"
+#include "scheduler/evolution.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
+#include "scheduler/statistics.hpp"
+
+namespace slam {
+
+/// A decoded experiment with ground truth (not owned).
+struct TuningExperiment {
+  std::string name;
+  const RobotDescription* robot = nullptr;
+  const std::vector<Scan>* scans = nullptr;
+  const std::vector<TimedPose>* ground_truth = nullptr;
+};
+
+struct TuningSettings {
+  std::vector<int64_t> budgets{8125, 16250, 32500, 65000};
+  EvolutionConfig evolution;   // its seed also seeds every replay
+  BudgetPolicy policy = BudgetPolicy::kFixed;
+  int max_particles = BudgetSettings{}.max_particles;
+  SlamParams start;            // generation 0's first individual (Table II defaults)
+};
+
+struct GenerationSummary {
+  int generation = 0;
+  FiveNumbers fitness;               // over the whole population
+  Individual best;                   // best so far (elitism keeps it)
+  std::vector<double> fitness_values;  // every individual's, in population order
+  int evaluations = 0;               // individuals evaluated in this generation (elites are not)
+};
+
+struct BudgetRun {
+  int64_t budget = 0;
+  std::vector<GenerationSummary> generations;
+  std::vector<Individual> population;  // the last summarised generation, evaluated
+};
+
+struct TuningState {
+  TuningSettings settings;
+  std::vector<std::string> experiments;  // names, in order: a resumed run must use the same
+  std::vector<BudgetRun> budgets;        // in the order of settings.budgets
+};
+
+/// A fresh state for `settings` over these experiments.
+TuningState NewTuningState(const TuningSettings& settings, const std::vector<TuningExperiment>& experiments);
+
+/// Fitness of one parameter set at one budget: the mean of e over the experiments, each replayed
+/// on this thread with the settings' policy and seed. Preconditions: params valid, every
+/// experiment has ground truth.
+double Fitness(const std::vector<TuningExperiment>& experiments, const SlamParams& params,
+               int64_t budget, const TuningSettings& settings);
+
+struct TuningCallbacks {
+  /// After every finished generation of a budget (to save the state); may be empty.
+  std::function<void(const TuningState&, int64_t budget)> generation_done;
+  /// Work done and in all for this call (replayed scans times budget), serialised; may be empty.
+  std::function<void(double done, double total)> progress;
+  /// When set to true, the run stops soon; unfinished generations are dropped.
+  const std::atomic<bool>* cancel = nullptr;
+};
+
+/// Runs or continues the study until every budget has settings.evolution.generations
+/// generations, `jobs` evaluations at a time (0: one per core). Returns false when cancelled;
+/// `state` then holds every finished generation.
+bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& state, int jobs,
+               const TuningCallbacks& callbacks = {});
+
+}  // namespace slam

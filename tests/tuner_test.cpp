@@ -1,0 +1,382 @@
+// The evolution strategy and the tuner: mutation within bounds, convergence on a toy function
+// with elitism keeping the best, a reduced study on two short generated experiments that
+// improves over generations, independence from the thread count, resuming (from results.json,
+// after an interruption, and extending a finished study), and the tables and files slam-tune
+// writes, read back.
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "engine/io/params_json.hpp"
+#include "hw_link/experiment.hpp"
+#include "hw_link/experiment_reader.hpp"
+#include "scheduler/evolution.hpp"
+#include "scheduler/tuner.hpp"
+#include "sim/scenario.hpp"
+#include "tests/test_support.hpp"
+#include "tools/tuning_report.hpp"
+
+namespace slam {
+namespace {
+
+namespace fs = std::filesystem;
+
+/// A smooth toy fitness: squared distance to a target, each parameter in units of its sigma.
+double Toy(const SlamParams& p, const SlamParams& target) {
+  double sum = 0.0;
+  const auto& specs = TunedParameters();
+  for (size_t i = 0; i < specs.size(); ++i) {
+    sum += std::pow((GetParameter(p, i) - GetParameter(target, i)) / specs[i].sigma, 2);
+  }
+  return sum;
+}
+
+TEST(Evolution, MutationStaysInBoundsRoundsIntegersAndUsesTheSigmas) {
+  const auto& specs = TunedParameters();
+  ASSERT_EQ(specs.size(), 9u);
+  SlamParams middle;  // far from every bound (in sigmas) so that clamping does not bias
+  middle.angle_between_scans_deg = 20.0;
+  middle.particles = 30;
+  middle.resampling_period_scans = 20;
+  middle.min_angle_uncertainty_deg = 10.0;
+  middle.dist_error_const_m = 0.05;
+  middle.angle_error_const_deg = 1.0;
+  Rng rng(4);
+  std::vector<double> sum_sq(specs.size(), 0.0);
+  const int n = 20000;
+  for (int k = 0; k < n; ++k) {
+    const SlamParams m = Mutate(middle, rng);
+    EXPECT_TRUE(Validate(m).empty());
+    for (size_t i = 0; i < specs.size(); ++i) {
+      const double v = GetParameter(m, i);
+      ASSERT_GE(v, specs[i].lo);
+      ASSERT_LE(v, specs[i].hi);
+      if (specs[i].integer) {
+        ASSERT_EQ(v, std::round(v));
+      }
+      sum_sq[i] += std::pow(v - GetParameter(middle, i), 2);
+    }
+  }
+  for (size_t i = 0; i < specs.size(); ++i) {
+    // Rounding adds 1/12 of a unit squared to the integers' variance.
+    const double expected = specs[i].sigma * specs[i].sigma + (specs[i].integer ? 1.0 / 12.0 : 0.0);
+    EXPECT_NEAR(sum_sq[i] / n, expected, 0.06 * expected) << specs[i].key;
+  }
+  // At a bound the draws are clamped, never outside.
+  SlamParams low;
+  low.particles = 1;
+  low.angle_between_scans_deg = 0.0;
+  for (int k = 0; k < 1000; ++k) {
+    const SlamParams m = Mutate(low, rng);
+    ASSERT_GE(m.particles, 1);
+    ASSERT_GE(m.angle_between_scans_deg, 0.0);
+  }
+}
+
+TEST(Evolution, ConvergesOnAToyFunctionAndElitismKeepsTheBest) {
+  SlamParams target;
+  target.dist_error_ratio = 0.12;
+  target.dist_error_const_m = 0.02;
+  target.angle_error_ratio = 0.02;
+  target.angle_error_const_deg = 0.03;
+  target.min_pos_uncertainty_m = 0.035;
+  target.min_angle_uncertainty_deg = 8.0;
+  target.resampling_period_scans = 3;
+  target.angle_between_scans_deg = 10.0;
+  target.particles = 4;
+  const EvolutionConfig config;  // the paper's: 48, 40 generations, 25 %
+  ASSERT_EQ(config.elites(), 12);
+  std::vector<Individual> population = InitialPopulation(SlamParams{}, config, 7);
+  ASSERT_EQ(population.size(), 48u);
+  EXPECT_EQ(population[0].params, SlamParams{});  // the start itself comes first
+  const auto evaluate = [&](std::vector<Individual>& pop) {
+    for (Individual& i : pop) {
+      if (!i.evaluated) i = {i.params, Toy(i.params, target), true};
+    }
+  };
+  evaluate(population);
+  const double first = Ranked(population).front().fitness;
+  double best = first;
+  for (int g = 1; g < config.generations; ++g) {
+    const Individual previous_best = Ranked(population).front();
+    population = NextGeneration(population, config, 7, g);
+    ASSERT_EQ(population.size(), 48u);
+    // The elites come first, unchanged and already evaluated; the rest are new.
+    for (size_t i = 0; i < 48; ++i) EXPECT_EQ(population[i].evaluated, i < 12);
+    EXPECT_EQ(population[0].params, previous_best.params);
+    evaluate(population);
+    const double now = Ranked(population).front().fitness;
+    EXPECT_LE(now, best) << "generation " << g;  // elitism: never worse
+    best = now;
+  }
+  EXPECT_GT(first, 100.0);
+  EXPECT_LT(best, 0.02 * first);
+  const SlamParams found = Ranked(population).front().params;
+  EXPECT_EQ(found.particles, 4);
+  EXPECT_NEAR(found.angle_between_scans_deg, 10.0, 2.5);
+  // The same seed and stream give the same generation; another stream another one.
+  EXPECT_EQ(NextGeneration(population, config, 7, 5)[20].params, NextGeneration(population, config, 7, 5)[20].params);
+  EXPECT_NE(NextGeneration(population, config, 8, 5)[20].params, NextGeneration(population, config, 7, 5)[20].params);
+}
+
+/// Two short generated experiments, shared by the reduced studies.
+class TunerTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    root_ = fs::path(::testing::TempDir()) / ("slam_tuner_test_" + std::to_string(::getpid()));
+    fs::remove_all(root_);
+    const RobotDescription robot = testing::ShippedRobot();
+    int seed = 3;
+    for (const char* arena : {"rooms", "cluttered"}) {
+      sim::ScenarioConfig config;
+      config.duration_s = 20.0;
+      config.seed = static_cast<uint64_t>(seed++);
+      const std::string dir = (root_ / "exp" / arena).string();
+      ASSERT_FALSE(hw::WriteSimulatedExperiment(dir, *sim::BuiltinArena(arena), arena, robot, config));
+      hw::ExperimentLoad load = hw::LoadExperiment(dir);
+      ASSERT_TRUE(load.ok()) << load.error;
+      experiments_->push_back(std::move(*load.experiment));
+    }
+  }
+  static void TearDownTestSuite() {
+    fs::remove_all(root_);
+    experiments_->clear();
+  }
+
+  static std::vector<TuningExperiment> Experiments() {
+    std::vector<TuningExperiment> out;
+    for (const hw::Experiment& e : *experiments_) out.push_back({e.meta.name, &e.robot, &e.scans, &e.ground_truth});
+    return out;
+  }
+  static TuningSettings Reduced(int generations) {
+    TuningSettings settings;
+    settings.budgets = {4000};
+    settings.evolution.population = 12;
+    settings.evolution.generations = generations;
+    settings.evolution.seed = 5;
+    return settings;
+  }
+  /// The full study of the suite, run once: 12 individuals, 8 generations, 2 threads.
+  static const TuningState& Full() {
+    static const TuningState state = [] {
+      TuningState s = NewTuningState(Reduced(8), Experiments());
+      EXPECT_TRUE(RunTuning(Experiments(), s, 2));
+      return s;
+    }();
+    return state;
+  }
+
+  static inline fs::path root_;
+  static inline std::vector<hw::Experiment>* experiments_ = new std::vector<hw::Experiment>();
+};
+
+void ExpectSameStudy(const TuningState& a, const TuningState& b) {
+  EXPECT_EQ(tools::TuningStateToJson(a), tools::TuningStateToJson(b));
+}
+
+TEST_F(TunerTest, ReducedStudyImprovesOverGenerations) {
+  const TuningState& state = Full();
+  ASSERT_EQ(state.budgets.size(), 1u);
+  const BudgetRun& run = state.budgets[0];
+  ASSERT_EQ(run.generations.size(), 8u);
+  EXPECT_EQ(run.generations[0].evaluations, 12);
+  EXPECT_EQ(run.generations[1].evaluations, 9);  // elites are not evaluated again
+  for (size_t g = 1; g < run.generations.size(); ++g) {
+    EXPECT_LE(run.generations[g].best.fitness, run.generations[g - 1].best.fitness);
+  }
+  const FiveNumbers& first = run.generations.front().fitness;
+  const FiveNumbers& last = run.generations.back().fitness;
+  EXPECT_LT(last.median, first.median);
+  EXPECT_LT(run.generations.back().best.fitness, run.generations.front().best.fitness);
+  // The defaults are generation 0's first individual; the best beats them.
+  EXPECT_LT(run.generations.back().best.fitness, run.generations.front().fitness_values[0]);
+  // The best's fitness is what an evaluation of its parameters gives.
+  EXPECT_DOUBLE_EQ(Fitness(Experiments(), run.generations.back().best.params, 4000, state.settings),
+                   run.generations.back().best.fitness);
+  std::printf("reduced study: median %.4f -> %.4f, best %.4f -> %.4f\n", first.median, last.median,
+              run.generations.front().best.fitness, run.generations.back().best.fitness);
+}
+
+TEST_F(TunerTest, SameResultWithOneThreadAndResumedOrExtended) {
+  // Three generations on one thread are the first three of the two-thread study.
+  TuningState part = NewTuningState(Reduced(3), Experiments());
+  ASSERT_TRUE(RunTuning(Experiments(), part, 1));
+  ASSERT_EQ(part.budgets[0].generations.size(), 3u);
+  for (size_t g = 0; g < 3; ++g) {
+    EXPECT_EQ(part.budgets[0].generations[g].fitness_values, Full().budgets[0].generations[g].fitness_values);
+  }
+  // Saved to JSON, read back and extended to eight generations: the same study.
+  auto reread = tools::TuningStateFromJson(nlohmann::json::parse(tools::TuningStateToJson(part).dump()));
+  ASSERT_TRUE(reread.ok()) << reread.Message();
+  TuningState resumed = std::move(reread).value();
+  EXPECT_TRUE(tools::ResumeConflicts(resumed, Reduced(8), {"rooms-seed3", "cluttered-seed4"}).empty());
+  resumed.settings.evolution.generations = 8;
+  ASSERT_TRUE(RunTuning(Experiments(), resumed, 2));
+  ExpectSameStudy(resumed, Full());
+}
+
+TEST_F(TunerTest, InterruptedRunKeepsFinishedGenerationsAndResumesExactly) {
+  TuningState state = NewTuningState(Reduced(8), Experiments());
+  std::atomic<bool> cancel{false};
+  int saved = 0, calls = 0;
+  TuningCallbacks callbacks;
+  callbacks.cancel = &cancel;
+  callbacks.generation_done = [&](const TuningState&, int64_t budget) {
+    EXPECT_EQ(budget, 4000);
+    ++saved;
+  };
+  double last_done = 0.0;
+  callbacks.progress = [&](double done, double total) {
+    EXPECT_GT(done, last_done);
+    EXPECT_LE(done, total * (1 + 1e-12));
+    last_done = done;
+    // Stop in the middle of generation 3 (12 + 9 + 9 evaluations of 2 experiments before it).
+    if (++calls == 2 * (12 + 9 + 9) + 5) cancel = true;
+  };
+  EXPECT_FALSE(RunTuning(Experiments(), state, 2, callbacks));
+  EXPECT_EQ(saved, 3);
+  EXPECT_EQ(state.budgets[0].generations.size(), 3u);
+  cancel = false;
+  ASSERT_TRUE(RunTuning(Experiments(), state, 1));
+  ExpectSameStudy(state, Full());
+}
+
+TEST_F(TunerTest, TablesAndFilesReadBack) {
+  TuningState state = Full();
+  // A second budget from the same run, shifted, so that Table III has a pair.
+  BudgetRun other = state.budgets[0];
+  other.budget = 8125;
+  for (double& f : other.generations.back().fitness_values) f += 0.5;
+  state.settings.budgets.push_back(8125);
+  state.budgets.push_back(other);
+
+  const std::string table2 = tools::Table2Markdown(state);
+  for (const ParameterSpec& spec : TunedParameters()) {
+    EXPECT_NE(table2.find("| `" + std::string(spec.key) + "` |"), std::string::npos) << spec.key;
+  }
+  EXPECT_NE(table2.find("| parameter | default | 4000 | 8125 |"), std::string::npos);
+  const std::string table3 = tools::Table3Markdown(state);
+  const MannWhitneyResult expected =
+      MannWhitneyU(state.budgets[0].generations.back().fitness_values, other.generations.back().fitness_values);
+  char p[32];
+  std::snprintf(p, sizeof(p), expected.p_value < 1e-4 ? "%.1e" : "%.4f", expected.p_value);
+  EXPECT_NE(table3.find("| 4000 | " + std::string(p) + " |"), std::string::npos) << table3;
+  EXPECT_LT(expected.p_value, 0.01);  // shifted by far more than the spread
+
+  const testing::TempDir dir("tuning_outputs");
+  ASSERT_TRUE(tools::WriteTuningOutputs(dir.path().string(), state).empty());
+  for (const char* name : {"results.json", "table2.md", "table3.md", "fig10.svg", "fig10.png", "params/4000.json",
+                           "params/8125.json"}) {
+    EXPECT_TRUE(fs::exists(dir.path() / name)) << name;
+  }
+  const auto best = io::LoadParams((dir.path() / "params/4000.json").string());
+  ASSERT_TRUE(best.ok()) << best.Message();
+  EXPECT_EQ(best.value(), state.budgets[0].generations.back().best.params);
+  std::ifstream in(dir.path() / "results.json");
+  std::stringstream text;
+  text << in.rdbuf();
+  const nlohmann::json results = nlohmann::json::parse(text.str());
+  EXPECT_EQ(results["budgets"][0]["last_generation"]["fitness"].size(), 12u);
+  EXPECT_EQ(results["budgets"][0]["generations"].size(), 8u);
+  EXPECT_TRUE(results["budgets"][0]["generations"][7].contains("median"));
+  auto reread = tools::TuningStateFromJson(results);
+  ASSERT_TRUE(reread.ok()) << reread.Message();
+  ExpectSameStudy(reread.value(), state);
+}
+
+TEST(TuningReport, DamagedResultsAreRejectedWithTheReason) {
+  TuningState state;
+  state.settings.budgets = {8125};
+  state.budgets.push_back(BudgetRun{8125, {}, {}});
+  const nlohmann::json good = tools::TuningStateToJson(state);
+  ASSERT_TRUE(tools::TuningStateFromJson(good).ok());
+  nlohmann::json bad = good;
+  bad["format"] = "something else";
+  EXPECT_NE(tools::TuningStateFromJson(bad).Message().find("not a slam-tune result"), std::string::npos);
+  bad = good;
+  bad["settings"].erase("seed");
+  EXPECT_NE(tools::TuningStateFromJson(bad).Message().find("not a complete slam-tune result"), std::string::npos);
+  bad = good;
+  bad["settings"]["start"]["particles"] = 0;
+  EXPECT_NE(tools::TuningStateFromJson(bad).Message().find("particles"), std::string::npos);
+  bad = good;
+  bad["budgets"][0]["budget"] = 16250;
+  EXPECT_FALSE(tools::TuningStateFromJson(bad).ok());
+  bad = good;
+  bad["budgets"] = nlohmann::json::array();
+  EXPECT_FALSE(tools::TuningStateFromJson(bad).ok());
+  EXPECT_FALSE(tools::TuningStateFromJson(nlohmann::json::array()).ok());
+
+  // Resuming with other settings names each difference; more generations are allowed.
+  TuningSettings asked = state.settings;
+  asked.evolution.generations = 100;
+  EXPECT_TRUE(tools::ResumeConflicts(state, asked, {}).empty());
+  asked.evolution.seed = 9;
+  asked.budgets = {8125, 65000};
+  const auto conflicts = tools::ResumeConflicts(state, asked, {"other"});
+  ASSERT_EQ(conflicts.size(), 3u);
+  EXPECT_EQ(conflicts[0].rfind("budgets:", 0), 0u);
+  EXPECT_EQ(conflicts[1].rfind("seed:", 0), 0u);
+  EXPECT_EQ(conflicts[2].rfind("experiments:", 0), 0u);
+}
+
+/// Runs a shell command; returns its exit status and its standard error.
+std::pair<int, std::string> Shell(const std::string& command) {
+  const std::string err = (fs::path(::testing::TempDir()) / ("slam_tune_stderr_" + std::to_string(::getpid()))).string();
+  const int status = std::system((command + " 2>" + err + " >/dev/null").c_str());
+  std::ifstream in(err);
+  std::stringstream text;
+  text << in.rdbuf();
+  fs::remove(err);
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, text.str()};
+}
+
+TEST_F(TunerTest, CommandLineRunsResumesAndRefusesOtherSettings) {
+  const std::string bin = SLAM_TUNE_BIN;
+  EXPECT_EQ(Shell(bin + " --help").first, 0);
+  const testing::TempDir dir("tune_cli");
+  const std::string exp = (root_ / "exp" / "rooms").string();
+  const std::string out = (dir.path() / "out").string();
+  const std::string base = bin + " --experiments " + exp + " --budgets 2000 --population 4 --quiet --out " + out;
+  auto [status, err] = Shell(base + " --generations 1");
+  ASSERT_EQ(status, 0) << err;
+  EXPECT_TRUE(fs::exists(fs::path(out) / "fig10.png"));
+  // Extending resumes: generation 0 is kept.
+  const std::string before = [&] {
+    std::ifstream in(fs::path(out) / "results.json");
+    return nlohmann::json::parse(in)["budgets"][0]["generations"][0].dump();
+  }();
+  std::tie(status, err) = Shell(base + " --generations 2");
+  ASSERT_EQ(status, 0) << err;
+  std::ifstream in(fs::path(out) / "results.json");
+  const nlohmann::json results = nlohmann::json::parse(in);
+  EXPECT_EQ(results["budgets"][0]["generations"].size(), 2u);
+  EXPECT_EQ(results["budgets"][0]["generations"][0].dump(), before);
+  // Another seed in the same directory is refused, with the difference named.
+  std::tie(status, err) = Shell(base + " --generations 2 --seed 9");
+  EXPECT_EQ(status, 2);
+  EXPECT_NE(err.find("seed: saved 1, asked 9"), std::string::npos) << err;
+  // A damaged results.json is an error, not a crash or a silent restart.
+  { std::ofstream(fs::path(out) / "results.json") << "{\"format\": \"slam-tune results 1\", \"settings\": "; }
+  std::tie(status, err) = Shell(base + " --generations 2");
+  EXPECT_EQ(status, 1);
+  EXPECT_NE(err.find("results.json"), std::string::npos) << err;
+  EXPECT_NE(err.find("--restart"), std::string::npos) << err;
+  // No ground truth: refused before any work.
+  const fs::path no_gt = dir.path() / "no_gt";
+  fs::copy(exp, no_gt);
+  fs::remove(no_gt / "groundtruth.tum");
+  std::tie(status, err) = Shell(bin + " --experiments " + no_gt.string() + " --out " + out + "2 --quiet");
+  EXPECT_EQ(status, 1);
+  EXPECT_NE(err.find("groundtruth.tum"), std::string::npos) << err;
+}
+
+}  // namespace
+}  // namespace slam

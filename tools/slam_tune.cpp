@@ -1,0 +1,232 @@
+// slam-tune: the offline parameter tuner (DESIGN sections 4 and 6). For every ray budget on its
+// own, the paper's evolution strategy searches the parameters minimising the mean of
+// e = log(1 - q) over recorded experiments. Writes results.json, table2.md, table3.md,
+// fig10.svg, fig10.png and params/<budget>.json after every generation; an interrupted run
+// resumes from its output directory.
+
+#include <unistd.h>
+
+#include <CLI/CLI.hpp>
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include "engine/io/json_reader.hpp"
+#include "engine/io/params_json.hpp"
+#include "hw_link/experiment_reader.hpp"
+#include "scheduler/tuner.hpp"
+#include "tools/evaluation.hpp"
+#include "tools/tuning_report.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+std::atomic<bool> g_cancel{false};
+
+extern "C" void OnSignal(int) { g_cancel.store(true); }
+
+int Fail(const std::string& message, int status = 1) {
+  std::cerr << "slam-tune: " << message << "\n";
+  return status;
+}
+
+std::string Duration(double seconds) {
+  char text[32];
+  const long s = static_cast<long>(seconds + 0.5);
+  if (s >= 3600) {
+    std::snprintf(text, sizeof(text), "%ldh%02ldm", s / 3600, (s / 60) % 60);
+  } else {
+    std::snprintf(text, sizeof(text), "%ldm%02lds", s / 60, s % 60);
+  }
+  return text;
+}
+
+/// A progress bar with ETA on stderr: in place on a terminal, every 5 % otherwise.
+class ProgressBar {
+ public:
+  ProgressBar() : interactive_(::isatty(STDERR_FILENO) != 0), start_(std::chrono::steady_clock::now()) {}
+
+  void Update(double done, double total, const std::string& status) {
+    const auto now = std::chrono::steady_clock::now();
+    const double fraction = total > 0.0 ? std::min(1.0, done / total) : 1.0;
+    if (interactive_) {
+      if (fraction < 1.0 && now - last_ < std::chrono::milliseconds(250)) return;
+    } else if (fraction < 1.0 && fraction < next_report_) {
+      return;
+    }
+    next_report_ = std::floor(fraction * 20.0 + 1.0) / 20.0;
+    last_ = now;
+    const double elapsed = std::chrono::duration<double>(now - start_).count();
+    const double eta = fraction > 0.0 ? elapsed * (1.0 - fraction) / fraction : 0.0;
+    const int width = 30, filled = static_cast<int>(fraction * width);
+    std::fprintf(stderr, "%s[%s%s] %5.1f%%  %s elapsed, ETA %s  %s%s", interactive_ ? "\r" : "",
+                 std::string(static_cast<size_t>(filled), '#').c_str(),
+                 std::string(static_cast<size_t>(width - filled), '.').c_str(), 100.0 * fraction,
+                 Duration(elapsed).c_str(), fraction > 0.0 ? Duration(eta).c_str() : "?", status.c_str(),
+                 interactive_ ? "\033[K" : "\n");
+    std::fflush(stderr);
+  }
+  void Line(const std::string& text) {
+    std::fprintf(stderr, "%s%s\n", interactive_ ? "\r\033[K" : "", text.c_str());
+    std::fflush(stderr);
+  }
+
+ private:
+  bool interactive_;
+  std::chrono::steady_clock::time_point start_;
+  std::chrono::steady_clock::time_point last_{};
+  double next_report_ = 0.0;
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "Tunes the SLAM parameters for each ray budget with the paper's evolution strategy "
+      "(fitness: mean of e = log(1 - q) over the experiments, lower is better). Writes "
+      "results.json, table2.md, table3.md, fig10.svg, fig10.png and params/<budget>.json into "
+      "--out after every generation; run the same command again to resume an interrupted study."};
+  std::vector<std::string> inputs;
+  std::string out_dir, start_path;
+  slam::TuningSettings settings;
+  std::string policy_name = "fixed";
+  int jobs = 0;
+  bool restart = false, quiet = false;
+  app.add_option("--experiments", inputs, "experiment directories with ground truth, or datasets of them")
+      ->required();
+  app.add_option("--out", out_dir, "output directory (created; holds the state to resume from)")->required();
+  app.add_option("--budgets", settings.budgets, "rays per scan, each evolved on its own")
+      ->delimiter(',')
+      ->capture_default_str()
+      ->check(CLI::Range(int64_t{1}, int64_t{100'000'000}));
+  app.add_option("--population", settings.evolution.population, "individuals per generation")
+      ->capture_default_str()
+      ->check(CLI::Range(2, 100000));
+  app.add_option("--generations", settings.evolution.generations,
+                 "generations per budget (a finished study can be extended)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  app.add_option("--elite", settings.evolution.elite_fraction, "share of the population kept unchanged")
+      ->capture_default_str()
+      ->check(CLI::Range(0.01, 0.99));
+  app.add_option("--seed", settings.evolution.seed, "seed of the mutations and of every replay")
+      ->capture_default_str();
+  app.add_option("--policy", policy_name, "budget policy of the replays: fixed or adaptive")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"fixed", "adaptive"}));
+  app.add_option("--max-particles", settings.max_particles, "adaptive policy: most particles")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000));
+  app.add_option("--start", start_path, "parameters of generation 0's first individual [Table II defaults]");
+  app.add_option("--jobs", jobs, "evaluations at once, one thread each (0: one per core); results do not depend on it")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 256));
+  app.add_flag("--restart", restart, "discard a saved study in --out instead of resuming it");
+  app.add_flag("--quiet", quiet, "no progress on stderr");
+  CLI11_PARSE(app, argc, argv);
+
+  settings.policy = *slam::ParseBudgetPolicy(policy_name);
+  std::sort(settings.budgets.begin(), settings.budgets.end());
+  settings.budgets.erase(std::unique(settings.budgets.begin(), settings.budgets.end()), settings.budgets.end());
+  if (!start_path.empty()) {
+    const auto loaded = slam::io::LoadParams(start_path);
+    if (!loaded.ok()) return Fail(loaded.Message());
+    settings.start = loaded.value();
+  }
+
+  std::string error;
+  const std::vector<std::string> dirs = slam::tools::FindExperimentDirs(inputs, error);
+  if (dirs.empty()) return Fail(error);
+  // Decoded once, held in memory for every evaluation.
+  std::vector<slam::hw::Experiment> experiments;
+  for (const std::string& dir : dirs) {
+    slam::hw::ExperimentLoad load = slam::hw::LoadExperiment(dir);
+    if (!load.ok()) return Fail("cannot read " + dir + ":\n" + load.error);
+    if (load.experiment->ground_truth.empty()) {
+      return Fail(dir + ": no groundtruth.tum: the fitness needs the ground-truth trajectory");
+    }
+    if (!quiet) {
+      std::fprintf(stderr, "%s: %zu scans, %.0f s\n", load.experiment->meta.name.c_str(),
+                   load.experiment->scans.size(), load.experiment->duration_s());
+    }
+    experiments.push_back(std::move(*load.experiment));
+  }
+  std::vector<slam::TuningExperiment> tuning;
+  std::vector<std::string> names;
+  for (const slam::hw::Experiment& e : experiments) {
+    tuning.push_back({e.meta.name, &e.robot, &e.scans, &e.ground_truth});
+    names.push_back(e.meta.name);
+  }
+
+  std::error_code ec;
+  fs::create_directories(out_dir, ec);
+  if (ec) return Fail("cannot create " + out_dir + ": " + ec.message());
+  slam::TuningState state = slam::NewTuningState(settings, tuning);
+  const std::string results_path = (fs::path(out_dir) / "results.json").string();
+  if (!restart && fs::exists(results_path, ec)) {
+    const auto json = slam::io::detail::ReadJsonFile(results_path);
+    if (!json.ok()) return Fail("cannot resume: " + json.Message() + "\n(use --restart to start over)");
+    auto saved = slam::tools::TuningStateFromJson(json.value());
+    if (!saved.ok()) {
+      return Fail("cannot resume from " + results_path + ":\n" + saved.Message() + "\n(use --restart to start over)");
+    }
+    const auto conflicts = slam::tools::ResumeConflicts(saved.value(), settings, names);
+    if (!conflicts.empty()) {
+      std::string text = out_dir + " holds a study with other settings:";
+      for (const std::string& c : conflicts) text += "\n  " + c;
+      return Fail(text + "\nuse another --out, the same settings, or --restart", 2);
+    }
+    state = std::move(saved).value();
+    state.settings.evolution.generations = settings.evolution.generations;
+    size_t finished = 0;
+    for (const slam::BudgetRun& run : state.budgets) finished += run.generations.size();
+    if (!quiet) std::fprintf(stderr, "resuming %s: %zu generations already done\n", out_dir.c_str(), finished);
+  }
+
+  std::signal(SIGINT, OnSignal);
+  std::signal(SIGTERM, OnSignal);
+  ProgressBar bar;
+  std::string status;
+  slam::TuningCallbacks callbacks;
+  callbacks.cancel = &g_cancel;
+  bool write_failed = false;
+  callbacks.generation_done = [&](const slam::TuningState& s, int64_t budget) {
+    for (const std::string& e : slam::tools::WriteTuningOutputs(out_dir, s)) {
+      std::cerr << "slam-tune: " << e << "\n";
+      write_failed = true;
+    }
+    for (const slam::BudgetRun& run : s.budgets) {
+      if (run.budget != budget || run.generations.empty()) continue;
+      const slam::GenerationSummary& g = run.generations.back();
+      char text[160];
+      std::snprintf(text, sizeof(text), "budget %lld generation %d/%d: median %.4f, IQR %.4f-%.4f, best %.4f",
+                    static_cast<long long>(budget), g.generation + 1, s.settings.evolution.generations,
+                    g.fitness.median, g.fitness.q1, g.fitness.q3, g.best.fitness);
+      status = "budget " + std::to_string(budget) + ", best " + std::to_string(g.best.fitness).substr(0, 6);
+      if (!quiet) bar.Line(text);
+    }
+  };
+  if (!quiet) callbacks.progress = [&](double done, double total) { bar.Update(done, total, status); };
+
+  const auto start = std::chrono::steady_clock::now();
+  const bool finished = slam::RunTuning(tuning, state, jobs, callbacks);
+  for (const std::string& e : slam::tools::WriteTuningOutputs(out_dir, state)) {
+    std::cerr << "slam-tune: " << e << "\n";
+    write_failed = true;
+  }
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (!finished) {
+    return Fail("interrupted after " + Duration(wall) + "; finished generations are saved in " + out_dir +
+                    ": run the same command again to resume",
+                130);
+  }
+  std::cout << slam::tools::Table2Markdown(state) << "\n" << slam::tools::Table3Markdown(state);
+  std::fprintf(stderr, "slam-tune: done in %s (%.0f s); results in %s\n", Duration(wall).c_str(), wall, out_dir.c_str());
+  return write_failed ? 1 : 0;
+}
