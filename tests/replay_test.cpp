@@ -18,6 +18,7 @@
 #include "scheduler/replay.hpp"
 #include "sim/scenario.hpp"
 #include "tests/map_file_support.hpp"
+#include "tests/experiment_support.hpp"
 #include "tests/test_support.hpp"
 #include "tools/evaluation.hpp"
 #include "tools/replay_report.hpp"
@@ -34,18 +35,11 @@ class ReplayTest : public ::testing::Test {
   static void SetUpTestSuite() {
     root_ = fs::path(::testing::TempDir()) / ("slam_replay_test_" + std::to_string(::getpid()));
     fs::remove_all(root_);
-    const RobotDescription robot = testing::ShippedRobot();
-    int seed = 1;
+    uint64_t seed = 1;
     for (const char* arena : {"box", "rooms"}) {
-      sim::ScenarioConfig config;
-      config.duration_s = 40.0;
-      config.seed = static_cast<uint64_t>(seed++);
-      const std::string dir = (root_ / arena).string();
-      ASSERT_FALSE(hw::WriteSimulatedExperiment(dir, *sim::BuiltinArena(arena), arena, robot,
-                                                config));
-      hw::ExperimentLoad load = hw::LoadExperiment(dir);
-      ASSERT_TRUE(load.ok()) << load.error;
-      experiments_->push_back(std::move(*load.experiment));
+      auto experiment = testing::GenerateExperiment((root_ / arena).string(), arena, 40.0, seed++);
+      ASSERT_TRUE(experiment.has_value());
+      experiments_->push_back(std::move(*experiment));
     }
   }
   static void TearDownTestSuite() {

@@ -20,6 +20,7 @@
 #include "scheduler/evolution.hpp"
 #include "scheduler/tuner.hpp"
 #include "sim/scenario.hpp"
+#include "tests/experiment_support.hpp"
 #include "tests/test_support.hpp"
 #include "tools/tuning_report.hpp"
 
@@ -132,17 +133,11 @@ class TunerTest : public ::testing::Test {
   static void SetUpTestSuite() {
     root_ = fs::path(::testing::TempDir()) / ("slam_tuner_test_" + std::to_string(::getpid()));
     fs::remove_all(root_);
-    const RobotDescription robot = testing::ShippedRobot();
-    int seed = 3;
+    uint64_t seed = 3;
     for (const char* arena : {"rooms", "cluttered"}) {
-      sim::ScenarioConfig config;
-      config.duration_s = 20.0;
-      config.seed = static_cast<uint64_t>(seed++);
-      const std::string dir = (root_ / "exp" / arena).string();
-      ASSERT_FALSE(hw::WriteSimulatedExperiment(dir, *sim::BuiltinArena(arena), arena, robot, config));
-      hw::ExperimentLoad load = hw::LoadExperiment(dir);
-      ASSERT_TRUE(load.ok()) << load.error;
-      experiments_->push_back(std::move(*load.experiment));
+      auto experiment = testing::GenerateExperiment((root_ / "exp" / arena).string(), arena, 20.0, seed++);
+      ASSERT_TRUE(experiment.has_value());
+      experiments_->push_back(std::move(*experiment));
     }
   }
   static void TearDownTestSuite() {

@@ -1,0 +1,31 @@
+#pragma once
+// Short simulated experiments for the suites that replay them (link with hw_link and sim).
+
+#include <gtest/gtest.h>
+
+#include <string>
+
+#include "hw_link/experiment.hpp"
+#include "hw_link/experiment_reader.hpp"
+#include "sim/scenario.hpp"
+#include "tests/test_support.hpp"
+
+namespace slam::testing {
+
+/// Writes a `duration_s` experiment of the shipped robot in a built-in arena into `dir` and
+/// reads it back; records a test failure and returns nothing when either step fails.
+inline std::optional<hw::Experiment> GenerateExperiment(const std::string& dir, const std::string& arena,
+                                                        double duration_s, uint64_t seed) {
+  sim::ScenarioConfig config;
+  config.duration_s = duration_s;
+  config.seed = seed;
+  if (const auto error = hw::WriteSimulatedExperiment(dir, *sim::BuiltinArena(arena), arena, ShippedRobot(), config)) {
+    ADD_FAILURE() << *error;
+    return std::nullopt;
+  }
+  hw::ExperimentLoad load = hw::LoadExperiment(dir);
+  if (!load.ok()) ADD_FAILURE() << load.error;
+  return std::move(load.experiment);
+}
+
+}  // namespace slam::testing
