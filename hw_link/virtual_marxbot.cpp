@@ -161,4 +161,13 @@ std::vector<TimedPose> VirtualMarxbotSource::GroundTruth() const {
   return ground_truth_;
 }
 
+size_t VirtualMarxbotSource::GroundTruthSince(size_t first, std::vector<TimedPose>& out) const {
+  const std::lock_guard lock(truth_mutex_);
+  if (first < ground_truth_.size()) {
+    out.insert(out.end(), ground_truth_.begin() + static_cast<std::ptrdiff_t>(first),
+               ground_truth_.end());
+  }
+  return ground_truth_.size();
+}
+
 }  // namespace slam::hw

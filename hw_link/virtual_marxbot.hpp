@@ -75,6 +75,9 @@ class VirtualMarxbotSource : public FrameSource {
 
   /// The overhead tracker's poses so far (thread-safe; the server draws them as ground truth).
   std::vector<TimedPose> GroundTruth() const;
+  /// Appends the tracker's poses from index `first` on to `out`; returns how many there are in
+  /// all (so a reader copies only what is new).
+  size_t GroundTruthSince(size_t first, std::vector<TimedPose>& out) const;
 
  private:
   void Advance(double until_s);

@@ -1,0 +1,1015 @@
+#include "server/http_server.hpp"
+
+#include <arpa/inet.h>
+#include <httplib.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <utility>
+
+#include "engine/cell_encoding.hpp"
+#include "engine/io/map_image.hpp"
+#include "engine/io/params_json.hpp"
+#include "engine/io/tum.hpp"
+#include "server/state_store.hpp"
+
+#ifndef SLAMD_VERSION
+#define SLAMD_VERSION "0"
+#endif
+
+namespace slam::server {
+namespace {
+
+using json = nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+constexpr const char* kJson = "application/json; charset=utf-8";
+constexpr const char* kProblem = "application/problem+json";
+constexpr auto kStreamWake = std::chrono::milliseconds(250);  // <= 0.5 s: disconnects noticed
+constexpr double kTilesEverySeconds = 0.5;
+constexpr double kPoseEverySeconds = 0.25;
+constexpr double kPingEverySeconds = 10.0;
+
+double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+std::string Lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+/// The media type of a Content-Type header, lower case, without parameters.
+std::string MediaType(const std::string& content_type) {
+  std::string type = content_type.substr(0, content_type.find(';'));
+  type.erase(0, type.find_first_not_of(" \t"));
+  type.erase(type.find_last_not_of(" \t") + 1);
+  return Lower(type);
+}
+
+void SendJson(httplib::Response& res, const json& body, int status = 200) {
+  res.status = status;
+  res.set_content(body.dump(), kJson);
+}
+
+void SendProblem(httplib::Response& res, int status, const std::string& title,
+                 const std::string& detail, const ConfigErrors& errors = {}) {
+  json body = {{"type", "about:blank"}, {"title", title}, {"status", status}, {"detail", detail}};
+  if (!errors.empty()) {
+    json list = json::array();
+    for (const ConfigError& e : errors) list.push_back({{"pointer", e.pointer}, {"detail", e.detail}});
+    body["errors"] = std::move(list);
+  }
+  res.status = status;
+  res.set_content(body.dump(), kProblem);
+}
+
+json PoseJson(const TimedPose& p) {
+  return {{"t", p.t}, {"x", p.pose.x}, {"y", p.pose.y}, {"theta", p.pose.theta}};
+}
+
+json BudgetJson(const BudgetSettings& b) {
+  return {{"mode", ToString(b.mode)},
+          {"rays_per_scan", b.rays_per_scan},
+          {"cpu_share", b.cpu_share},
+          {"policy", ToString(b.policy)},
+          {"max_particles", b.max_particles}};
+}
+
+/// A whole budget object: every key required (PUT, and a PATCH after merging onto the
+/// current object), no other key, right types; then the ranges of Validate.
+ConfigErrors BudgetFromJson(const json& body, BudgetSettings& out) {
+  ConfigErrors errors;
+  if (!body.is_object()) return {{"", "must be a JSON object", 0}};
+  static const std::vector<std::string> kKeys{"mode", "rays_per_scan", "cpu_share", "policy",
+                                              "max_particles"};
+  for (const auto& [key, value] : body.items()) {
+    if (std::find(kKeys.begin(), kKeys.end(), key) == kKeys.end()) {
+      errors.push_back({"/" + key, "unknown field", 0});
+    }
+  }
+  bool missing = false;
+  for (const std::string& key : kKeys) {
+    if (!body.contains(key)) {
+      errors.push_back({"/" + key, "required", 0});
+      missing = true;
+    }
+  }
+  if (missing) return errors;
+  const size_t unknown = errors.size();
+  BudgetSettings b;
+  const auto mode = body["mode"].is_string() ? ParseQuotaMode(body["mode"].get<std::string>())
+                                             : std::nullopt;
+  if (!mode) {
+    errors.push_back({"/mode", "must be \"rays\" or \"cpu_share\"", 0});
+  } else {
+    b.mode = *mode;
+  }
+  const auto policy = body["policy"].is_string()
+                          ? ParseBudgetPolicy(body["policy"].get<std::string>())
+                          : std::nullopt;
+  if (!policy) {
+    errors.push_back({"/policy", "must be \"fixed\" or \"adaptive\"", 0});
+  } else {
+    b.policy = *policy;
+  }
+  const json& rays = body["rays_per_scan"];
+  if (!rays.is_number_integer()) {
+    errors.push_back({"/rays_per_scan", "must be an integer", 0});
+  } else {
+    b.rays_per_scan = rays.get<int64_t>();
+  }
+  const json& share = body["cpu_share"];
+  if (!share.is_number()) {
+    errors.push_back({"/cpu_share", "must be a number", 0});
+  } else {
+    b.cpu_share = share.get<double>();
+  }
+  const json& particles = body["max_particles"];
+  if (!particles.is_number_integer()) {
+    errors.push_back({"/max_particles", "must be an integer", 0});
+  } else {
+    const auto n = particles.get<int64_t>();
+    b.max_particles = static_cast<int>(std::clamp<int64_t>(n, -1, 1 << 30));
+  }
+  if (errors.size() > unknown) return errors;  // wrong types: ranges would say nothing more
+  for (ConfigError& e : Validate(b)) errors.push_back(std::move(e));
+  if (errors.empty()) out = b;
+  return errors;
+}
+
+json LinkJson(const hw::LinkStatus& s) {
+  const auto& r = s.reassembly;
+  const auto& d = s.decoder;
+  json source = json::object();
+  for (const auto& [name, value] : s.source_counters) source[name] = value;
+  return {{"state", hw::ToString(s.state)},
+          {"source", s.source},
+          {"last_error", s.last_error},
+          {"source_errors", s.source_errors},
+          {"frames", s.frames},
+          {"events_queued", s.events_queued},
+          {"queue_drops", s.queue_drops},
+          {"queue_size", s.queue_size},
+          {"frames_rejected", r.Rejected() + d.Rejected()},
+          {"reassembly",
+           {{"messages", r.messages},
+            {"bad_length", r.bad_length},
+            {"middle_without_start", r.middle_without_start},
+            {"stop_without_start", r.stop_without_start},
+            {"oversize", r.oversize},
+            {"abandoned", r.abandoned}}},
+          {"decoder",
+           {{"messages", d.messages},
+            {"odometry", d.odometry},
+            {"scanner", d.scanner},
+            {"unknown_node", d.unknown_node},
+            {"unknown_type", d.unknown_type},
+            {"bad_size", d.bad_size}}},
+          {"source_counters", source}};
+}
+
+json MetricsEventJson(const SlamSnapshot& s) {
+  const ScanMetrics& m = *s.last;
+  return {{"scan", m.scan},
+          {"t", s.pose.t},
+          {"rays_planned", m.rays_planned},
+          {"rays_used", m.rays_used},
+          {"quota", m.quota},
+          {"latency_ms", m.latency_s * 1e3},
+          {"cpu_share", m.cpu_share},
+          {"realtime_ratio", m.realtime_ratio},
+          {"particles", m.particles},
+          {"candidates", m.candidates},
+          {"ess", m.ess},
+          {"pose_error_m", m.pose_error_m ? json(*m.pose_error_m) : json(nullptr)}};
+}
+
+json PoseEventJson(const SlamSnapshot& s) {
+  json j = PoseJson(s.pose);
+  j["scan"] = s.last ? s.last->scan : 0;
+  j["truth"] = s.truth ? json{{"x", s.truth->x}, {"y", s.truth->y}, {"theta", s.truth->theta}}
+                       : json(nullptr);
+  return j;
+}
+
+/// Grey level of a cell for the tile images: 205 unknown (exactly 0 log odds), else
+/// 254 * (1 - p), so that 0 is surely occupied and 254 surely free.
+uint8_t CellGray(LogOdds cell) {
+  if (cell == 0) return io::kUnknownGray;
+  const double p = 1.0 / (1.0 + std::exp(-DecodeLogOdds(cell)));
+  return static_cast<uint8_t>(std::lround(254.0 * (1.0 - p)));
+}
+
+std::string Event(const std::string& name, uint64_t id, const json& data) {
+  return "event: " + name + "\nid: " + std::to_string(id) + "\ndata: " + data.dump() + "\n\n";
+}
+
+struct TileKey {
+  int32_t x, y;
+  friend bool operator<(const TileKey& a, const TileKey& b) {
+    return a.x != b.x ? a.x < b.x : a.y < b.y;
+  }
+};
+
+}  // namespace
+
+bool IsLoopback(const std::string& address) {
+  if (address == "localhost" || address == "::1") return true;
+  in_addr v4{};
+  if (inet_pton(AF_INET, address.c_str(), &v4) == 1) return (ntohl(v4.s_addr) >> 24) == 127;
+  return false;
+}
+
+bool ConstantTimeEquals(const std::string& a, const std::string& b) {
+  // Walk the longer length whatever the contents, so that the time reveals nothing but it.
+  const size_t n = std::max(a.size(), b.size());
+  unsigned char diff = a.size() == b.size() ? 0 : 1;
+  for (size_t i = 0; i < n; ++i) {
+    const unsigned char x = i < a.size() ? static_cast<unsigned char>(a[i]) : 0;
+    const unsigned char y = i < b.size() ? static_cast<unsigned char>(b[i]) : 0;
+    diff = static_cast<unsigned char>(diff | (x ^ y));
+  }
+  return diff == 0;
+}
+
+struct HttpServer::Impl {
+  SlamService& service;
+  hw::Link& link;
+  JobManager& jobs;
+  HttpOptions options;
+  httplib::Server server;
+  Clock::time_point started = Clock::now();
+  // Tells one run of slamd from the next (the page reloads everything when it changes).
+  std::string instance = std::to_string(
+      std::chrono::system_clock::now().time_since_epoch() / std::chrono::microseconds(1));
+  std::atomic<bool> stopping{false};
+  std::atomic<int> streams{0};
+  std::atomic<uint64_t> streams_rejected{0};
+
+  // Revisions of the budget and the parameters (the ETags), bumped by every change.
+  std::mutex revision_mutex;  // also serialises read-modify-write of budget and params
+  uint64_t budget_revision = 1;
+  uint64_t params_revision = 1;
+
+  std::mutex save_mutex;  // one save at a time
+
+  std::mutex tile_cache_mutex;
+  std::map<TileKey, std::pair<uint64_t, std::string>> tile_cache;  // version, PNG
+
+  std::mutex requests_mutex;
+  std::map<std::pair<std::string, int>, uint64_t> requests;  // (method, code) -> count
+
+  Impl(SlamService& s, hw::Link& l, JobManager& j, const HttpOptions& o)
+      : service(s), link(l), jobs(j), options(o) {}
+
+  std::string BudgetEtag() const { return "\"b" + std::to_string(budget_revision) + "\""; }
+  std::string ParamsEtag() const { return "\"p" + std::to_string(params_revision) + "\""; }
+
+  void Setup();
+  httplib::Server::HandlerResponse Guard(httplib::Request& req, httplib::Response& res);
+  bool ParseBody(const httplib::Request& req, httplib::Response& res, const char* media, json& out);
+  void HandleBudgetChange(const httplib::Request& req, httplib::Response& res, bool patch);
+  void HandleParamsPatch(const httplib::Request& req, httplib::Response& res);
+  void HandleTile(const httplib::Request& req, httplib::Response& res);
+  void HandleEvents(const httplib::Request& req, httplib::Response& res);
+  void HandleSave(httplib::Response& res);
+  void HandleReset(httplib::Response& res);
+  json StatusJson();
+  std::string MetricsText();
+};
+
+httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
+                                                         httplib::Response& res) {
+  using R = httplib::Server::HandlerResponse;
+  // Brotli at maximum quality costs far more CPU than it saves on loopback or a robot's Wi-Fi;
+  // gzip is cheap. (notes/httplib-0.11.md, point 7)
+  if (auto it = req.headers.find("Accept-Encoding"); it != req.headers.end()) {
+    if (Lower(it->second).find("br") != std::string::npos) it->second = "gzip";
+  }
+  const bool mutating = req.method == "POST" || req.method == "PUT" || req.method == "PATCH" ||
+                        req.method == "DELETE";
+  const bool bodied = req.method == "POST" || req.method == "PUT" || req.method == "PATCH";
+  const auto refuse = [&](int status, const std::string& title, const std::string& detail) {
+    SendProblem(res, status, title, detail);
+    // The body (if any) is not read: the connection cannot carry another request.
+    res.set_header("Connection", "close");
+    return R::Handled;
+  };
+  // Body limits before the body is read: the library's own limit does not bound chunked or
+  // compressed bodies (notes point 5), and a POST without a length would hang (point 6).
+  if (req.has_header("Transfer-Encoding")) {
+    return refuse(411, "Length Required",
+                  "request bodies must have a Content-Length; chunked bodies are refused");
+  }
+  if (req.has_header("Content-Encoding")) {
+    return refuse(415, "Unsupported Media Type", "compressed request bodies are refused");
+  }
+  if (bodied && !req.has_header("Content-Length")) {
+    return refuse(411, "Length Required", "a request body with a Content-Length is required");
+  }
+  if (req.has_header("Content-Length")) {
+    const std::string value = req.get_header_value("Content-Length");
+    char* end = nullptr;
+    const unsigned long long length = std::strtoull(value.c_str(), &end, 10);
+    if (value.empty() || *end != '\0' || value[0] == '-') {
+      return refuse(400, "Bad Request", "bad Content-Length");
+    }
+    if (length > options.max_body_bytes) {
+      return refuse(413, "Content Too Large",
+                    "request bodies are limited to " + std::to_string(options.max_body_bytes) +
+                        " bytes");
+    }
+  }
+  if (mutating) {
+    if (!options.token.empty()) {
+      const std::string auth = req.get_header_value("Authorization");
+      const std::string prefix = "Bearer ";
+      if (auth.empty()) {
+        res.set_header("WWW-Authenticate", "Bearer realm=\"slamd\"");
+        return refuse(401, "Unauthorized", "this route needs Authorization: Bearer <token>");
+      }
+      if (auth.rfind(prefix, 0) != 0 || !ConstantTimeEquals(auth.substr(prefix.size()), options.token)) {
+        res.set_header("WWW-Authenticate", "Bearer realm=\"slamd\", error=\"invalid_token\"");
+        return refuse(401, "Unauthorized", "wrong token");
+      }
+    }
+    // A page from another site must not drive the robot through the user's browser.
+    if (req.has_header("Origin")) {
+      std::string origin = req.get_header_value("Origin");
+      const size_t scheme = origin.find("://");
+      if (scheme != std::string::npos) origin = origin.substr(scheme + 3);
+      if (Lower(origin) != Lower(req.get_header_value("Host"))) {
+        return refuse(403, "Forbidden", "cross-origin requests may not change slamd");
+      }
+    }
+  }
+  return R::Unhandled;
+}
+
+bool HttpServer::Impl::ParseBody(const httplib::Request& req, httplib::Response& res,
+                                 const char* media, json& out) {
+  const std::string type = MediaType(req.get_header_value("Content-Type"));
+  if (type != media) {
+    SendProblem(res, 415, "Unsupported Media Type",
+                std::string("the body must be ") + media +
+                    (type.empty() ? std::string(" (no Content-Type given)") : ", not " + type));
+    return false;
+  }
+  out = json::parse(req.body, nullptr, false);
+  if (out.is_discarded()) {
+    SendProblem(res, 400, "Bad Request", "the body is not valid JSON");
+    return false;
+  }
+  return true;
+}
+
+void HttpServer::Impl::HandleBudgetChange(const httplib::Request& req, httplib::Response& res,
+                                          bool patch) {
+  json body;
+  if (!ParseBody(req, res, patch ? "application/merge-patch+json" : "application/json", body)) {
+    return;
+  }
+  const std::lock_guard lock(revision_mutex);
+  const std::string if_match = req.get_header_value("If-Match");
+  if (!if_match.empty() && if_match != "*" && if_match != BudgetEtag()) {
+    res.set_header("ETag", BudgetEtag());
+    SendProblem(res, 412, "Precondition Failed",
+                "the budget changed since " + if_match + "; it is now " + BudgetEtag());
+    return;
+  }
+  json target = body;
+  if (patch) {
+    if (!body.is_object()) {
+      SendProblem(res, 422, "Invalid budget", "a merge patch of the budget must be an object",
+                  {{"", "must be a JSON object", 0}});
+      return;
+    }
+    target = BudgetJson(service.Budget());
+    // RFC 7396: null removes a member; a removed member takes its default.
+    target.merge_patch(body);
+    const json defaults = BudgetJson(BudgetSettings{});
+    for (const auto& [key, value] : defaults.items()) {
+      if (!target.contains(key)) target[key] = value;
+    }
+  }
+  BudgetSettings settings;
+  const ConfigErrors errors = BudgetFromJson(target, settings);
+  if (!errors.empty()) {
+    SendProblem(res, 422, "Invalid budget", "the budget was not changed", errors);
+    return;
+  }
+  if (!(settings == service.Budget())) {
+    service.SetBudget(settings);
+    ++budget_revision;
+  }
+  res.set_header("ETag", BudgetEtag());
+  SendJson(res, BudgetJson(settings));
+}
+
+void HttpServer::Impl::HandleParamsPatch(const httplib::Request& req, httplib::Response& res) {
+  json body;
+  if (!ParseBody(req, res, "application/merge-patch+json", body)) return;
+  const std::lock_guard lock(revision_mutex);
+  const std::string if_match = req.get_header_value("If-Match");
+  if (!if_match.empty() && if_match != "*" && if_match != ParamsEtag()) {
+    res.set_header("ETag", ParamsEtag());
+    SendProblem(res, 412, "Precondition Failed",
+                "the parameters changed since " + if_match + "; they are now " + ParamsEtag());
+    return;
+  }
+  if (!body.is_object()) {
+    SendProblem(res, 422, "Invalid parameters", "a merge patch of the parameters must be an object",
+                {{"", "must be a JSON object", 0}});
+    return;
+  }
+  auto result = io::ApplyParamsPatch(service.Params(), body);
+  if (!result.ok()) {
+    SendProblem(res, 422, "Invalid parameters", "the parameters were not changed", result.errors());
+    return;
+  }
+  if (!(result.value() == service.Params())) {
+    service.SetParams(result.value());
+    ++params_revision;
+  }
+  res.set_header("ETag", ParamsEtag());
+  SendJson(res, io::ParamsToJson(result.value()));
+}
+
+void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response& res) {
+  int x = 0, y = 0;
+  try {
+    x = std::stoi(req.matches[1].str());
+    y = std::stoi(req.matches[2].str());
+  } catch (const std::exception&) {
+    SendProblem(res, 404, "Not Found", "no such tile");
+    return;
+  }
+  const auto snapshot = service.Snapshot();
+  const auto it = std::find_if(snapshot->tiles.begin(), snapshot->tiles.end(),
+                               [&](const TileRef& t) { return t.index.x == x && t.index.y == y; });
+  if (it == snapshot->tiles.end()) {
+    SendProblem(res, 404, "Not Found", "no tile (" + std::to_string(x) + ", " + std::to_string(y) + ")");
+    return;
+  }
+  const uint64_t version = snapshot->ReportedVersion(*it->tile);
+  const std::string etag = "\"" + std::to_string(version) + "\"";
+  res.set_header("ETag", etag);
+  res.set_header("Cache-Control", "no-cache");
+  if (req.get_header_value("If-None-Match") == etag) {
+    res.status = 304;
+    return;
+  }
+  std::string png;
+  {
+    const std::lock_guard lock(tile_cache_mutex);
+    const auto cached = tile_cache.find({x, y});
+    if (cached != tile_cache.end() && cached->second.first == version) png = cached->second.second;
+  }
+  if (png.empty()) {
+    std::vector<uint8_t> gray(kTileCells);
+    for (int row = 0; row < kTileSize; ++row) {
+      const int cy = kTileSize - 1 - row;  // row 0 at the top: the largest y
+      for (int cx = 0; cx < kTileSize; ++cx) {
+        gray[static_cast<size_t>(row * kTileSize + cx)] =
+            CellGray(it->tile->cells[static_cast<size_t>(cy * kTileSize + cx)]);
+      }
+    }
+    const io::PngBytes bytes = io::EncodeGrayPng(kTileSize, kTileSize, gray);
+    if (!bytes.ok()) {
+      SendProblem(res, 500, "Internal Server Error", bytes.error);
+      return;
+    }
+    png.assign(bytes.bytes.begin(), bytes.bytes.end());
+    const std::lock_guard lock(tile_cache_mutex);
+    tile_cache[{x, y}] = {version, png};
+  }
+  res.set_content(png, "image/png");
+}
+
+void HttpServer::Impl::HandleEvents(const httplib::Request& req, httplib::Response& res) {
+  if (streams.fetch_add(1) >= options.max_streams) {
+    streams.fetch_sub(1);
+    streams_rejected.fetch_add(1);
+    res.set_header("Retry-After", "5");
+    SendProblem(res, 503, "Service Unavailable",
+                "too many event streams (" + std::to_string(options.max_streams) + ")");
+    return;
+  }
+  // Per-connection state, owned by the provider.
+  struct Stream {
+    bool hello_sent = false;
+    uint64_t last_event_id = 0;
+    // Every event's id: the map version up to which this client has been told every tile, so
+    // that a reconnect with Last-Event-ID resumes exactly there.
+    uint64_t covered = 0;
+    uint64_t sequence = 0;
+    uint64_t epoch = 0;
+    std::map<TileKey, uint64_t> sent;  // tile versions the client has been told
+    Clock::time_point last_tiles{};
+    Clock::time_point last_pose{};
+    Clock::time_point last_write = Clock::now();
+    int64_t last_pose_scan = -1;
+    uint64_t budget_revision = 0, params_revision = 0, job_revision = 0;
+    std::string link_state, slam_state;
+  };
+  auto stream = std::make_shared<Stream>();
+  if (req.has_header("Last-Event-ID")) {
+    try {
+      stream->last_event_id = std::stoull(req.get_header_value("Last-Event-ID"));
+      stream->covered = stream->last_event_id;
+    } catch (const std::exception&) {
+      stream->last_event_id = 0;  // a garbled id: start afresh
+    }
+  }
+  res.set_header("Cache-Control", "no-cache");
+  res.set_header("X-Accel-Buffering", "no");
+  res.set_chunked_content_provider(
+      "text/event-stream",
+      [this, stream](size_t, httplib::DataSink& sink) {
+        if (stopping || !sink.is_writable()) return false;
+        Stream& s = *stream;
+        std::string out;
+        auto snapshot = s.hello_sent ? service.WaitNewer(s.sequence, kStreamWake) : service.Snapshot();
+        if (stopping) return false;
+        const auto now = Clock::now();
+        if (!s.hello_sent) {
+          s.hello_sent = true;
+          if (s.last_event_id > snapshot->map_version) {
+            // An id from another run of slamd (its versions went further): start afresh.
+            s.last_event_id = 0;
+            s.covered = 0;
+          }
+          s.epoch = snapshot->epoch;
+          out += Event("hello", s.covered,
+                       {{"version", SLAMD_VERSION},
+                        {"epoch", snapshot->epoch},
+                        {"instance", instance},
+                        {"source", options.source_spec},
+                        {"simulated", service.simulated()},
+                        {"map_version", snapshot->map_version}});
+          // What the client already has (Last-Event-ID) is not resent.
+          for (const TileRef& t : snapshot->tiles) {
+            const uint64_t v = snapshot->ReportedVersion(*t.tile);
+            if (v <= s.last_event_id) s.sent[{t.index.x, t.index.y}] = v;
+          }
+          s.last_tiles = now - std::chrono::hours(1);
+        }
+        if (snapshot->epoch != s.epoch) {
+          s.epoch = snapshot->epoch;
+          s.sent.clear();
+          out += Event("reset", s.covered, {{"version", snapshot->map_version}});
+        }
+        // Tiles: every tile newer than what this client was told, coalesced, at most every
+        // half second (a slow client simply gets fewer, larger announcements: latest wins).
+        if (Seconds(now - s.last_tiles) >= kTilesEverySeconds) {
+          json changed = json::array();
+          for (const TileRef& t : snapshot->tiles) {
+            const uint64_t v = snapshot->ReportedVersion(*t.tile);
+            uint64_t& known = s.sent[{t.index.x, t.index.y}];
+            if (v > known) {
+              changed.push_back({{"x", t.index.x}, {"y", t.index.y}, {"version", v}});
+              known = v;
+            }
+          }
+          s.covered = std::max(s.covered, snapshot->map_version);
+          if (!changed.empty()) {
+            out += Event("tiles", s.covered,
+                         {{"version", snapshot->map_version}, {"tiles", std::move(changed)}});
+            s.last_tiles = now;
+          }
+        }
+        if (snapshot->last && snapshot->last->scan != s.last_pose_scan &&
+            Seconds(now - s.last_pose) >= kPoseEverySeconds) {
+          s.last_pose_scan = snapshot->last->scan;
+          s.last_pose = now;
+          out += Event("pose", s.covered, PoseEventJson(*snapshot));
+          out += Event("metrics", s.covered, MetricsEventJson(*snapshot));
+        }
+        s.sequence = snapshot->sequence;
+        {
+          std::lock_guard lock(revision_mutex);
+          if (s.budget_revision != budget_revision) {
+            if (s.budget_revision != 0) {
+              out += Event("budget", s.covered, BudgetJson(service.Budget()));
+            }
+            s.budget_revision = budget_revision;
+          }
+          if (s.params_revision != params_revision) {
+            if (s.params_revision != 0) {
+              out += Event("params", s.covered, io::ParamsToJson(service.Params()));
+            }
+            s.params_revision = params_revision;
+          }
+        }
+        const uint64_t job_revision = jobs.revision();
+        if (job_revision != s.job_revision) {
+          s.job_revision = job_revision;
+          if (auto job = jobs.Latest()) out += Event("job", s.covered, *job);
+        }
+        const std::string link_state = hw::ToString(link.Status().state);
+        const std::string slam_state = ToString(service.Counters().state);
+        if (link_state != s.link_state || slam_state != s.slam_state) {
+          s.link_state = link_state;
+          s.slam_state = slam_state;
+          out += Event("status", s.covered, {{"link", link_state}, {"slam", slam_state}});
+        }
+        if (out.empty() && Seconds(now - s.last_write) >= kPingEverySeconds) out = ": ping\n\n";
+        if (!out.empty()) {
+          s.last_write = now;
+          if (!sink.write(out.data(), out.size())) return false;
+        }
+        return true;
+      },
+      [this](bool) { streams.fetch_sub(1); });
+}
+
+void HttpServer::Impl::HandleSave(httplib::Response& res) {
+  if (options.state_dir.empty()) {
+    SendProblem(res, 409, "Conflict", "slamd was started without --state-dir: nowhere to save");
+    return;
+  }
+  const auto snapshot = service.Snapshot();
+  const OccupancyGrid grid = SnapshotGrid(*snapshot, service.logodds_limit());
+  SaveInputs in;
+  in.version = snapshot->map_version;
+  in.resolution_m = snapshot->resolution_m;
+  in.grid = &grid;
+  in.version_base = snapshot->version_base;
+  in.trajectory = ScanEndTrajectory(*snapshot);
+  const std::lock_guard lock(save_mutex);
+  if (auto error = SaveState(options.state_dir, in)) {
+    SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + *error);
+    return;
+  }
+  SendJson(res, {{"path", std::filesystem::absolute(options.state_dir).string()},
+                 {"version", snapshot->map_version},
+                 {"tiles", snapshot->tiles.size()}});
+}
+
+void HttpServer::Impl::HandleReset(httplib::Response& res) {
+  const auto before = service.Snapshot();
+  service.RequestReset();
+  // The SLAM thread applies it before its next scan; wait for it (bounded) so that the answer
+  // carries the new map version.
+  auto snapshot = before;
+  const auto deadline = Clock::now() + std::chrono::seconds(2);
+  while (snapshot->epoch == before->epoch && Clock::now() < deadline && !stopping) {
+    snapshot = service.WaitNewer(snapshot->sequence, std::chrono::milliseconds(100));
+  }
+  if (snapshot->epoch == before->epoch) {
+    SendJson(res, {{"version", before->map_version}, {"pending", true}}, 202);
+    return;
+  }
+  SendJson(res, {{"version", snapshot->map_version}, {"pending", false}});
+}
+
+json HttpServer::Impl::StatusJson() {
+  const auto snapshot = service.Snapshot();
+  const ServiceCounters c = service.Counters();
+  const hw::LinkStatus link_status = link.Status();
+  json slam = {{"state", ToString(c.state)},
+               {"scans", c.scans},
+               {"late_scans", c.late_scans},
+               {"resets", c.resets},
+               {"particles", snapshot->last ? snapshot->last->particles : 0},
+               {"map_version", snapshot->map_version},
+               {"tiles", snapshot->tiles.size()},
+               {"last_latency_ms", snapshot->last ? snapshot->last->latency_s * 1e3 : 0.0},
+               {"cpu_share", c.robot_s > 0.0 ? c.cpu_s / c.robot_s : 0.0},
+               {"realtime_ratio", c.busy_s > 0.0 ? c.robot_s / c.busy_s : 0.0},
+               {"robot_time_s", c.robot_s},
+               {"assembler",
+                {{"scans", c.assembler.scans},
+                 {"samples", c.assembler.samples},
+                 {"samples_lost", c.assembler.samples_lost},
+                 {"odometry_lost", c.assembler.odometry_lost},
+                 {"scans_discarded", c.assembler.scans_discarded},
+                 {"out_of_order", c.assembler.out_of_order}}}};
+  const auto job = jobs.Latest();
+  return {{"version", SLAMD_VERSION},
+          {"uptime_s", Seconds(Clock::now() - started)},
+          {"source",
+           {{"spec", options.source_spec},
+            {"description", link_status.source},
+            {"simulated", service.simulated()}}},
+          {"link", LinkJson(link_status)},
+          {"slam", slam},
+          {"pose", snapshot->has_pose ? PoseJson(snapshot->pose) : json(nullptr)},
+          {"budget", BudgetJson(service.Budget())},
+          {"job", job ? *job : json(nullptr)}};
+}
+
+std::string HttpServer::Impl::MetricsText() {
+  const auto snapshot = service.Snapshot();
+  const ServiceCounters c = service.Counters();
+  const hw::LinkStatus l = link.Status();
+  std::ostringstream o;
+  o.precision(9);
+  const auto metric = [&](const char* name, const char* type, const char* help, auto value) {
+    o << "# HELP slamd_" << name << ' ' << help << "\n# TYPE slamd_" << name << ' ' << type
+      << "\nslamd_" << name << ' ' << value << '\n';
+  };
+  metric("scans_total", "counter", "Scans processed by the SLAM.", c.scans);
+  metric("late_scans_total", "counter",
+         "Scans whose result came later than one scan period after the scan was complete.",
+         c.late_scans);
+  metric("rays_planned_total", "counter", "Rays planned by the scheduler.", c.rays_planned);
+  metric("rays_used_total", "counter", "Rays cast by the engine.", c.rays_used);
+  const ScanMetrics last = snapshot->last.value_or(ScanMetrics{});
+  metric("rays_per_scan_planned", "gauge", "Rays planned for the latest scan.", last.rays_planned);
+  metric("rays_per_scan_used", "gauge", "Rays cast on the latest scan.", last.rays_used);
+  metric("ray_quota", "gauge", "The scheduler's quota for the latest scan, rays.", last.quota);
+  o << "# HELP slamd_scan_latency_seconds From a scan's last event to its published result.\n"
+       "# TYPE slamd_scan_latency_seconds histogram\n";
+  uint64_t cumulative = 0;
+  const auto& bounds = LatencyBuckets();
+  for (size_t i = 0; i < bounds.size(); ++i) {
+    cumulative += c.latency_counts[i];
+    o << "slamd_scan_latency_seconds_bucket{le=\"" << bounds[i] << "\"} " << cumulative << '\n';
+  }
+  cumulative += c.latency_counts.back();
+  o << "slamd_scan_latency_seconds_bucket{le=\"+Inf\"} " << cumulative << '\n'
+    << "slamd_scan_latency_seconds_sum " << c.latency_sum_s << '\n'
+    << "slamd_scan_latency_seconds_count " << cumulative << '\n';
+  metric("cpu_share", "gauge", "SLAM thread CPU time over robot time, latest scan.", last.cpu_share);
+  metric("realtime_ratio", "gauge",
+         "Robot time over SLAM processing time, latest scan (above 1: faster than real time).",
+         last.realtime_ratio);
+  metric("particles", "gauge", "Particles in the filter.", last.particles);
+  metric("map_tiles", "gauge", "Tiles of the best particle's map.", snapshot->tiles.size());
+  metric("map_version", "gauge", "Largest tile version.", snapshot->map_version);
+  metric("link_up", "gauge", "1 when the link is reading its source.",
+         l.state == hw::LinkState::kRunning ? 1 : 0);
+  metric("link_frames_total", "counter", "CAN frames read from the source.", l.frames);
+  metric("link_frames_rejected_total", "counter", "Frames dropped by reassembly or decoding.",
+         l.reassembly.Rejected() + l.decoder.Rejected());
+  metric("link_events_total", "counter", "Robot events queued for the SLAM.", l.events_queued);
+  metric("link_queue_drops_total", "counter", "Robot events dropped because the queue was full.",
+         l.queue_drops);
+  metric("link_source_errors_total", "counter", "Errors of the frame source.", l.source_errors);
+  o << "# HELP slamd_http_requests_total HTTP requests answered.\n"
+       "# TYPE slamd_http_requests_total counter\n";
+  {
+    const std::lock_guard lock(requests_mutex);
+    for (const auto& [key, count] : requests) {
+      o << "slamd_http_requests_total{method=\"" << key.first << "\",code=\"" << key.second
+        << "\"} " << count << '\n';
+    }
+  }
+  metric("event_stream_clients", "gauge", "Open event streams.", streams.load());
+  metric("event_streams_rejected_total", "counter", "Event streams refused (cap reached).",
+         streams_rejected.load());
+  metric("jobs_running", "gauge", "Tuning jobs running.", jobs.running());
+  return o.str();
+}
+
+void HttpServer::Impl::Setup() {
+  using httplib::Request;
+  using httplib::Response;
+  // Pool: every event stream holds a thread for its lifetime (notes point 2).
+  const size_t threads = static_cast<size_t>(options.max_streams) + 8;
+  server.new_task_queue = [threads] { return new httplib::ThreadPool(threads); };
+  server.set_keep_alive_timeout(2);  // short: stop() waits for idle keep-alive connections
+  server.set_read_timeout(5);
+  server.set_write_timeout(5);
+  server.set_payload_max_length(options.max_body_bytes);
+  // SO_REUSEADDR only: with SO_REUSEPORT (the default) two slamd could share a port silently.
+  server.set_socket_options([](socket_t sock) {
+    int yes = 1;
+    setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof(yes));
+  });
+  server.set_pre_routing_handler([this](const Request& req, Response& res) {
+    // The library hands a const request, but owns it mutably; Guard rewrites Accept-Encoding.
+    return Guard(const_cast<Request&>(req), res);
+  });
+  server.set_logger([this](const Request& req, const Response& res) {
+    const std::lock_guard lock(requests_mutex);
+    ++requests[{req.method, res.status}];
+  });
+  server.set_exception_handler([](const Request&, Response& res, std::exception_ptr ep) {
+    std::string what = "unexpected error";
+    try {
+      std::rethrow_exception(ep);
+    } catch (const std::exception& e) {
+      what = e.what();
+    } catch (...) {
+    }
+    SendProblem(res, 500, "Internal Server Error", what);
+  });
+
+  server.Get("/api/v1/health", [](const Request&, Response& res) { SendJson(res, {{"status", "ok"}}); });
+  server.Get("/api/v1/status", [this](const Request&, Response& res) { SendJson(res, StatusJson()); });
+
+  server.Get("/api/v1/budget", [this](const Request&, Response& res) {
+    const std::lock_guard lock(revision_mutex);
+    res.set_header("ETag", BudgetEtag());
+    SendJson(res, BudgetJson(service.Budget()));
+  });
+  server.Patch("/api/v1/budget", [this](const Request& req, Response& res) { HandleBudgetChange(req, res, true); });
+  server.Put("/api/v1/budget", [this](const Request& req, Response& res) { HandleBudgetChange(req, res, false); });
+
+  server.Get("/api/v1/params", [this](const Request&, Response& res) {
+    const std::lock_guard lock(revision_mutex);
+    res.set_header("ETag", ParamsEtag());
+    SendJson(res, io::ParamsToJson(service.Params()));
+  });
+  server.Patch("/api/v1/params", [this](const Request& req, Response& res) { HandleParamsPatch(req, res); });
+
+  server.Get("/api/v1/map", [this](const Request&, Response& res) {
+    const auto s = service.Snapshot();
+    json tiles = json::array();
+    for (const TileRef& t : s->tiles) {
+      tiles.push_back({{"x", t.index.x}, {"y", t.index.y}, {"version", s->ReportedVersion(*t.tile)}});
+    }
+    SendJson(res, {{"resolution_m", s->resolution_m},
+                   {"tile_size", kTileSize},
+                   {"origin", {0.0, 0.0}},
+                   {"version", s->map_version},
+                   {"epoch", s->epoch},
+                   {"tiles", std::move(tiles)}});
+  });
+  server.Get(R"(/api/v1/map/tiles/(-?\d{1,9})/(-?\d{1,9})\.png)",
+             [this](const Request& req, Response& res) { HandleTile(req, res); });
+  const auto whole_map = [this](const char* kind) {
+    return [this, kind](const Request&, Response& res) {
+      const auto s = service.Snapshot();
+      const OccupancyGrid grid = SnapshotGrid(*s, service.logodds_limit());
+      const io::GridImage image = io::MakeGridImage(grid);
+      const std::string k = kind;
+      if (k == "pgm") {
+        res.set_content(io::EncodePgm(image), "image/x-portable-graymap");
+      } else if (k == "yaml") {
+        res.set_content(io::MapYaml("map.pgm", image), "application/yaml");
+      } else {
+        const io::PngBytes png = io::EncodeGrayPng(image.width, image.height, image.gray);
+        if (!png.ok()) {
+          SendProblem(res, 500, "Internal Server Error", png.error);
+          return;
+        }
+        res.set_content(std::string(png.bytes.begin(), png.bytes.end()), "image/png");
+      }
+      res.set_header("Content-Disposition", "attachment; filename=\"map." + k + "\"");
+    };
+  };
+  server.Get("/api/v1/map.pgm", whole_map("pgm"));
+  server.Get("/api/v1/map.yaml", whole_map("yaml"));
+  server.Get("/api/v1/map.png", whole_map("png"));
+
+  server.Get("/api/v1/trajectory", [this](const Request& req, Response& res) {
+    const std::string format = req.has_param("format") ? req.get_param_value("format") : "json";
+    if (format != "json" && format != "tum") {
+      SendProblem(res, 400, "Bad Request", "format must be json or tum, not \"" + format + "\"");
+      return;
+    }
+    const auto s = service.Snapshot();
+    const std::vector<TimedPose> trajectory = ScanEndTrajectory(*s);
+    if (format == "tum") {
+      res.set_content(io::FormatTum(trajectory), "text/plain; charset=utf-8");
+      res.set_header("Content-Disposition", "attachment; filename=\"trajectory.tum\"");
+      return;
+    }
+    const auto rows = [](const std::vector<TimedPose>& poses) {
+      json list = json::array();
+      for (const TimedPose& p : poses) list.push_back({p.t, p.pose.x, p.pose.y, p.pose.theta});
+      return list;
+    };
+    json body = {{"slam", rows(trajectory)}};
+    if (service.simulated()) body["ground_truth"] = rows(service.GroundTruth());
+    SendJson(res, body);
+  });
+
+  server.Get("/api/v1/events", [this](const Request& req, Response& res) { HandleEvents(req, res); });
+
+  server.Post("/api/v1/map/save", [this](const Request& req, Response& res) {
+    json body;
+    if (ParseBody(req, res, "application/json", body)) HandleSave(res);
+  });
+  server.Post("/api/v1/reset", [this](const Request& req, Response& res) {
+    json body;
+    if (ParseBody(req, res, "application/json", body)) HandleReset(res);
+  });
+
+  server.Post("/api/v1/jobs/tune", [this](const Request& req, Response& res) {
+    json body;
+    if (!ParseBody(req, res, "application/json", body)) return;
+    if (!jobs.configured()) {
+      SendProblem(res, 409, "Conflict",
+                  "slamd was started without --experiments: no recorded experiments to tune on");
+      return;
+    }
+    TuneRequest request;
+    const ConfigErrors errors = ParseTuneRequest(body, jobs.Experiments(), request);
+    if (!errors.empty()) {
+      SendProblem(res, 422, "Invalid tuning job", "no job was started", errors);
+      return;
+    }
+    std::string conflict;
+    const auto job = jobs.Start(request, conflict);
+    if (!job) {
+      SendProblem(res, 409, "Conflict", conflict);
+      return;
+    }
+    res.set_header("Location", "/api/v1/jobs/" + (*job)["id"].get<std::string>());
+    SendJson(res, *job, 202);
+  });
+  server.Get("/api/v1/jobs", [this](const Request&, Response& res) { SendJson(res, jobs.List()); });
+  server.Get(R"(/api/v1/jobs/([^/]+))", [this](const Request& req, Response& res) {
+    const auto job = jobs.Get(req.matches[1].str());
+    if (!job) {
+      SendProblem(res, 404, "Not Found", "no job " + req.matches[1].str());
+      return;
+    }
+    SendJson(res, *job);
+  });
+  server.Delete(R"(/api/v1/jobs/([^/]+))", [this](const Request& req, Response& res) {
+    const std::string id = req.matches[1].str();
+    const int status = jobs.Delete(id);
+    if (status == 404) {
+      SendProblem(res, 404, "Not Found", "no job " + id);
+      return;
+    }
+    SendJson(res, {{"id", id}, {"state", status == 202 ? "cancelling" : "deleted"}}, status);
+  });
+
+  server.Get("/metrics", [this](const Request&, Response& res) {
+    res.set_content(MetricsText(), "text/plain; version=0.0.4; charset=utf-8");
+  });
+
+  if (!options.web_root.empty()) {
+    const std::string vendor = options.web_root + "/node_modules/uplot/dist";
+    if (std::filesystem::is_directory(vendor)) server.set_mount_point("/vendor/uplot", vendor);
+    server.set_mount_point("/", options.web_root);
+  }
+
+  // Known routes answer 405 to other methods; anything else is 404, as problem+json.
+  struct Route {
+    std::regex pattern;
+    std::string allow;
+  };
+  static const std::vector<Route> kRoutes = {
+      {std::regex(R"(/api/v1/(health|status|map|map\.pgm|map\.yaml|map\.png|trajectory|events|jobs))"), "GET"},
+      {std::regex(R"(/api/v1/budget)"), "GET, PUT, PATCH"},
+      {std::regex(R"(/api/v1/params)"), "GET, PATCH"},
+      {std::regex(R"(/api/v1/map/tiles/[^/]+/[^/]+\.png)"), "GET"},
+      {std::regex(R"(/api/v1/(map/save|reset|jobs/tune))"), "POST"},
+      {std::regex(R"(/api/v1/jobs/[^/]+)"), "GET, DELETE"},
+      {std::regex(R"(/metrics)"), "GET"},
+  };
+  const auto fallback = [](const Request& req, Response& res) {
+    for (const Route& route : kRoutes) {
+      if (std::regex_match(req.path, route.pattern)) {
+        res.set_header("Allow", route.allow);
+        SendProblem(res, 405, "Method Not Allowed",
+                    req.method + " is not allowed on " + req.path + " (allowed: " + route.allow + ")");
+        return;
+      }
+    }
+    SendProblem(res, 404, "Not Found", "no route " + req.method + " " + req.path);
+  };
+  server.Get(".*", fallback);
+  server.Post(".*", fallback);
+  server.Put(".*", fallback);
+  server.Patch(".*", fallback);
+  server.Delete(".*", fallback);
+  server.Options(".*", fallback);
+}
+
+HttpServer::HttpServer(SlamService& service, hw::Link& link, JobManager& jobs,
+                       const HttpOptions& options)
+    : impl_(std::make_unique<Impl>(service, link, jobs, options)) {
+  impl_->Setup();
+}
+
+HttpServer::~HttpServer() { Stop(); }
+
+int HttpServer::Bind(std::string& error) {
+  auto& s = impl_->server;
+  if (impl_->options.port == 0) {
+    const int port = s.bind_to_any_port(impl_->options.bind);
+    if (port <= 0) error = "cannot listen on " + impl_->options.bind + " (any port)";
+    return port > 0 ? port : -1;
+  }
+  if (!s.bind_to_port(impl_->options.bind, impl_->options.port)) {
+    error = "cannot listen on " + impl_->options.bind + ":" + std::to_string(impl_->options.port) +
+            " (in use, or not an address of this machine)";
+    return -1;
+  }
+  return impl_->options.port;
+}
+
+void HttpServer::Run() { impl_->server.listen_after_bind(); }
+
+void HttpServer::Stop() {
+  impl_->stopping = true;
+  impl_->server.stop();
+}
+
+}  // namespace slam::server

@@ -1,0 +1,56 @@
+#pragma once
+// slamd's HTTP server (DESIGN section 7, docs/http-api.md): REST control of the budget and the
+// parameters, map tiles and whole-map exports, the event stream, tuning jobs, /metrics and the
+// web page. Built on Debian's cpp-httplib 0.11.4 with every pitfall of
+// ../shared/notes/httplib-0.11.md handled: a sized thread pool, a cap on event streams,
+// providers that wake up to notice disconnects, a short keep-alive, body limits enforced before
+// the body is read (chunked and compressed bodies refused), no brotli, no SO_REUSEPORT.
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "hw_link/link.hpp"
+#include "server/slam_service.hpp"
+#include "server/tune_jobs.hpp"
+
+namespace slam::server {
+
+struct HttpOptions {
+  std::string bind = "127.0.0.1";
+  int port = 8080;          // 0: any free port
+  std::string token;        // empty: mutating routes are open (loopback only)
+  std::string web_root;     // the page; empty: none
+  std::string state_dir;    // empty: map/save is refused (409)
+  int max_streams = 16;     // concurrent event streams; 503 beyond
+  size_t max_body_bytes = 64 * 1024;
+  std::string source_spec;  // as given on the command line
+};
+
+/// True for 127.0.0.0/8, ::1 and "localhost".
+bool IsLoopback(const std::string& address);
+
+/// Constant-time comparison (the time does not depend on where the strings differ).
+bool ConstantTimeEquals(const std::string& a, const std::string& b);
+
+class HttpServer {
+ public:
+  HttpServer(SlamService& service, hw::Link& link, JobManager& jobs, const HttpOptions& options);
+  ~HttpServer();
+  HttpServer(const HttpServer&) = delete;
+  HttpServer& operator=(const HttpServer&) = delete;
+
+  /// Binds the listening socket; the port (useful with port 0), or -1 with `error` set.
+  int Bind(std::string& error);
+  /// Serves until Stop (call Bind first).
+  void Run();
+  /// Stops serving (from any thread); event streams end within half a second.
+  void Stop();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace slam::server

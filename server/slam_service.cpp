@@ -1,0 +1,371 @@
+#include "server/slam_service.hpp"
+
+#include <pthread.h>
+
+#include <algorithm>
+#include <cmath>
+#include <ctime>
+#include <utility>
+
+#include "engine/cell_encoding.hpp"
+
+namespace slam::server {
+namespace {
+
+constexpr double kTruthPeriodS = 0.1;    // ground truth kept at 10 Hz
+constexpr double kTruthWindowS = 30.0;   // world-frame truth kept for alignment and errors
+
+double ThreadCpuSeconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + static_cast<double>(ts.tv_nsec) * 1e-9;
+}
+
+int64_t SteadyNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+std::vector<const TrajectoryChunk*> Chunks(const std::shared_ptr<const TrajectoryChunk>& last) {
+  std::vector<const TrajectoryChunk*> chunks;
+  for (const TrajectoryChunk* c = last.get(); c != nullptr; c = c->parent.get()) {
+    chunks.push_back(c);
+  }
+  std::reverse(chunks.begin(), chunks.end());
+  return chunks;
+}
+
+}  // namespace
+
+const char* ToString(SlamState state) {
+  switch (state) {
+    case SlamState::kWaiting: return "waiting";
+    case SlamState::kRunning: return "running";
+  }
+  return "unknown";
+}
+
+const std::vector<double>& LatencyBuckets() {
+  static const std::vector<double> buckets{0.001, 0.002, 0.005, 0.01, 0.02, 0.05,
+                                           0.1,   0.2,   0.5,   1.0,  2.0,  5.0};
+  return buckets;
+}
+
+std::vector<TimedPose> ScanEndTrajectory(const SlamSnapshot& snapshot) {
+  std::vector<TimedPose> out;
+  if (snapshot.resumed) out = *snapshot.resumed;
+  bool first = true;
+  for (const TrajectoryChunk* chunk : Chunks(snapshot.history)) {
+    if (chunk->poses.empty()) continue;
+    if (first) {  // where this run started
+      TimedPose start = chunk->poses.front();
+      start.t += snapshot.time_offset_s;
+      out.push_back(start);
+      first = false;
+    }
+    TimedPose end = chunk->poses.back();
+    end.t += snapshot.time_offset_s;
+    out.push_back(end);
+  }
+  return out;
+}
+
+OccupancyGrid SnapshotGrid(const SlamSnapshot& snapshot, int logodds_limit) {
+  OccupancyGrid grid(GridGeometry(snapshot.resolution_m), logodds_limit);
+  grid.BeginWrite();
+  for (const TileRef& ref : snapshot.tiles) {
+    Tile& tile = grid.MutableTile(ref.index);
+    tile.cells = ref.tile->cells;
+    tile.version = ref.tile->version;
+  }
+  return grid;
+}
+
+SlamService::SlamService(hw::Link& link, const hw::VirtualMarxbotSource* truth_source,
+                         const ServiceOptions& options)
+    : link_(link),
+      truth_source_(truth_source),
+      options_(options),
+      scheduler_(options.budget, options.scheduler),
+      assembler_(options.robot, options.assembler),
+      params_(options.params) {
+  options_.config.parallel = false;
+  counters_.latency_counts.assign(LatencyBuckets().size() + 1, 0);
+  if (options_.resume) {
+    version_base_ = options_.resume->version;
+    resumed_ = std::make_shared<const std::vector<TimedPose>>(options_.resume->trajectory);
+    if (!options_.resume->trajectory.empty()) {
+      // This run's robot clock starts over: its times follow the resumed ones after a second.
+      time_offset_s_ = options_.resume->trajectory.back().t + 1.0;
+    }
+  }
+  BuildEngine();
+  Publish(std::nullopt);
+}
+
+SlamService::~SlamService() { Stop(); }
+
+void SlamService::Start() {
+  thread_ = std::thread([this] {
+    pthread_setname_np(pthread_self(), "slam");
+    Run();
+  });
+}
+
+void SlamService::Stop() {
+  stop_ = true;
+  if (thread_.joinable()) thread_.join();
+}
+
+int SlamService::logodds_limit() const { return EncodeLogOdds(options_.config.logodds_limit); }
+
+void SlamService::BuildEngine() {
+  SlamParams params;
+  {
+    const std::lock_guard lock(mutex_);
+    params = params_;
+    params_changed_ = false;
+  }
+  engine_ = std::make_unique<Slam>(options_.robot, params, options_.config);
+  if (options_.resume) {
+    const SavedState& saved = *options_.resume;
+    OccupancyGrid grid(GridGeometry(options_.config.resolution_m), logodds_limit());
+    grid.BeginWrite();
+    for (const SavedTile& tile : saved.tiles) {
+      std::copy(tile.cells.begin(), tile.cells.end(), grid.MutableTile(tile.index).cells.begin());
+    }
+    Pose2 pose;
+    if (!options_.resume_at_origin && !saved.trajectory.empty()) pose = saved.trajectory.back().pose;
+    engine_->Restore(grid, pose);
+  }
+}
+
+SlamParams SlamService::Params() const {
+  const std::lock_guard lock(mutex_);
+  return params_;
+}
+
+void SlamService::SetParams(const SlamParams& params) {
+  const std::lock_guard lock(mutex_);
+  params_ = params;
+  params_changed_ = true;
+}
+
+void SlamService::RequestReset() {
+  const std::lock_guard lock(mutex_);
+  reset_requested_ = true;
+}
+
+std::shared_ptr<const SlamSnapshot> SlamService::Snapshot() const {
+  const std::lock_guard lock(mutex_);
+  return snapshot_;
+}
+
+std::shared_ptr<const SlamSnapshot> SlamService::WaitNewer(uint64_t sequence,
+                                                           std::chrono::milliseconds timeout) const {
+  std::unique_lock lock(mutex_);
+  published_.wait_for(lock, timeout, [&] { return snapshot_->sequence > sequence || stop_; });
+  return snapshot_;
+}
+
+ServiceCounters SlamService::Counters() const {
+  const std::lock_guard lock(mutex_);
+  return counters_;
+}
+
+std::vector<TimedPose> SlamService::GroundTruth() const {
+  const std::lock_guard lock(mutex_);
+  return truth_map_;
+}
+
+void SlamService::ApplyCommands() {
+  bool reset = false;
+  std::optional<SlamParams> params;
+  {
+    const std::lock_guard lock(mutex_);
+    std::swap(reset, reset_requested_);
+    if (params_changed_) params = params_;
+    params_changed_ = false;
+    if (reset) {
+      truth_map_.clear();
+      ++counters_.resets;
+    }
+  }
+  if (reset) {
+    version_base_ = snapshot_->map_version + 1;  // versions keep growing across a reset
+    ++epoch_;
+    options_.resume.reset();
+    resumed_.reset();
+    world_to_map_.reset();
+    BuildEngine();
+    Publish(std::nullopt);
+  } else if (params) {
+    engine_->SetParams(*params);
+  }
+}
+
+void SlamService::Run() {
+  std::vector<Scan> scans;
+  while (!stop_) {
+    ApplyCommands();
+    hw::LinkEvent event;
+    if (!link_.PopWait(event, std::chrono::milliseconds(100))) continue;
+    scans.clear();
+    assembler_.Add(event.event, scans);
+    for (const Scan& scan : scans) {
+      ApplyCommands();
+      ProcessScan(scan, event.receive_ns);
+    }
+    if (scans.empty()) {
+      const std::lock_guard lock(mutex_);
+      counters_.assembler = assembler_.counters();
+    }
+  }
+  {
+    const std::lock_guard lock(mutex_);
+    published_.notify_all();
+  }
+}
+
+void SlamService::UpdateGroundTruth() {
+  if (!truth_source_) return;
+  std::vector<TimedPose> fresh;
+  truth_read_ = truth_source_->GroundTruthSince(truth_read_, fresh);
+  for (const TimedPose& p : fresh) {
+    if (truth_world_.empty() || p.t - truth_world_.back().t >= kTruthPeriodS) {
+      truth_world_.push_back(p);
+    }
+  }
+  // The world-frame truth is only needed near the present (alignment and pose errors).
+  if (!truth_world_.empty()) {
+    const double keep_from = truth_world_.back().t - kTruthWindowS;
+    const auto first = std::find_if(truth_world_.begin(), truth_world_.end(),
+                                    [&](const TimedPose& p) { return p.t >= keep_from; });
+    truth_world_.erase(truth_world_.begin(), first);
+  }
+}
+
+void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
+  const int64_t wall_start = SteadyNs();
+  const double cpu_start = ThreadCpuSeconds();
+  const double period = scan.t_end - scan.t_begin;
+  const ScanSummary summary = engine_->Summarize(scan);
+  const ScanPlan plan = scheduler_.Plan(summary, period, engine_->params());
+  const ScanReport report = engine_->ProcessScan(scan, plan);
+  const double cpu_s = ThreadCpuSeconds() - cpu_start;
+  const PlanRecord record = scheduler_.Record(report, cpu_s);
+  const int64_t now = SteadyNs();
+
+  ScanMetrics m;
+  m.scan = engine_->scans_processed();
+  m.quota = record.quota;
+  m.rays_planned = record.planned_rays;
+  m.rays_used = record.used_rays;
+  m.particles = report.particles;
+  m.candidates = report.candidates;
+  m.ess = report.effective_sample_size;
+  m.scan_period_s = period;
+  m.busy_s = static_cast<double>(now - wall_start) * 1e-9;
+  m.latency_s = static_cast<double>(now - receive_ns) * 1e-9;
+  m.cpu_s = cpu_s;
+  m.cpu_share = period > 0.0 ? cpu_s / period : 0.0;
+  m.realtime_ratio = m.busy_s > 0.0 ? period / m.busy_s : 0.0;
+  m.late = period > 0.0 && m.latency_s > period;
+
+  // Ground truth (virtual marXbot): the map frame is the engine's, whose origin is the robot's
+  // pose at the first scan's start; align the world frame to it once, at that moment.
+  UpdateGroundTruth();
+  std::vector<TimedPose> newly_mapped;
+  if (truth_source_) {
+    const auto history = engine_->Best().history;
+    if (!world_to_map_ && history) {
+      const TrajectoryChunk* first = Chunks(history).front();
+      if (!first->poses.empty()) {
+        const TimedPose& start = first->poses.front();
+        if (const auto truth = PoseAt(truth_world_, start.t)) {
+          const Pose2 t = Compose(start.pose, Inverse(*truth));
+          world_to_map_ = RigidTransform2{t.theta, {t.x, t.y}};
+          for (const TimedPose& p : truth_world_) {
+            if (p.t >= start.t) newly_mapped.push_back(p);
+          }
+        }
+      }
+    } else if (world_to_map_) {
+      // Poses newer than the last mapped one.
+      double last_t = -1e300;
+      {
+        const std::lock_guard lock(mutex_);
+        if (!truth_map_.empty()) last_t = truth_map_.back().t - time_offset_s_;
+      }
+      for (const TimedPose& p : truth_world_) {
+        if (p.t > last_t) newly_mapped.push_back(p);
+      }
+    }
+    if (world_to_map_) {
+      newly_mapped = TransformTrajectory(*world_to_map_, newly_mapped);
+      for (TimedPose& p : newly_mapped) p.t += time_offset_s_;
+      if (const auto truth = PoseAt(truth_world_, scan.t_end)) {
+        const Vec2 truth_map = world_to_map_->Apply(truth->translation());
+        m.pose_error_m = (truth_map - report.pose.translation()).norm();
+      }
+    }
+  }
+
+  {
+    const std::lock_guard lock(mutex_);
+    ServiceCounters& c = counters_;
+    c.state = SlamState::kRunning;
+    ++c.scans;
+    c.late_scans += m.late ? 1 : 0;
+    c.rays_planned += m.rays_planned;
+    c.rays_used += m.rays_used;
+    c.busy_s += m.busy_s;
+    c.cpu_s += m.cpu_s;
+    c.robot_s += period;
+    const auto& bounds = LatencyBuckets();
+    const size_t bucket = static_cast<size_t>(
+        std::lower_bound(bounds.begin(), bounds.end(), m.latency_s) - bounds.begin());
+    ++c.latency_counts[bucket];
+    c.latency_sum_s += m.latency_s;
+    c.assembler = assembler_.counters();
+    truth_map_.insert(truth_map_.end(), newly_mapped.begin(), newly_mapped.end());
+  }
+  Publish(m);
+}
+
+void SlamService::Publish(const std::optional<ScanMetrics>& metrics) {
+  auto s = std::make_shared<SlamSnapshot>();
+  s->sequence = ++sequence_;
+  s->epoch = epoch_;
+  s->version_base = version_base_;
+  s->resolution_m = options_.config.resolution_m;
+  const Particle& best = engine_->Best();
+  s->tiles = best.map.Tiles();
+  s->map_version = version_base_ + best.map.Version();
+  s->history = best.history;
+  s->resumed = resumed_;
+  s->time_offset_s = time_offset_s_;
+  if (best.history && !best.history->poses.empty()) {
+    s->has_pose = true;
+    s->pose = best.history->poses.back();
+    s->pose.t += time_offset_s_;
+  } else if (resumed_ && !resumed_->empty()) {
+    s->has_pose = true;
+    s->pose = resumed_->back();
+  }
+  s->last = metrics;
+  if (world_to_map_ && s->has_pose) {
+    if (const auto truth = PoseAt(truth_world_, s->pose.t - time_offset_s_)) {
+      const Vec2 p = world_to_map_->Apply(truth->translation());
+      s->truth = Pose2{p.x(), p.y(), NormalizeAngle(truth->theta + world_to_map_->rotation_rad)};
+    }
+  }
+  {
+    const std::lock_guard lock(mutex_);
+    snapshot_ = std::move(s);
+  }
+  published_.notify_all();
+}
+
+}  // namespace slam::server

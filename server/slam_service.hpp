@@ -1,0 +1,195 @@
+#pragma once
+// The live SLAM of slamd: the link thread's events -> scans -> the engine under the ray-budget
+// scheduler, on a thread of its own (DESIGN section 2). After every scan it publishes an
+// immutable snapshot; readers (HTTP threads) take the latest one and never make it wait.
+// Commands from readers (budget, parameters, reset) are applied by the SLAM thread between
+// scans.
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "engine/occupancy_grid.hpp"
+#include "engine/params.hpp"
+#include "engine/pose.hpp"
+#include "engine/quality.hpp"
+#include "engine/robot.hpp"
+#include "engine/scan_assembler.hpp"
+#include "engine/slam.hpp"
+#include "hw_link/link.hpp"
+#include "hw_link/virtual_marxbot.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
+#include "server/state_store.hpp"
+
+namespace slam::server {
+
+/// What one scan cost and achieved.
+struct ScanMetrics {
+  int64_t scan = 0;            // scans processed since start, resumed ones excluded
+  int64_t quota = 0;           // rays allowed
+  int64_t rays_planned = 0;
+  int64_t rays_used = 0;
+  int particles = 0;
+  int candidates = 0;
+  double ess = 0.0;            // effective sample size after the scan
+  double scan_period_s = 0.0;  // robot time the scan covers
+  double latency_s = 0.0;      // from the scan's last event reaching slamd to its snapshot
+  double busy_s = 0.0;         // wall time the SLAM thread spent on it
+  double cpu_s = 0.0;          // SLAM thread CPU time spent on it
+  double cpu_share = 0.0;      // cpu_s / scan_period_s
+  double realtime_ratio = 0.0; // scan_period_s / busy_s: how many times faster than real time
+  bool late = false;           // latency above the scan period: the next scan was already due
+  std::optional<double> pose_error_m;  // against the ground truth, when simulated
+};
+
+/// Everything a reader needs, as of one scan. Immutable once published.
+struct SlamSnapshot {
+  uint64_t sequence = 0;  // increases with every publication
+  uint64_t epoch = 0;     // resets so far
+  /// Versions reported to clients are engine tile versions plus this base, so that they only
+  /// grow across resets and restarts.
+  uint64_t version_base = 0;
+  uint64_t map_version = 0;  // the largest reported tile version
+  double resolution_m = 0.01;
+  std::vector<TileRef> tiles;  // the best particle's
+  bool has_pose = false;
+  TimedPose pose;  // the best particle's latest, in the map frame, time with time_offset
+  std::shared_ptr<const TrajectoryChunk> history;  // the best particle's (engine times)
+  std::shared_ptr<const std::vector<TimedPose>> resumed;  // trajectory loaded at start
+  double time_offset_s = 0.0;  // added to engine times (continues a resumed trajectory)
+  std::optional<ScanMetrics> last;
+  std::optional<Pose2> truth;  // ground truth at `pose.t`, map frame (simulated sources)
+
+  /// Tile version as reported (0 for a missing tile).
+  uint64_t ReportedVersion(const Tile& tile) const { return version_base + tile.version; }
+};
+
+/// One pose per scan end (plus the start), resumed part first, times with the offset applied.
+std::vector<TimedPose> ScanEndTrajectory(const SlamSnapshot& snapshot);
+
+/// The best particle's map as a grid holding the snapshot's tiles (shared, not copied).
+OccupancyGrid SnapshotGrid(const SlamSnapshot& snapshot, int logodds_limit);
+
+enum class SlamState { kWaiting, kRunning };
+const char* ToString(SlamState state);
+
+/// Running totals for /metrics and /status.
+struct ServiceCounters {
+  SlamState state = SlamState::kWaiting;
+  int64_t scans = 0;
+  int64_t late_scans = 0;
+  int64_t rays_planned = 0;
+  int64_t rays_used = 0;
+  int64_t resets = 0;
+  double busy_s = 0.0;
+  double cpu_s = 0.0;
+  double robot_s = 0.0;
+  /// Scan latency histogram: counts of latency <= each bound in kLatencyBuckets (cumulative
+  /// counts are built when exporting), plus the sum.
+  std::vector<uint64_t> latency_counts;
+  double latency_sum_s = 0.0;
+  ScanAssemblerCounters assembler;
+};
+
+/// Upper bounds of the latency histogram, seconds.
+const std::vector<double>& LatencyBuckets();
+
+struct ServiceOptions {
+  RobotDescription robot;
+  SlamParams params;
+  SlamConfig config;  // config.parallel is forced off: the CPU share is the SLAM thread's
+  BudgetSettings budget;
+  SchedulerConfig scheduler;
+  ScanAssemblerConfig assembler;
+  /// Restored state (map, trajectory) to continue from, if any.
+  std::optional<SavedState> resume;
+  /// Restart the robot at the origin of the restored map (the virtual marXbot starts over from
+  /// its start pose) instead of at its last saved pose (a real robot does not move while slamd
+  /// restarts).
+  bool resume_at_origin = false;
+};
+
+class SlamService {
+ public:
+  /// `truth_source` (may be null): the virtual marXbot inside `link`, for the ground truth.
+  /// Preconditions: options valid (robot, params, config, budget).
+  SlamService(hw::Link& link, const hw::VirtualMarxbotSource* truth_source,
+              const ServiceOptions& options);
+  ~SlamService();  // stops the thread
+  SlamService(const SlamService&) = delete;
+  SlamService& operator=(const SlamService&) = delete;
+
+  void Start();
+  void Stop();
+
+  /// The latest snapshot (never null).
+  std::shared_ptr<const SlamSnapshot> Snapshot() const;
+  /// Waits until a snapshot newer than `sequence` is published, at most `timeout`; returns the
+  /// latest snapshot either way.
+  std::shared_ptr<const SlamSnapshot> WaitNewer(uint64_t sequence,
+                                                std::chrono::milliseconds timeout) const;
+
+  /// Budget settings (applied from the next scan). Precondition of Set: valid.
+  BudgetSettings Budget() const { return scheduler_.settings(); }
+  void SetBudget(const BudgetSettings& settings) { scheduler_.SetSettings(settings); }
+  /// Tuned parameters (applied from the next scan). Precondition of Set: valid.
+  SlamParams Params() const;
+  void SetParams(const SlamParams& params);
+  /// Clears the map and trajectory; takes effect before the next scan.
+  void RequestReset();
+
+  ServiceCounters Counters() const;
+  /// The ground truth so far in the map frame (decimated to 10 Hz), empty if not simulated.
+  std::vector<TimedPose> GroundTruth() const;
+  bool simulated() const { return truth_source_ != nullptr; }
+  const RobotDescription& robot() const { return options_.robot; }
+  const SlamConfig& config() const { return options_.config; }
+  int logodds_limit() const;
+
+ private:
+  void Run();
+  void ProcessScan(const Scan& scan, int64_t receive_ns);
+  void ApplyCommands();
+  void BuildEngine();
+  void Publish(const std::optional<ScanMetrics>& metrics);
+  void UpdateGroundTruth();
+
+  hw::Link& link_;
+  const hw::VirtualMarxbotSource* truth_source_;
+  ServiceOptions options_;
+  RayBudgetScheduler scheduler_;
+
+  // SLAM thread only.
+  std::unique_ptr<Slam> engine_;
+  ScanAssembler assembler_;
+  uint64_t version_base_ = 0;
+  uint64_t epoch_ = 0;
+  uint64_t sequence_ = 0;
+  std::shared_ptr<const std::vector<TimedPose>> resumed_;
+  double time_offset_s_ = 0.0;
+  size_t truth_read_ = 0;                      // ground-truth poses taken from the source
+  std::vector<TimedPose> truth_world_;         // since the last reset, world frame, 10 Hz
+  std::optional<RigidTransform2> world_to_map_;  // set at the first scan after (re)start
+
+  // Shared with readers.
+  mutable std::mutex mutex_;
+  mutable std::condition_variable published_;
+  std::shared_ptr<const SlamSnapshot> snapshot_;  // guarded by mutex_
+  ServiceCounters counters_;                      // guarded by mutex_
+  std::vector<TimedPose> truth_map_;              // guarded by mutex_, map frame
+  SlamParams params_;                             // guarded by mutex_
+  bool params_changed_ = false;                   // guarded by mutex_
+  bool reset_requested_ = false;                  // guarded by mutex_
+
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+}  // namespace slam::server

@@ -1,0 +1,235 @@
+// slamd: the SLAM server on the robot (DESIGN sections 6-7, docs/http-api.md). The link thread
+// reads the robot (or the virtual marXbot), the SLAM thread maps under the ray-budget scheduler,
+// and the HTTP server streams the map to the browser page and takes REST control.
+//   slamd                                   virtual marXbot in the "rooms" arena, page on :8080
+//   slamd --source slcan:/dev/ttyACM0 --state-dir /var/lib/slamd
+
+#include <CLI/CLI.hpp>
+#include <pthread.h>
+#include <signal.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <string>
+#include <thread>
+
+#include "engine/io/params_json.hpp"
+#include "engine/io/robot_json.hpp"
+#include "hw_link/link.hpp"
+#include "hw_link/source_spec.hpp"
+#include "hw_link/virtual_marxbot.hpp"
+#include "server/http_server.hpp"
+#include "server/slam_service.hpp"
+#include "server/state_store.hpp"
+#include "server/tune_jobs.hpp"
+
+#ifndef SLAMD_WEB_ROOT
+#define SLAMD_WEB_ROOT ""
+#endif
+
+namespace {
+
+namespace fs = std::filesystem;
+
+int Fail(const std::string& message, int code = 2) {
+  std::cerr << "slamd: " << message << "\n";
+  return code;
+}
+
+/// The installed page, else the source tree's.
+std::string DefaultWebRoot() {
+  for (const std::string& candidate : {std::string(SLAMD_WEB_ROOT), std::string(SLAM_SOURCE_DIR) + "/web"}) {
+    if (!candidate.empty() && fs::exists(fs::path(candidate) / "index.html")) return candidate;
+  }
+  return {};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"slamd: real-time SLAM server for the marXbot (map in the browser, REST control)"};
+  std::string source = "sim:rooms";
+  std::string robot_path = std::string(SLAM_SOURCE_DIR) + "/config/marxbot.robot.json";
+  std::string params_path;
+  std::string bind = "127.0.0.1";
+  int port = 8080;
+  int64_t budget_rays = 0;
+  double cpu_share = 0.0;
+  std::string policy = "fixed";
+  int max_particles = slam::BudgetSettings{}.max_particles;
+  std::string state_dir, experiments_dir, token_file, web_root = DefaultWebRoot();
+  double speed = 1.0;
+  uint64_t seed = 1;
+  int max_streams = 16;
+  bool quiet = false;
+  app.add_option("--source", source,
+                 "sim:WORLD (box, rooms, cluttered or a world.json), candump:FILE, "
+                 "slcan:DEVICE, udp:PORT, udp:ADDRESS:PORT or socketcan:IFACE")
+      ->capture_default_str();
+  app.add_option("--robot", robot_path, "robot description (robot.json)")->capture_default_str();
+  app.add_option("--params", params_path, "SLAM parameters (JSON, e.g. a slam-tune params/<budget>.json)");
+  app.add_option("--bind", bind, "address to listen on; beyond loopback a --token-file is required")
+      ->capture_default_str();
+  app.add_option("--port", port, "TCP port (0: any free port, printed at start)")
+      ->check(CLI::Range(0, 65535))
+      ->capture_default_str();
+  auto* budget_opt = app.add_option("--budget", budget_rays, "ray budget per scan (default 65000)")
+                         ->check(CLI::Range(int64_t{1}, int64_t{100000000}));
+  auto* share_opt = app.add_option("--cpu-share", cpu_share,
+                                   "budget as a share of one core (0..1] instead of rays per scan");
+  budget_opt->excludes(share_opt);
+  app.add_option("--policy", policy, "fixed or adaptive particle count")->capture_default_str();
+  app.add_option("--max-particles", max_particles, "cap of the adaptive policy")
+      ->capture_default_str();
+  app.add_option("--state-dir", state_dir,
+                 "where map/save writes; the saved map and trajectory are resumed at start");
+  app.add_option("--experiments", experiments_dir,
+                 "recorded experiments with ground truth for tuning jobs");
+  app.add_option("--token-file", token_file,
+                 "file holding the bearer token that mutating routes require");
+  app.add_option("--web-root", web_root, "folder of the web page")->capture_default_str();
+  app.add_option("--speed", speed, "sim and candump sources: times real time")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  app.add_option("--seed", seed, "sim source: the simulation's seed")->capture_default_str();
+  app.add_option("--max-streams", max_streams, "concurrent event streams (503 beyond)")
+      ->check(CLI::Range(1, 256))
+      ->capture_default_str();
+  app.add_flag("--quiet", quiet, "no periodic status line on stderr");
+  CLI11_PARSE(app, argc, argv);
+
+  const auto robot = slam::io::LoadRobot(robot_path);
+  if (!robot.ok()) return Fail(robot.Message());
+  slam::SlamParams params;
+  if (!params_path.empty()) {
+    const auto loaded = slam::io::LoadParams(params_path);
+    if (!loaded.ok()) return Fail(loaded.Message());
+    params = loaded.value();
+  }
+  slam::BudgetSettings budget;
+  if (*share_opt) {
+    budget.mode = slam::QuotaMode::kCpuShare;
+    budget.cpu_share = cpu_share;
+  }
+  if (*budget_opt) budget.rays_per_scan = budget_rays;
+  const auto parsed_policy = slam::ParseBudgetPolicy(policy);
+  if (!parsed_policy) return Fail("--policy must be fixed or adaptive, not \"" + policy + "\"");
+  budget.policy = *parsed_policy;
+  budget.max_particles = max_particles;
+  if (const auto errors = slam::Validate(budget); !errors.empty()) {
+    return Fail("bad budget: " + slam::FormatErrors(errors));
+  }
+
+  slam::server::HttpOptions http;
+  http.bind = bind;
+  http.port = port;
+  http.web_root = web_root;
+  http.state_dir = state_dir;
+  http.max_streams = max_streams;
+  http.source_spec = source;
+  if (!token_file.empty()) {
+    std::ifstream in(token_file);
+    if (!in) return Fail(token_file + ": cannot read the token file");
+    std::stringstream text;
+    text << in.rdbuf();
+    std::string token = text.str();
+    token.erase(token.find_last_not_of(" \t\r\n") + 1);
+    token.erase(0, token.find_first_not_of(" \t\r\n"));
+    if (token.size() < 16) return Fail(token_file + ": the token must have at least 16 characters");
+    http.token = token;
+  }
+  if (!slam::server::IsLoopback(bind) && http.token.empty()) {
+    return Fail("--bind " + bind +
+                " exposes slamd beyond this machine: give a --token-file so that only its holders "
+                "can change it");
+  }
+
+  slam::server::ServiceOptions service_options;
+  service_options.robot = robot.value();
+  service_options.params = params;
+  service_options.budget = budget;
+  service_options.config.seed = seed;
+  service_options.resume_at_origin = source.rfind("sim:", 0) == 0;
+  if (!state_dir.empty()) {
+    auto loaded = slam::server::LoadState(state_dir);
+    if (!loaded.error.empty()) {
+      return Fail("cannot resume the saved state: " + loaded.error +
+                  "\n(move the state directory away to start with an empty map)");
+    }
+    if (loaded.state) {
+      if (std::abs(loaded.state->resolution_m - service_options.config.resolution_m) > 1e-12) {
+        return Fail(state_dir + ": the saved map's resolution differs from this build's");
+      }
+      service_options.resume = std::move(loaded.state);
+    }
+  }
+
+  slam::hw::SourceSpecOptions source_options;
+  source_options.paced = true;
+  source_options.speed = speed;
+  source_options.seed = seed;
+  auto opened = slam::hw::OpenSourceSpec(source, robot.value(), source_options);
+  if (auto* error = std::get_if<std::string>(&opened)) return Fail(*error, 1);
+  auto frame_source = std::move(std::get<std::unique_ptr<slam::hw::FrameSource>>(opened));
+  const auto* virtual_robot = dynamic_cast<const slam::hw::VirtualMarxbotSource*>(frame_source.get());
+
+  // Signals go to one thread that stops the server; every other thread blocks them.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  slam::hw::Link link(std::move(frame_source), robot.value());
+  slam::server::SlamService service(link, virtual_robot, service_options);
+  slam::server::JobManager jobs(experiments_dir, state_dir);
+  slam::server::HttpServer server(service, link, jobs, http);
+  std::string error;
+  const int bound = server.Bind(error);
+  if (bound < 0) return Fail(error, 1);
+
+  link.Start();
+  service.Start();
+  const std::string host = bind.find(':') != std::string::npos ? "[" + bind + "]" : bind;
+  std::printf("slamd: serving http://%s:%d/ (source %s)\n", host.c_str(), bound, source.c_str());
+  std::fflush(stdout);
+  if (service_options.resume && !quiet) {
+    std::fprintf(stderr, "slamd: resumed the map saved in %s (%zu tiles, version %llu)\n",
+                 state_dir.c_str(), service_options.resume->tiles.size(),
+                 static_cast<unsigned long long>(service_options.resume->version));
+  }
+
+  std::atomic<bool> done{false};
+  std::thread signal_thread([&] {
+    int received = 0;
+    sigwait(&signals, &received);
+    if (!done) server.Stop();
+  });
+  std::thread status_thread;
+  if (!quiet) {
+    status_thread = std::thread([&] {
+      while (!done) {
+        for (int i = 0; i < 50 && !done; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+        if (done) break;
+        const auto c = service.Counters();
+        const auto l = link.Status();
+        std::fprintf(stderr, "slamd: link %s, %llu frames; %lld scans (%lld late), CPU %.1f %%\n",
+                     slam::hw::ToString(l.state), static_cast<unsigned long long>(l.frames),
+                     static_cast<long long>(c.scans), static_cast<long long>(c.late_scans),
+                     c.robot_s > 0 ? 100.0 * c.cpu_s / c.robot_s : 0.0);
+      }
+    });
+  }
+
+  server.Run();  // until a signal
+  done = true;
+  pthread_kill(signal_thread.native_handle(), SIGTERM);  // wakes sigwait if no signal came
+  signal_thread.join();
+  if (status_thread.joinable()) status_thread.join();
+  service.Stop();
+  link.Stop();
+  return 0;
+}

@@ -1,0 +1,252 @@
+#include "server/state_store.hpp"
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <system_error>
+
+#include "engine/io/atomic_file.hpp"
+#include "engine/io/map_image.hpp"
+#include "engine/io/tum.hpp"
+
+namespace slam::server {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr char kMagic[8] = {'S', 'L', 'M', 'T', 'I', 'L', 'E', '1'};
+constexpr int kFormat = 1;
+
+uint64_t Fnv1a(const char* data, size_t size) {
+  uint64_t h = 1469598103934665603ULL;
+  for (size_t i = 0; i < size; ++i) {
+    h ^= static_cast<uint8_t>(data[i]);
+    h *= 1099511628211ULL;
+  }
+  return h;
+}
+
+// Little-endian fixed-width fields (the robot and the workstation may differ in nothing else).
+template <typename T>
+void Put(std::string& out, T value) {
+  static_assert(std::is_trivially_copyable_v<T>);
+  char bytes[sizeof(T)];
+  std::memcpy(bytes, &value, sizeof(T));
+  out.append(bytes, sizeof(T));
+}
+
+class Reader {
+ public:
+  explicit Reader(const std::string& bytes) : bytes_(bytes) {}
+  template <typename T>
+  bool Get(T& value) {
+    if (bytes_.size() - pos_ < sizeof(T)) return false;
+    std::memcpy(&value, bytes_.data() + pos_, sizeof(T));
+    pos_ += sizeof(T);
+    return true;
+  }
+  size_t remaining() const { return bytes_.size() - pos_; }
+
+ private:
+  const std::string& bytes_;
+  size_t pos_ = 0;
+};
+
+std::optional<std::string> ReadFile(const fs::path& path, std::string& out) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return path.string() + ": cannot open";
+  std::ostringstream s;
+  s << in.rdbuf();
+  if (in.bad()) return path.string() + ": read error";
+  out = s.str();
+  return std::nullopt;
+}
+
+}  // namespace
+
+std::string EncodeTiles(const SavedState& state) {
+  std::string out(kMagic, sizeof(kMagic));
+  Put<uint32_t>(out, static_cast<uint32_t>(kTileSize));
+  Put<double>(out, state.resolution_m);
+  Put<uint64_t>(out, state.version);
+  Put<uint64_t>(out, state.tiles.size());
+  for (const SavedTile& tile : state.tiles) {
+    Put<int32_t>(out, tile.index.x);
+    Put<int32_t>(out, tile.index.y);
+    Put<uint64_t>(out, tile.version);
+    out.append(reinterpret_cast<const char*>(tile.cells.data()), tile.cells.size() * sizeof(LogOdds));
+  }
+  Put<uint64_t>(out, Fnv1a(out.data(), out.size()));
+  return out;
+}
+
+bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error) {
+  if (bytes.size() < sizeof(kMagic) + sizeof(uint64_t) ||
+      std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0) {
+    error = "not a slamd tile file (bad magic)";
+    return false;
+  }
+  const size_t body = bytes.size() - sizeof(uint64_t);
+  uint64_t stored = 0;
+  std::memcpy(&stored, bytes.data() + body, sizeof(stored));
+  if (stored != Fnv1a(bytes.data(), body)) {
+    error = "checksum mismatch (truncated or damaged)";
+    return false;
+  }
+  const std::string payload = bytes.substr(sizeof(kMagic), body - sizeof(kMagic));
+  Reader in(payload);
+  uint32_t tile_size = 0;
+  uint64_t count = 0;
+  if (!in.Get(tile_size) || !in.Get(state.resolution_m) || !in.Get(state.version) ||
+      !in.Get(count)) {
+    error = "truncated header";
+    return false;
+  }
+  if (tile_size != static_cast<uint32_t>(kTileSize)) {
+    error = "tile size " + std::to_string(tile_size) + ", this build uses " +
+            std::to_string(kTileSize);
+    return false;
+  }
+  if (!(state.resolution_m > 0.0) || !std::isfinite(state.resolution_m)) {
+    error = "bad resolution";
+    return false;
+  }
+  constexpr size_t kTileBytes = 2 * sizeof(int32_t) + sizeof(uint64_t) + kTileCells * sizeof(LogOdds);
+  if (count != in.remaining() / kTileBytes || in.remaining() % kTileBytes != 0) {
+    error = "tile count does not match the file size";
+    return false;
+  }
+  state.tiles.clear();
+  state.tiles.reserve(count);
+  for (uint64_t i = 0; i < count; ++i) {
+    SavedTile tile;
+    tile.cells.resize(kTileCells);
+    in.Get(tile.index.x);
+    in.Get(tile.index.y);
+    in.Get(tile.version);
+    for (LogOdds& cell : tile.cells) in.Get(cell);
+    state.tiles.push_back(std::move(tile));
+  }
+  return true;
+}
+
+std::optional<std::string> SaveState(const std::string& dir, const SaveInputs& in) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return dir + ": cannot create: " + ec.message();
+
+  SavedState state;
+  state.version = in.version;
+  state.resolution_m = in.resolution_m;
+  for (const TileRef& ref : in.grid->Tiles()) {
+    SavedTile tile;
+    tile.index = ref.index;
+    tile.version = in.version_base + ref.tile->version;
+    tile.cells.assign(ref.tile->cells.begin(), ref.tile->cells.end());
+    state.tiles.push_back(std::move(tile));
+  }
+  const std::string v = std::to_string(in.version);
+  const std::string tiles_name = "map-" + v + ".tiles";
+  const std::string trajectory_name = "trajectory-" + v + ".tum";
+  const fs::path base(dir);
+  const std::string tum = io::FormatTum(in.trajectory);
+  if (auto e = io::WriteFileAtomic((base / tiles_name).string(), EncodeTiles(state))) return e;
+  if (auto e = io::WriteFileAtomic((base / trajectory_name).string(), tum)) return e;
+
+  nlohmann::json meta;
+  meta["format"] = kFormat;
+  meta["version"] = in.version;
+  meta["resolution_m"] = in.resolution_m;
+  meta["tiles"] = state.tiles.size();
+  meta["tiles_file"] = tiles_name;
+  meta["trajectory_file"] = trajectory_name;
+  if (!in.trajectory.empty()) {
+    const TimedPose& last = in.trajectory.back();
+    meta["pose"] = {{"t", last.t}, {"x", last.pose.x}, {"y", last.pose.y}, {"theta", last.pose.theta}};
+  }
+  if (auto e = io::WriteFileAtomic((base / "state.json").string(), meta.dump(2) + "\n")) return e;
+
+  // Copies for people and map_server; the state is already committed.
+  const io::GridImage image = io::MakeGridImage(*in.grid);
+  if (auto e = io::WritePgm((base / "map.pgm").string(), image)) return e;
+  if (auto e = io::WriteMapYaml((base / "map.yaml").string(), "map.pgm", image)) return e;
+  const io::PngBytes png = io::EncodeGrayPng(image.width, image.height, image.gray);
+  if (!png.ok()) return png.error;
+  if (auto e = io::WriteFileAtomic((base / "map.png").string(),
+                                   std::string(png.bytes.begin(), png.bytes.end()))) {
+    return e;
+  }
+  if (auto e = io::WriteFileAtomic((base / "trajectory.tum").string(), tum)) return e;
+
+  // Older versioned files are no longer named by state.json.
+  for (const auto& entry : fs::directory_iterator(base, ec)) {
+    const std::string name = entry.path().filename().string();
+    const bool versioned = (name.rfind("map-", 0) == 0 && name.ends_with(".tiles")) ||
+                           (name.rfind("trajectory-", 0) == 0 && name.ends_with(".tum"));
+    if (versioned && name != tiles_name && name != trajectory_name) fs::remove(entry.path(), ec);
+  }
+  return std::nullopt;
+}
+
+LoadOutcome LoadState(const std::string& dir) {
+  LoadOutcome outcome;
+  const fs::path base(dir);
+  const fs::path meta_path = base / "state.json";
+  std::error_code ec;
+  if (!fs::exists(meta_path, ec)) return outcome;  // nothing saved yet
+  std::string text;
+  if (auto e = ReadFile(meta_path, text)) {
+    outcome.error = *e;
+    return outcome;
+  }
+  const nlohmann::json meta = nlohmann::json::parse(text, nullptr, false);
+  if (meta.is_discarded() || !meta.is_object()) {
+    outcome.error = meta_path.string() + ": not valid JSON";
+    return outcome;
+  }
+  const auto name_of = [&](const char* key) -> std::optional<std::string> {
+    const auto it = meta.find(key);
+    if (it == meta.end() || !it->is_string()) return std::nullopt;
+    const std::string name = it->get<std::string>();
+    // Only plain file names inside the state directory.
+    if (name.empty() || name.find('/') != std::string::npos || name == "." || name == "..") {
+      return std::nullopt;
+    }
+    return name;
+  };
+  const auto format = meta.find("format");
+  if (format == meta.end() || !format->is_number_integer() || format->get<int>() != kFormat) {
+    outcome.error = meta_path.string() + ": unknown format (expected \"format\": 1)";
+    return outcome;
+  }
+  const auto tiles_name = name_of("tiles_file");
+  const auto trajectory_name = name_of("trajectory_file");
+  if (!tiles_name || !trajectory_name) {
+    outcome.error = meta_path.string() + ": missing or bad tiles_file / trajectory_file";
+    return outcome;
+  }
+  SavedState state;
+  std::string bytes;
+  if (auto e = ReadFile(base / *tiles_name, bytes)) {
+    outcome.error = *e;
+    return outcome;
+  }
+  std::string error;
+  if (!DecodeTiles(bytes, state, error)) {
+    outcome.error = (base / *tiles_name).string() + ": " + error;
+    return outcome;
+  }
+  auto trajectory = io::LoadTum((base / *trajectory_name).string());
+  if (!trajectory.ok()) {
+    outcome.error = trajectory.Message();
+    return outcome;
+  }
+  state.trajectory = std::move(trajectory).value();
+  outcome.state = std::move(state);
+  return outcome;
+}
+
+}  // namespace slam::server

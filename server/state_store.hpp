@@ -1,0 +1,62 @@
+#pragma once
+// slamd's saved state in --state-dir: the map (log odds, exactly), the trajectory, and the map
+// in the ROS map_server format for people and other tools.
+//
+//   state.json              {"format": 1, "version": V, "tiles_file": "map-V.tiles", ...}
+//   map-V.tiles             every tile's log odds (binary, checksummed)
+//   trajectory-V.tum        the trajectory (one pose per scan end)
+//   map.pgm, map.yaml, map.png, trajectory.tum   copies for people and map_server
+//
+// Saving writes the versioned files first, then state.json (each a temporary file renamed over
+// the old one), then removes the files state.json no longer names. state.json is the commit
+// point: a crash at any moment leaves the previous or the new state complete and loadable.
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "engine/occupancy_grid.hpp"
+#include "engine/pose.hpp"
+
+namespace slam::server {
+
+struct SavedTile {
+  TileIndex index;
+  uint64_t version = 0;  // as reported to clients
+  std::vector<LogOdds> cells;  // kTileCells
+};
+
+struct SavedState {
+  uint64_t version = 0;  // map version at the save
+  double resolution_m = 0.01;
+  std::vector<SavedTile> tiles;
+  std::vector<TimedPose> trajectory;  // scan ends, time-ordered; the last is the robot's pose
+};
+
+/// The tile file's contents (magic, resolution, tiles, FNV-1a checksum).
+std::string EncodeTiles(const SavedState& state);
+/// Parses EncodeTiles' output; false with `error` set when damaged.
+bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error);
+
+struct SaveInputs {
+  uint64_t version = 0;
+  double resolution_m = 0.01;
+  const OccupancyGrid* grid = nullptr;  // the map to save (tile versions already reported)
+  uint64_t version_base = 0;            // added to the grid's tile versions
+  std::vector<TimedPose> trajectory;
+};
+
+/// Saves into `dir` (created if missing) as described above; nullopt on success, else why (the
+/// previous state is then untouched).
+[[nodiscard]] std::optional<std::string> SaveState(const std::string& dir, const SaveInputs& in);
+
+struct LoadOutcome {
+  std::optional<SavedState> state;  // nullopt: nothing saved there yet (or an error)
+  std::string error;                // non-empty: something is saved but damaged
+};
+
+/// Loads the state saved in `dir`.
+LoadOutcome LoadState(const std::string& dir);
+
+}  // namespace slam::server

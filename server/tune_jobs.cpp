@@ -1,0 +1,312 @@
+#include "server/tune_jobs.hpp"
+
+#include <pthread.h>
+#include <sched.h>
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <utility>
+
+#include "engine/io/params_json.hpp"
+#include "hw_link/experiment_reader.hpp"
+#include "tools/evaluation.hpp"
+#include "tools/tuning_report.hpp"
+
+namespace slam::server {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Bounds of a job request: a job on the robot is a small study (the full one is slam-tune's).
+constexpr int kMaxPopulation = 200;
+constexpr int kMaxGenerations = 200;
+
+/// Lowest CPU priority for the calling thread: SCHED_IDLE runs only when a core would otherwise
+/// idle, so the SLAM thread and the HTTP threads always come first. Falls back to nice 19.
+void LowerThisThreadPriority() {
+  sched_param param{};
+  param.sched_priority = 0;
+  if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &param) != 0) {
+    setpriority(PRIO_PROCESS, static_cast<id_t>(gettid()), 19);
+  }
+}
+
+template <typename T>
+bool ReadInt(const nlohmann::json& body, const char* key, T lo, T hi, T& out, ConfigErrors& errors) {
+  const auto it = body.find(key);
+  if (it == body.end() || it->is_null()) return true;
+  const std::string pointer = std::string("/") + key;
+  if (!it->is_number_integer() && !it->is_number_unsigned()) {
+    errors.push_back({pointer, "must be an integer", 0});
+    return false;
+  }
+  const auto value = it->get<int64_t>();
+  if (value < static_cast<int64_t>(lo) || value > static_cast<int64_t>(hi)) {
+    errors.push_back({pointer, "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]", 0});
+    return false;
+  }
+  out = static_cast<T>(value);
+  return true;
+}
+
+}  // namespace
+
+ConfigErrors ParseTuneRequest(const nlohmann::json& body, const std::vector<std::string>& available,
+                              TuneRequest& request) {
+  ConfigErrors errors;
+  if (!body.is_object()) {
+    errors.push_back({"", "must be a JSON object", 0});
+    return errors;
+  }
+  static const std::vector<std::string> kKeys{"budget",      "policy", "population",
+                                               "generations", "seed",   "experiments"};
+  for (const auto& [key, value] : body.items()) {
+    if (std::find(kKeys.begin(), kKeys.end(), key) == kKeys.end()) {
+      errors.push_back({"/" + key, "unknown field", 0});
+    }
+  }
+  ReadInt<int64_t>(body, "budget", 1, 100000000, request.budget, errors);
+  ReadInt<int>(body, "population", 2, kMaxPopulation, request.population, errors);
+  ReadInt<int>(body, "generations", 1, kMaxGenerations, request.generations, errors);
+  ReadInt<uint64_t>(body, "seed", 0, uint64_t{1} << 53, request.seed, errors);
+  if (const auto it = body.find("policy"); it != body.end() && !it->is_null()) {
+    const auto policy = it->is_string() ? ParseBudgetPolicy(it->get<std::string>()) : std::nullopt;
+    if (!policy) {
+      errors.push_back({"/policy", "must be \"fixed\" or \"adaptive\"", 0});
+    } else {
+      request.policy = *policy;
+    }
+  }
+  if (const auto it = body.find("experiments"); it != body.end() && !it->is_null()) {
+    if (!it->is_array()) {
+      errors.push_back({"/experiments", "must be an array of experiment names", 0});
+    } else {
+      request.experiments.clear();
+      for (size_t i = 0; i < it->size(); ++i) {
+        const auto& name = (*it)[i];
+        const std::string pointer = "/experiments/" + std::to_string(i);
+        if (!name.is_string()) {
+          errors.push_back({pointer, "must be a string", 0});
+        } else if (std::find(available.begin(), available.end(), name.get<std::string>()) ==
+                   available.end()) {
+          errors.push_back({pointer, "no experiment named \"" + name.get<std::string>() + "\"", 0});
+        } else {
+          request.experiments.push_back(name.get<std::string>());
+        }
+      }
+      if (it->empty()) errors.push_back({"/experiments", "must name at least one experiment", 0});
+    }
+  }
+  return errors;
+}
+
+JobManager::JobManager(std::string experiments_dir, std::string output_dir)
+    : experiments_dir_(std::move(experiments_dir)), output_dir_(std::move(output_dir)) {}
+
+JobManager::~JobManager() {
+  std::map<std::string, std::unique_ptr<Job>> jobs;
+  {
+    const std::lock_guard lock(mutex_);
+    jobs.swap(jobs_);
+  }
+  for (auto& [id, job] : jobs) {
+    job->cancel = true;
+    if (job->thread.joinable()) job->thread.join();
+  }
+}
+
+std::vector<std::string> JobManager::Experiments() const {
+  std::vector<std::string> names;
+  if (experiments_dir_.empty()) return names;
+  std::string error;
+  for (const std::string& dir : tools::FindExperimentDirs({experiments_dir_}, error)) {
+    names.push_back(fs::path(dir).filename().string());
+  }
+  return names;
+}
+
+int JobManager::running() const {
+  const std::lock_guard lock(mutex_);
+  return static_cast<int>(std::count_if(jobs_.begin(), jobs_.end(),
+                                        [](const auto& j) { return j.second->state == "running"; }));
+}
+
+std::optional<nlohmann::json> JobManager::Start(const TuneRequest& request, std::string& conflict) {
+  std::vector<std::string> names = request.experiments.empty() ? Experiments() : request.experiments;
+  const std::lock_guard lock(mutex_);
+  for (const auto& [id, job] : jobs_) {
+    if (job->state == "running") {
+      conflict = "job " + id + " is running; cancel it (DELETE /api/v1/jobs/" + id + ") or wait";
+      return std::nullopt;
+    }
+  }
+  if (names.empty()) {
+    conflict = "no experiments with ground truth under " + experiments_dir_;
+    return std::nullopt;
+  }
+  auto job = std::make_unique<Job>();
+  job->id = std::to_string(next_id_++);
+  job->request = request;
+  job->experiments = std::move(names);
+  Job& ref = *job;
+  latest_ = job->id;
+  jobs_[job->id] = std::move(job);
+  ref.thread = std::thread([this, &ref] {
+    pthread_setname_np(pthread_self(), "tune-job");
+    LowerThisThreadPriority();
+    Run(ref);
+  });
+  Touch();
+  return ToJson(ref);
+}
+
+void JobManager::Run(Job& job) {
+  // Load the experiments (on this idle-priority thread: it can take seconds).
+  std::vector<hw::Experiment> loaded;
+  std::string error;
+  for (const std::string& name : job.experiments) {
+    if (job.cancel) break;
+    hw::ExperimentLoad load = hw::LoadExperiment((fs::path(experiments_dir_) / name).string());
+    if (!load.ok()) {
+      error = load.error;
+      break;
+    }
+    if (load.experiment->ground_truth.empty()) {
+      error = name + ": no ground truth (groundtruth.tum): it cannot be used for tuning";
+      break;
+    }
+    loaded.push_back(std::move(*load.experiment));
+  }
+  std::vector<TuningExperiment> experiments;
+  for (const hw::Experiment& e : loaded) {
+    experiments.push_back({fs::path(e.dir).filename().string(), &e.robot, &e.scans, &e.ground_truth});
+  }
+
+  bool finished = false;
+  if (error.empty() && !job.cancel) {
+    TuningSettings settings;
+    settings.budgets = {job.request.budget};
+    settings.evolution.population = job.request.population;
+    settings.evolution.generations = job.request.generations;
+    settings.evolution.seed = job.request.seed;
+    settings.policy = job.request.policy;
+    TuningState state = NewTuningState(settings, experiments);
+    TuningCallbacks callbacks;
+    callbacks.cancel = &job.cancel;
+    callbacks.progress = [&](double done, double total) {
+      {
+        const std::lock_guard lock(mutex_);
+        job.progress = total > 0.0 ? done / total : 0.0;
+      }
+      Touch();
+    };
+    const std::string out_dir =
+        output_dir_.empty() ? std::string() : (fs::path(output_dir_) / "jobs" / job.id).string();
+    callbacks.generation_done = [&](const TuningState& s, int64_t) {
+      {
+        const std::lock_guard lock(mutex_);
+        job.generations = s.budgets.front().generations;
+        job.evaluations_done = 0;
+        for (const auto& g : job.generations) job.evaluations_done += g.evaluations;
+      }
+      if (!out_dir.empty()) {
+        for (const std::string& e : tools::WriteTuningOutputs(out_dir, s)) error += e + "\n";
+      }
+      Touch();
+    };
+    finished = RunTuning(experiments, state, 1, callbacks);
+  }
+  {
+    const std::lock_guard lock(mutex_);
+    if (!error.empty()) {
+      job.state = "failed";
+      job.error = error;
+    } else {
+      job.state = finished ? "done" : "cancelled";
+      if (finished) job.progress = 1.0;
+    }
+  }
+  Touch();
+}
+
+nlohmann::json JobManager::ToJson(const Job& job) const {
+  const TuneRequest& r = job.request;
+  EvolutionConfig evolution;
+  evolution.population = r.population;
+  const int64_t total =
+      r.population + int64_t{r.generations - 1} * (r.population - evolution.elites());
+  nlohmann::json j = {{"id", job.id},
+                      {"state", job.state},
+                      {"budget", r.budget},
+                      {"policy", ToString(r.policy)},
+                      {"population", r.population},
+                      {"generations", r.generations},
+                      {"seed", r.seed},
+                      {"generation", static_cast<int>(job.generations.size())},
+                      {"evaluations_done", job.evaluations_done},
+                      {"evaluations_total", total},
+                      {"progress", job.progress},
+                      {"experiments", job.experiments},
+                      {"error", job.error}};
+  nlohmann::json history = nlohmann::json::array();
+  for (const GenerationSummary& g : job.generations) {
+    history.push_back({{"generation", g.generation},
+                       {"min", g.fitness.min},
+                       {"q1", g.fitness.q1},
+                       {"median", g.fitness.median},
+                       {"q3", g.fitness.q3},
+                       {"max", g.fitness.max}});
+  }
+  j["history"] = std::move(history);
+  if (!job.generations.empty()) {
+    const Individual& best = job.generations.back().best;
+    j["best"] = {{"fitness", best.fitness}, {"params", io::ParamsToJson(best.params)}};
+  } else {
+    j["best"] = nullptr;
+  }
+  return j;
+}
+
+std::optional<nlohmann::json> JobManager::Get(const std::string& id) const {
+  const std::lock_guard lock(mutex_);
+  const auto it = jobs_.find(id);
+  if (it == jobs_.end()) return std::nullopt;
+  return ToJson(*it->second);
+}
+
+int JobManager::Delete(const std::string& id) {
+  std::unique_ptr<Job> finished;
+  {
+    const std::lock_guard lock(mutex_);
+    const auto it = jobs_.find(id);
+    if (it == jobs_.end()) return 404;
+    if (it->second->state == "running") {
+      it->second->cancel = true;
+      return 202;
+    }
+    finished = std::move(it->second);
+    jobs_.erase(it);
+    if (latest_ == id) latest_.clear();
+  }
+  if (finished->thread.joinable()) finished->thread.join();
+  Touch();
+  return 200;
+}
+
+nlohmann::json JobManager::List() const {
+  const std::lock_guard lock(mutex_);
+  nlohmann::json list = nlohmann::json::array();
+  for (const auto& [id, job] : jobs_) list.push_back(ToJson(*job));
+  return {{"jobs", list}};
+}
+
+std::optional<nlohmann::json> JobManager::Latest() const {
+  const std::lock_guard lock(mutex_);
+  const auto it = jobs_.find(latest_);
+  if (it == jobs_.end()) return std::nullopt;
+  return ToJson(*it->second);
+}
+
+}  // namespace slam::server
