@@ -61,12 +61,12 @@ std::vector<TimedPose> ScanEndTrajectory(const SlamSnapshot& snapshot) {
     if (first) {  // where this run started
       TimedPose start = chunk->poses.front();
       start.t += snapshot.time_offset_s;
-      out.push_back(start);
+      if (out.empty() || start.t > out.back().t) out.push_back(start);
       first = false;
     }
     TimedPose end = chunk->poses.back();
     end.t += snapshot.time_offset_s;
-    out.push_back(end);
+    if (out.empty() || end.t > out.back().t) out.push_back(end);
   }
   return out;
 }

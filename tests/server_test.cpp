@@ -1,0 +1,368 @@
+// slamd's parts in process: the saved state (exact round trip, damage detected, a crash between
+// files leaves the previous state), the SLAM service over a recorded experiment (snapshots,
+// versions, reset, budget changes), job requests and the security helpers.
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <thread>
+
+#include "engine/io/atomic_file.hpp"
+#include "engine/random.hpp"
+#include "hw_link/transports.hpp"
+#include "server/http_server.hpp"
+#include "server/slam_service.hpp"
+#include "server/state_store.hpp"
+#include "server/tune_jobs.hpp"
+#include "tests/experiment_support.hpp"
+#include "tests/test_support.hpp"
+
+namespace slam::server {
+namespace {
+
+using testing::TempDir;
+
+SavedState SampleState(uint64_t version, uint64_t seed) {
+  SavedState s;
+  s.version = version;
+  s.resolution_m = 0.01;
+  Rng rng(seed);
+  for (int i = 0; i < 3; ++i) {
+    SavedTile tile;
+    tile.index = {i - 1, 2 * i};
+    tile.version = version - static_cast<uint64_t>(i);
+    tile.cells.resize(kTileCells);
+    for (LogOdds& c : tile.cells) c = static_cast<LogOdds>(static_cast<int>(rng.Next() % 1001) - 500);
+    s.tiles.push_back(std::move(tile));
+  }
+  s.trajectory = {{0.5, {0, 0, 0}}, {1.0, {0.1, 0.2, 0.3}}, {1.5, {0.2, 0.3, -0.4}}};
+  return s;
+}
+
+OccupancyGrid GridOf(const SavedState& s) {
+  OccupancyGrid grid(GridGeometry(s.resolution_m), 2000);
+  grid.BeginWrite();
+  for (const SavedTile& t : s.tiles) {
+    std::copy(t.cells.begin(), t.cells.end(), grid.MutableTile(t.index).cells.begin());
+  }
+  return grid;
+}
+
+void Save(const std::string& dir, const SavedState& s) {
+  const OccupancyGrid grid = GridOf(s);
+  SaveInputs in;
+  in.version = s.version;
+  in.resolution_m = s.resolution_m;
+  in.grid = &grid;
+  in.version_base = 100;
+  in.trajectory = s.trajectory;
+  const auto error = SaveState(dir, in);
+  ASSERT_FALSE(error) << *error;
+}
+
+TEST(StateStore, TilesRoundTripExactly) {
+  const SavedState s = SampleState(42, 1);
+  SavedState back;
+  std::string error;
+  ASSERT_TRUE(DecodeTiles(EncodeTiles(s), back, error)) << error;
+  EXPECT_EQ(back.version, 42u);
+  EXPECT_EQ(back.resolution_m, 0.01);
+  ASSERT_EQ(back.tiles.size(), s.tiles.size());
+  for (size_t i = 0; i < s.tiles.size(); ++i) {
+    EXPECT_EQ(back.tiles[i].index, s.tiles[i].index);
+    EXPECT_EQ(back.tiles[i].version, s.tiles[i].version);
+    EXPECT_EQ(back.tiles[i].cells, s.tiles[i].cells);
+  }
+}
+
+TEST(StateStore, DamageIsDetected) {
+  const std::string bytes = EncodeTiles(SampleState(7, 2));
+  SavedState back;
+  std::string error;
+  std::string flipped = bytes;
+  flipped[bytes.size() / 2] = static_cast<char>(flipped[bytes.size() / 2] ^ 0x10);
+  EXPECT_FALSE(DecodeTiles(flipped, back, error));
+  EXPECT_NE(error.find("checksum"), std::string::npos) << error;
+  EXPECT_FALSE(DecodeTiles(bytes.substr(0, bytes.size() - 100), back, error));
+  EXPECT_FALSE(DecodeTiles("", back, error));
+  EXPECT_FALSE(DecodeTiles("SLMTILE0" + bytes.substr(8), back, error));
+  EXPECT_NE(error.find("magic"), std::string::npos) << error;
+}
+
+TEST(StateStore, SaveThenLoadGivesTheMapAndTrajectory) {
+  TempDir dir("state_roundtrip");
+  const SavedState s = SampleState(10, 3);
+  Save(dir.path().string(), s);
+  const LoadOutcome loaded = LoadState(dir.path().string());
+  ASSERT_TRUE(loaded.error.empty()) << loaded.error;
+  ASSERT_TRUE(loaded.state);
+  EXPECT_EQ(loaded.state->version, 10u);
+  ASSERT_EQ(loaded.state->tiles.size(), 3u);
+  // Tiles come back in the grid's row-major order; match them by index.
+  for (const SavedTile& t : s.tiles) {
+    const auto it = std::find_if(loaded.state->tiles.begin(), loaded.state->tiles.end(),
+                                 [&](const SavedTile& u) { return u.index == t.index; });
+    ASSERT_NE(it, loaded.state->tiles.end());
+    EXPECT_EQ(it->cells, t.cells);
+    EXPECT_GT(it->version, 100u);  // the base is added to the grid's own versions
+  }
+  ASSERT_EQ(loaded.state->trajectory.size(), 3u);
+  EXPECT_NEAR(loaded.state->trajectory.back().pose.theta, -0.4, 1e-6);
+  for (const char* name : {"map.pgm", "map.yaml", "map.png", "trajectory.tum", "state.json"}) {
+    EXPECT_TRUE(std::filesystem::exists(dir.path() / name)) << name;
+  }
+}
+
+TEST(StateStore, NothingSavedIsNotAnError) {
+  TempDir dir("state_empty");
+  const LoadOutcome loaded = LoadState(dir.path().string());
+  EXPECT_TRUE(loaded.error.empty());
+  EXPECT_FALSE(loaded.state);
+}
+
+TEST(StateStore, ANewSaveReplacesTheOldFiles) {
+  TempDir dir("state_replace");
+  Save(dir.path().string(), SampleState(10, 4));
+  Save(dir.path().string(), SampleState(20, 5));
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "map-10.tiles"));
+  EXPECT_TRUE(std::filesystem::exists(dir.path() / "map-20.tiles"));
+  EXPECT_EQ(LoadState(dir.path().string()).state->version, 20u);
+}
+
+TEST(StateStore, ACrashBeforeTheCommitLeavesThePreviousState) {
+  // A save killed after writing its tile file but before state.json: the half-finished save
+  // (here a torn tile file) is ignored, the previous one loads.
+  TempDir dir("state_crash");
+  Save(dir.path().string(), SampleState(10, 6));
+  const std::string next = EncodeTiles(SampleState(20, 7));
+  std::ofstream(dir.File("map-20.tiles"), std::ios::binary) << next.substr(0, next.size() / 3);
+  std::ofstream(dir.File(".state.json.tmp-123")) << "{\"format\": 1, \"ver";
+  const LoadOutcome loaded = LoadState(dir.path().string());
+  ASSERT_TRUE(loaded.error.empty()) << loaded.error;
+  EXPECT_EQ(loaded.state->version, 10u);
+}
+
+TEST(StateStore, DamagedStateIsAnErrorNamingTheFile) {
+  TempDir dir("state_damaged");
+  Save(dir.path().string(), SampleState(10, 8));
+  {
+    std::fstream f(dir.File("map-10.tiles"), std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(100);
+    f.put('\x7f');
+  }
+  LoadOutcome loaded = LoadState(dir.path().string());
+  EXPECT_FALSE(loaded.state);
+  EXPECT_NE(loaded.error.find("map-10.tiles"), std::string::npos) << loaded.error;
+
+  ASSERT_FALSE(io::WriteFileAtomic(dir.File("state.json"),
+                                   R"({"format": 1, "tiles_file": "../etc/passwd", "trajectory_file": "t.tum"})"));
+  loaded = LoadState(dir.path().string());
+  EXPECT_FALSE(loaded.state);
+  EXPECT_NE(loaded.error.find("tiles_file"), std::string::npos) << loaded.error;
+
+  ASSERT_FALSE(io::WriteFileAtomic(dir.File("state.json"), "{not json"));
+  EXPECT_FALSE(LoadState(dir.path().string()).error.empty());
+}
+
+TEST(Security, ConstantTimeEqualsComparesWholeStrings) {
+  EXPECT_TRUE(ConstantTimeEquals("secret-token-123", "secret-token-123"));
+  EXPECT_FALSE(ConstantTimeEquals("secret-token-123", "secret-token-124"));
+  EXPECT_FALSE(ConstantTimeEquals("secret-token-123", "secret-token-12"));
+  EXPECT_FALSE(ConstantTimeEquals("secret", std::string("secret\0x", 8)));
+  EXPECT_FALSE(ConstantTimeEquals("", "a"));
+  EXPECT_TRUE(ConstantTimeEquals("", ""));
+}
+
+TEST(Security, LoopbackAddresses) {
+  EXPECT_TRUE(IsLoopback("127.0.0.1"));
+  EXPECT_TRUE(IsLoopback("127.1.2.3"));
+  EXPECT_TRUE(IsLoopback("::1"));
+  EXPECT_TRUE(IsLoopback("localhost"));
+  EXPECT_FALSE(IsLoopback("0.0.0.0"));
+  EXPECT_FALSE(IsLoopback("192.168.1.10"));
+  EXPECT_FALSE(IsLoopback("::"));
+  EXPECT_FALSE(IsLoopback("128.0.0.1"));
+}
+
+TEST(TuneRequest, DefaultsAndErrorsWithPointers) {
+  TuneRequest request;
+  EXPECT_TRUE(ParseTuneRequest(nlohmann::json::object(), {"a"}, request).empty());
+  EXPECT_EQ(request.budget, 8125);
+  EXPECT_TRUE(request.experiments.empty());
+
+  const auto body = nlohmann::json::parse(
+      R"({"budget": 0, "population": "many", "generations": 2.5, "policy": "greedy",
+          "experiments": ["a", "zz", 3], "colour": "red"})");
+  const ConfigErrors errors = ParseTuneRequest(body, {"a", "b"}, request);
+  std::vector<std::string> pointers;
+  for (const auto& e : errors) pointers.push_back(e.pointer);
+  EXPECT_EQ(pointers, (std::vector<std::string>{"/colour", "/budget", "/population", "/generations",
+                                                "/policy", "/experiments/1", "/experiments/2"}));
+  EXPECT_FALSE(ParseTuneRequest(nlohmann::json::array(), {}, request).empty());
+}
+
+class SlamServiceTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new TempDir("slam_service");
+    experiment_ = new std::optional<hw::Experiment>(
+        testing::GenerateExperiment(dir_->File("exp"), "box", 20.0, 11));
+  }
+  static void TearDownTestSuite() {
+    delete experiment_;
+    delete dir_;
+  }
+
+  /// A link replaying the experiment's log as fast as it is read, losing nothing.
+  std::unique_ptr<hw::Link> MakeLink() {
+    auto opened = hw::OpenCandumpReplay(dir_->File("exp/can.log"));
+    auto source = std::move(std::get<std::unique_ptr<hw::FrameSource>>(opened));
+    hw::LinkOptions options;
+    options.queue_capacity = 1 << 16;
+    return std::make_unique<hw::Link>(std::move(source), testing::ShippedRobot(), options);
+  }
+
+  static ServiceOptions Options() {
+    ServiceOptions o;
+    o.robot = testing::ShippedRobot();
+    o.budget.rays_per_scan = 8125;
+    return o;
+  }
+
+  /// Waits (bounded) until the service has processed every scan of the log.
+  static std::shared_ptr<const SlamSnapshot> WaitForScans(const SlamService& service, int64_t scans) {
+    auto snapshot = service.Snapshot();
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+    while (service.Counters().scans < scans && std::chrono::steady_clock::now() < deadline) {
+      snapshot = service.WaitNewer(snapshot->sequence, std::chrono::milliseconds(200));
+    }
+    return service.Snapshot();
+  }
+
+  static TempDir* dir_;
+  static std::optional<hw::Experiment>* experiment_;
+};
+
+TempDir* SlamServiceTest::dir_ = nullptr;
+std::optional<hw::Experiment>* SlamServiceTest::experiment_ = nullptr;
+
+TEST_F(SlamServiceTest, MapsTheLogAndPublishesSnapshots) {
+  ASSERT_TRUE(*experiment_);
+  const int64_t scans = static_cast<int64_t>((*experiment_)->scans.size());
+  auto link = MakeLink();
+  SlamService service(*link, nullptr, Options());
+  const auto first = service.Snapshot();
+  EXPECT_TRUE(first->tiles.empty());
+  EXPECT_EQ(service.Counters().state, SlamState::kWaiting);
+  link->Start();
+  service.Start();
+  const auto last = WaitForScans(service, scans);
+  service.Stop();
+  link->Stop();
+
+  const ServiceCounters c = service.Counters();
+  EXPECT_EQ(c.scans, scans);
+  EXPECT_EQ(c.state, SlamState::kRunning);
+  EXPECT_LE(c.rays_used, c.rays_planned);
+  EXPECT_GT(c.rays_used, scans * 8125 * 9 / 10 / 2);  // most scans fill most of the quota
+  ASSERT_TRUE(last->last);
+  EXPECT_EQ(last->last->quota, 8125);
+  EXPECT_LE(last->last->rays_used, 8125);
+  EXPECT_GT(last->tiles.size(), 4u);
+  EXPECT_GT(last->map_version, first->map_version);
+  EXPECT_GT(last->sequence, static_cast<uint64_t>(scans));
+  // One pose per scan end plus the start, time-ordered, ending at the snapshot's pose.
+  const std::vector<TimedPose> trajectory = ScanEndTrajectory(*last);
+  EXPECT_EQ(static_cast<int64_t>(trajectory.size()), scans + 1);
+  for (size_t i = 1; i < trajectory.size(); ++i) EXPECT_GT(trajectory[i].t, trajectory[i - 1].t);
+  EXPECT_EQ(trajectory.back().pose.x, last->pose.pose.x);
+  // The same map as the engine's own replay at the same budget and seed.
+  const OccupancyGrid grid = SnapshotGrid(*last, service.logodds_limit());
+  EXPECT_EQ(grid.TileCount(), static_cast<int>(last->tiles.size()));
+}
+
+TEST_F(SlamServiceTest, BudgetChangesApplyFromTheNextScanAndResetKeepsVersionsGrowing) {
+  ASSERT_TRUE(*experiment_);
+  auto link = MakeLink();
+  SlamService service(*link, nullptr, Options());
+  link->Start();
+  service.Start();
+  auto mid = WaitForScans(service, 5);
+  BudgetSettings budget = service.Budget();
+  budget.rays_per_scan = 3000;
+  service.SetBudget(budget);
+  const uint64_t before_reset = service.Snapshot()->map_version;
+  service.RequestReset();
+  auto snapshot = service.Snapshot();
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  while (snapshot->epoch == 0 && std::chrono::steady_clock::now() < deadline) {
+    snapshot = service.WaitNewer(snapshot->sequence, std::chrono::milliseconds(200));
+  }
+  ASSERT_EQ(snapshot->epoch, 1u);
+  EXPECT_GT(snapshot->map_version, before_reset);
+  EXPECT_GE(snapshot->version_base, before_reset);
+  const auto after = WaitForScans(service, service.Counters().scans + 3);
+  service.Stop();
+  link->Stop();
+  ASSERT_TRUE(after->last);
+  EXPECT_EQ(after->last->quota, 3000);
+  EXPECT_LE(after->last->rays_used, 3000);
+  EXPECT_EQ(service.Counters().resets, 1);
+  for (const TileRef& t : after->tiles) EXPECT_GT(after->ReportedVersion(*t.tile), before_reset);
+  // The trajectory restarted with the reset: only this epoch's scans.
+  EXPECT_LT(ScanEndTrajectory(*after).size(), static_cast<size_t>(after->last->scan) + 2);
+}
+
+TEST_F(SlamServiceTest, ResumesASavedMap) {
+  ASSERT_TRUE(*experiment_);
+  TempDir state("slam_service_state");
+  std::shared_ptr<const SlamSnapshot> saved;
+  {
+    auto link = MakeLink();
+    SlamService service(*link, nullptr, Options());
+    link->Start();
+    service.Start();
+    saved = WaitForScans(service, 10);
+    service.Stop();
+    link->Stop();
+    const OccupancyGrid grid = SnapshotGrid(*saved, service.logodds_limit());
+    SaveInputs in;
+    in.version = saved->map_version;
+    in.grid = &grid;
+    in.version_base = saved->version_base;
+    in.trajectory = ScanEndTrajectory(*saved);
+    ASSERT_FALSE(SaveState(state.path().string(), in));
+  }
+  LoadOutcome loaded = LoadState(state.path().string());
+  ASSERT_TRUE(loaded.state) << loaded.error;
+  ServiceOptions options = Options();
+  options.resume = loaded.state;
+  auto link = MakeLink();
+  SlamService service(*link, nullptr, options);
+  const auto resumed = service.Snapshot();
+  EXPECT_EQ(resumed->tiles.size(), saved->tiles.size());
+  EXPECT_GT(resumed->map_version, saved->map_version);
+  ASSERT_TRUE(resumed->has_pose);
+  EXPECT_NEAR(resumed->pose.pose.x, saved->pose.pose.x, 1e-5);  // TUM keeps 6 decimals
+  // Cells are restored exactly.
+  const OccupancyGrid a = SnapshotGrid(*saved, service.logodds_limit());
+  const OccupancyGrid b = SnapshotGrid(*resumed, service.logodds_limit());
+  for (const TileRef& t : a.Tiles()) {
+    ASSERT_NE(b.FindTile(t.index), nullptr);
+    EXPECT_EQ(b.FindTile(t.index)->cells, t.tile->cells);
+  }
+  // The trajectory continues after the saved one.
+  link->Start();
+  service.Start();
+  const auto later = WaitForScans(service, 3);
+  service.Stop();
+  link->Stop();
+  const std::vector<TimedPose> trajectory = ScanEndTrajectory(*later);
+  EXPECT_GT(trajectory.size(), loaded.state->trajectory.size());
+  for (size_t i = 1; i < trajectory.size(); ++i) EXPECT_GT(trajectory[i].t, trajectory[i - 1].t);
+}
+
+}  // namespace
+}  // namespace slam::server
