@@ -1,0 +1,249 @@
+// The slamd page in headless Chromium (playwright-core, Debian's /usr/bin/chromium):
+//
+//   node tests/browser/e2e.mjs URL ARTIFACT_DIR
+//
+// Checks, against a running slamd at URL: the page loads with no console errors or warnings and
+// no failed requests; the map fills in (tiles drawn, canvas pixels not blank); the trajectory is
+// drawn; the plots get metrics; zoom and fit work; a budget change made in the page's form
+// reaches slamd (GET /api/v1/budget, then /metrics slamd_ray_quota); an out-of-range value shows
+// slamd's validation error next to the field. Writes ARTIFACT_DIR/slamd-page.png. Exit 1 with a
+// message on the first failure.
+
+import { createRequire } from 'node:module';
+import fs from 'node:fs';
+import path from 'node:path';
+
+const require = createRequire(new URL('../../web/package.json', import.meta.url));
+const { chromium } = require('playwright-core');
+
+const [baseUrl, artifactDir] = process.argv.slice(2);
+if (!baseUrl || !artifactDir) {
+  console.error('usage: node e2e.mjs URL ARTIFACT_DIR');
+  process.exit(2);
+}
+const api = (route) => new URL(route, baseUrl).href;
+const started = Date.now();
+const elapsed = () => `${((Date.now() - started) / 1000).toFixed(1)} s`;
+const log = (text) => console.log(`[${elapsed()}] ${text}`);
+
+class TestFailure extends Error {}
+const check = (ok, message) => {
+  if (!ok) throw new TestFailure(message);
+};
+
+/**
+ * Polls `probe` every 200 ms for up to `timeoutMs` until it returns a truthy value. The probe may
+ * record what it saw in `seen.value`, which the failure message then shows.
+ */
+async function waitFor(what, timeoutMs, probe) {
+  const deadline = Date.now() + timeoutMs;
+  const seen = {};
+  for (;;) {
+    const result = await probe(seen);
+    if (result) return result;
+    if (Date.now() > deadline) {
+      const last = 'value' in seen ? ` (last seen: ${JSON.stringify(seen.value)})` : '';
+      throw new TestFailure(`timed out after ${timeoutMs / 1000} s: ${what}${last}`);
+    }
+    await new Promise((resolve) => setTimeout(resolve, 200));
+  }
+}
+
+async function getJson(route) {
+  const response = await fetch(api(route), { signal: AbortSignal.timeout(5000) });
+  check(response.ok, `GET ${route}: HTTP ${response.status}`);
+  return response.json();
+}
+
+/** The value of a Prometheus sample without labels, or NaN. */
+async function metric(name) {
+  const response = await fetch(api('/metrics'), { signal: AbortSignal.timeout(5000) });
+  check(response.ok, `GET /metrics: HTTP ${response.status}`);
+  const match = new RegExp(`^${name}(?:\\{\\})?\\s+(\\S+)`, 'm').exec(await response.text());
+  return match ? Number(match[1]) : NaN;
+}
+
+// ---- what the page must not do ------------------------------------------------------------
+
+const problems = [];
+// Responses the test provokes on purpose (the 422 of an invalid budget) and the console line
+// Chromium prints for them.
+const expected = { statuses: new Set(), consoleText: [] };
+
+function watch(page) {
+  page.on('console', (message) => {
+    const type = message.type();
+    if (type !== 'error' && type !== 'warning') return;
+    const text = message.text();
+    if (expected.consoleText.some((pattern) => pattern.test(text))) return;
+    problems.push(`console ${type}: ${text} (${message.location().url ?? ''})`);
+  });
+  page.on('pageerror', (error) => problems.push(`uncaught exception: ${error.message}`));
+  page.on('requestfailed', (request) => {
+    const failure = request.failure()?.errorText ?? '';
+    // The event stream is aborted when the page closes; nothing else may fail.
+    if (failure.includes('ERR_ABORTED') && request.url().includes('/api/v1/events')) return;
+    problems.push(`request failed: ${request.method()} ${request.url()} ${failure}`);
+  });
+  page.on('response', (response) => {
+    const status = response.status();
+    if (status < 400 || expected.statuses.has(status)) return;
+    problems.push(`HTTP ${status}: ${response.request().method()} ${response.url()}`);
+  });
+}
+
+function checkNoProblems(stage) {
+  check(problems.length === 0, `${stage}:\n  ${problems.join('\n  ')}`);
+}
+
+// ---- the test -----------------------------------------------------------------------------
+
+/** Counts dark (occupied) and light (free) pixels of the map canvas, from a copy of it. */
+function canvasPixels() {
+  const canvas = document.getElementById('map-canvas');
+  const copy = document.createElement('canvas');
+  copy.width = canvas.width;
+  copy.height = canvas.height;
+  const ctx = copy.getContext('2d', { willReadFrequently: true });
+  ctx.drawImage(canvas, 0, 0);
+  const { data } = ctx.getImageData(0, 0, copy.width, copy.height);
+  let dark = 0;
+  let light = 0;
+  for (let i = 0; i < data.length; i += 4 * 7) {  // every 7th pixel is plenty
+    const grey = (data[i] + data[i + 1] + data[i + 2]) / 3;
+    const neutral = Math.abs(data[i] - data[i + 2]) < 8;  // not a trajectory colour
+    if (neutral && grey < 60) dark += 1;
+    if (neutral && grey > 240) light += 1;
+  }
+  return { dark, light, width: canvas.width, height: canvas.height };
+}
+
+const dataset = (page) => page.evaluate(() => ({ ...document.body.dataset }));
+
+let page = null;  // kept for a screenshot when the test fails
+
+async function run(browser) {
+  const context = await browser.newContext({ viewport: { width: 1400, height: 950 } });
+  page = await context.newPage();
+  page.setDefaultTimeout(10000);
+  watch(page);
+
+  log(`open ${baseUrl}`);
+  await page.goto(baseUrl, { waitUntil: 'load', timeout: 15000 });
+  await waitFor('the event stream connects (body[data-connected=true])', 10000,
+                async () => (await dataset(page)).connected === 'true');
+  log('connected');
+
+  const tiles = await waitFor('the map fills in (tiles drawn and canvas not blank)', 15000,
+    async (seen) => {
+      const state = await dataset(page);
+      seen.value = { tilesDrawn: state.tilesDrawn, tilesLoaded: state.tilesLoaded };
+      if (!(Number(state.tilesDrawn) > 0)) return null;
+      const pixels = await page.evaluate(canvasPixels);
+      seen.value.pixels = pixels;
+      return pixels.dark > 20 && pixels.light > 200 ? { state, pixels } : null;
+    });
+  const { dark, light, width, height } = tiles.pixels;
+  log(`map drawn: ${tiles.state.tilesDrawn} tiles, ${dark} dark and ${light} light samples ` +
+      `on a ${width}x${height} canvas`);
+
+  const trajectory = await waitFor('the trajectory is drawn (more than one point)', 15000,
+    async (seen) => {
+      const state = await dataset(page);
+      seen.value = state.trajectoryPoints;
+      return Number(state.trajectoryPoints) > 1 ? state : null;
+    });
+  log(`trajectory: ${trajectory.trajectoryPoints} points, ground truth ${trajectory.truthPoints}`);
+
+  await waitFor('the live plots receive metrics', 10000,
+                async () => Number((await dataset(page)).metricsPoints) > 2);
+  await waitFor('the status panel shows the link counters', 5000, () =>
+    page.evaluate(() => /\d/.test(document.getElementById('st-frames').textContent)));
+  log('plots and status filled');
+
+  // Zoom with the wheel over the map, then fit again.
+  const before = Number((await dataset(page)).mapScale);
+  const box = await page.locator('#map-canvas').boundingBox();
+  await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+  await page.mouse.wheel(0, -400);
+  await waitFor('wheel zooms in', 3000,
+                async () => Number((await dataset(page)).mapScale) > before * 1.2);
+  await page.click('#map-fit');
+  await waitFor('fit restores the view', 3000,
+                async () => Math.abs(Number((await dataset(page)).mapScale) / before - 1) < 0.3);
+  log('zoom and fit work');
+  checkNoProblems('while loading');
+
+  // A valid budget change through the form.
+  await page.selectOption('#budget-mode', 'rays');
+  await page.selectOption('#budget-policy', 'fixed');
+  await page.fill('#budget-rays', '20000');
+  await page.click('#budget-apply');
+  await waitFor('the page reports the budget applied', 5000, async (seen) => {
+    seen.value = await page.textContent('#budget-message');
+    return (await dataset(page)).budgetState === 'applied';
+  });
+  const budget = await getJson('/api/v1/budget');
+  check(budget.rays_per_scan === 20000 && budget.mode === 'rays',
+        `GET /api/v1/budget after the form: ${JSON.stringify(budget)}`);
+  await waitFor('/metrics slamd_ray_quota becomes 20000', 8000, async (seen) => {
+    seen.value = await metric('slamd_ray_quota');
+    return seen.value === 20000;
+  });
+  log('budget 20000 applied: GET /api/v1/budget and /metrics slamd_ray_quota agree');
+
+  // An out-of-range value: slamd's 422 shows next to the field, nothing changes.
+  expected.statuses.add(422);
+  expected.consoleText.push(/status of 422/);
+  await page.fill('#budget-rays', '0');
+  await page.click('#budget-apply');
+  const fieldError = page.locator('.field-error[data-pointer="/rays_per_scan"]');
+  await waitFor('the validation error shows next to rays per scan', 5000,
+                async () => (await dataset(page)).budgetState === 'invalid' &&
+                            (await fieldError.isVisible()) &&
+                            (await fieldError.textContent()).trim().length > 0);
+  log(`validation error shown: "${(await fieldError.textContent()).trim()}"`);
+  check((await page.getAttribute('#budget-rays', 'aria-invalid')) === 'true',
+        'the rays per scan field is not marked aria-invalid');
+  check((await getJson('/api/v1/budget')).rays_per_scan === 20000,
+        'an invalid PATCH changed the budget');
+
+  // Let the page run a little more (more tiles, poses, plots) before the picture.
+  await page.waitForTimeout(1500);
+  fs.mkdirSync(artifactDir, { recursive: true });
+  const screenshot = path.join(artifactDir, 'slamd-page.png');
+  await page.screenshot({ path: screenshot, fullPage: true });
+  log(`screenshot: ${screenshot}`);
+
+  checkNoProblems('during the test');
+  await context.close();
+  page = null;
+}
+
+let browser;
+let exitCode = 0;
+try {
+  browser = await chromium.launch({
+    executablePath: '/usr/bin/chromium',
+    args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-background-networking',
+           '--disable-component-update', '--disable-sync', '--no-first-run',
+           '--disable-quic'],
+    timeout: 20000,
+  });
+  await run(browser);
+  log('PASS');
+} catch (error) {
+  const why = error instanceof TestFailure ? error.message : error.stack;
+  console.error(`[${elapsed()}] FAIL: ${why}`);
+  if (problems.length > 0) console.error(`  also seen:\n  ${problems.join('\n  ')}`);
+  exitCode = 1;
+  if (page) {
+    const failureShot = path.join(artifactDir, 'slamd-page-failure.png');
+    fs.mkdirSync(artifactDir, { recursive: true });
+    await page.screenshot({ path: failureShot, fullPage: true, timeout: 5000 })
+      .then(() => console.error(`  screenshot: ${failureShot}`), () => {});
+  }
+} finally {
+  await browser?.close().catch(() => {});
+}
+process.exit(exitCode);

@@ -1,0 +1,274 @@
+// The slamd page: wires the map, the plots, the status, the budget and tuning forms to the HTTP
+// API and its event stream (docs/http-api.md).
+//
+// State the browser test reads is mirrored on <body> as data attributes: connected, tilesDrawn,
+// tilesLoaded, trajectoryPoints, truthPoints, metricsPoints, budgetState, mapScale.
+
+import { describeError, getJson, installTokenPrompt, mutate } from './api.js';
+import { BudgetForm } from './budget.js';
+import { setMessage } from './forms.js';
+import { MapView } from './map-view.js';
+import { LivePlots, plotsAvailable } from './plots.js';
+import { TuningPanel } from './tuning.js';
+
+const kStatusPeriodMs = 2000;
+const kReopenDelayMs = 5000;  // when the browser gives up on the event stream (e.g. 503)
+const kSyncRetryMs = 3000;
+
+const $ = (id) => document.getElementById(id);
+const body = document.body;
+
+// ---- token prompt ----------------------------------------------------------------------------
+
+let pendingToken = null;  // one prompt at a time, shared by concurrent requests
+
+installTokenPrompt((reason) => {
+  pendingToken ??= new Promise((resolve) => {
+    const form = $('token-form');
+    const input = $('token-input');
+    const label = form.querySelector('label');
+    label.textContent = `${reason} slamd needs an access token for this action:`.trim();
+    form.hidden = false;
+    input.value = '';
+    input.focus();
+    const finish = (token) => {
+      form.hidden = true;
+      form.removeEventListener('submit', onSubmit);
+      $('token-cancel').removeEventListener('click', onCancel);
+      pendingToken = null;
+      resolve(token);
+    };
+    const onSubmit = (event) => {
+      event.preventDefault();
+      finish(input.value.trim() || null);
+    };
+    const onCancel = () => finish(null);
+    form.addEventListener('submit', onSubmit);
+    $('token-cancel').addEventListener('click', onCancel);
+  });
+  return pendingToken;
+});
+
+// ---- map -------------------------------------------------------------------------------------
+
+const map = new MapView($('map-canvas'), {
+  onCursor: (world) => {
+    $('map-cursor').textContent = world
+      ? `x ${world.x.toFixed(2)} m  y ${world.y.toFixed(2)} m` : '';
+  },
+  onViewChange: () => {
+    $('map-follow').checked = map.follow;
+  },
+});
+$('map-fit').addEventListener('click', () => map.fit());
+$('map-follow').addEventListener('change', (event) => map.setFollow(event.target.checked));
+
+async function loadMap() {
+  map.beginSync();
+  map.setIndex((await getJson('/api/v1/map')).body);
+}
+
+// Poses that arrive while a trajectory is being fetched may be missing from it: each fetch keeps
+// them and appends them after replacing the trajectory (older ones are ignored by appendPose).
+const poseBuffers = new Set();
+
+async function loadTrajectory() {
+  const buffer = [];
+  poseBuffers.add(buffer);
+  try {
+    const { body: trajectory } = await getJson('/api/v1/trajectory');
+    map.setTrajectory(trajectory.slam ?? [], trajectory.ground_truth ?? []);
+    for (const pose of buffer) map.appendPose(pose);
+  } finally {
+    poseBuffers.delete(buffer);
+  }
+}
+
+function onPose(pose) {
+  map.appendPose(pose);
+  for (const buffer of poseBuffers) buffer.push(pose);
+}
+
+// ---- plots -----------------------------------------------------------------------------------
+
+let plots = null;
+if (plotsAvailable()) {
+  plots = new LivePlots({
+    rays: $('plot-rays'),
+    latency: $('plot-latency'),
+    cpu: $('plot-cpu'),
+    quality: $('plot-quality'),
+    qualityCaption: $('quality-caption'),
+  });
+} else {
+  $('plots-note').textContent = '(charts unavailable: /vendor/uplot/ is not served)';
+}
+
+/** What we know of the source: the ground truth and pose error exist only when simulated. */
+function setSimulated(simulated) {
+  $('legend-truth').hidden = !simulated;
+  plots?.setSimulated(simulated);
+}
+
+// ---- status ----------------------------------------------------------------------------------
+
+const number = (value) => (value == null ? '–' : Number(value).toLocaleString('en-US'));
+const fixed = (value, digits, unit = '') =>
+  (value == null ? '–' : `${value.toFixed(digits)}${unit}`);
+
+function setBadge(element, state, good, bad) {
+  element.textContent = state ?? '–';
+  const look = good.includes(state) ? 'badge-ok' : bad.includes(state) ? 'badge-bad' : '';
+  element.className = `badge ${look}`;
+}
+
+function setLinkState(state) {
+  setBadge($('st-link'), state, ['running'], ['source_error', 'stopped']);
+}
+
+function setSlamState(state) {
+  setBadge($('st-slam'), state, ['running'], []);
+}
+
+function showStatus(status) {
+  const { source = {}, link = {}, slam = {} } = status;
+  $('st-source').textContent = `${source.spec ?? '–'}${source.simulated ? ' (simulated)' : ''}`;
+  $('st-source').title = source.description ?? '';
+  $('source-label').textContent = source.spec ?? '';
+  setLinkState(link.state);
+  $('st-frames').textContent = number(link.frames);
+  $('st-drops').textContent = number(link.queue_drops);
+  $('st-errors').textContent = number(link.source_errors);
+  const linkError = $('st-link-error');
+  linkError.hidden = !link.last_error;
+  linkError.textContent = link.last_error ? `link: ${link.last_error}` : '';
+  setSlamState(slam.state);
+  $('st-scans').textContent = number(slam.scans);
+  $('st-late').textContent = number(slam.late_scans);
+  $('st-particles').textContent = number(slam.particles);
+  $('st-tiles').textContent = number(slam.tiles);
+  $('st-latency').textContent = fixed(slam.last_latency_ms, 1, ' ms');
+  $('st-realtime').textContent = fixed(slam.realtime_ratio, 1);
+  $('st-time').textContent = fixed(slam.robot_time_s, 1, ' s');
+  if (typeof source.simulated === 'boolean') setSimulated(source.simulated);
+  if (status.job) tuning.show(status.job);
+}
+
+let statusInFlight = false;
+
+async function loadStatus() {
+  if (statusInFlight) return;
+  statusInFlight = true;
+  try {
+    showStatus((await getJson('/api/v1/status')).body);
+  } finally {
+    statusInFlight = false;
+  }
+}
+
+// ---- forms and map actions -------------------------------------------------------------------
+
+const budget = new BudgetForm($('budget-form'));
+const tuning = new TuningPanel($('tune-form'));
+
+$('map-save').addEventListener('click', async () => {
+  const message = $('map-message');
+  setMessage(message, 'Saving…');
+  try {
+    const { body: saved } = await mutate('POST', '/api/v1/map/save', { body: {} });
+    setMessage(message, `Saved ${number(saved.tiles)} tiles to ${saved.path}.`, 'ok');
+  } catch (error) {
+    setMessage(message, describeError(error), 'error');  // 409: slamd has no --state-dir
+  }
+});
+
+$('map-reset').addEventListener('click', async () => {
+  const message = $('map-message');
+  if (!window.confirm('Reset SLAM? The map and the trajectory are cleared and SLAM restarts ' +
+                      'from the origin.')) return;
+  try {
+    await mutate('POST', '/api/v1/reset', { body: {} });
+    // At once, not at the `reset` event: no request goes out for a tile that is gone. The index
+    // brings back any tile announced before this response arrived.
+    map.clearTiles();
+    loadMap().catch(() => {});
+    setMessage(message, 'Reset.', 'ok');
+  } catch (error) {
+    setMessage(message, describeError(error), 'error');
+  }
+});
+
+// ---- event stream ----------------------------------------------------------------------------
+
+let needsSync = false;  // set when the stream dropped: the next `hello` refetches everything
+
+function setConnected(state) {
+  const badge = $('connection');
+  badge.textContent = state;
+  badge.className = `badge ${state === 'connected' ? 'badge-ok' : 'badge-bad'}`;
+  body.dataset.connected = String(state === 'connected');
+}
+
+/** Everything the event stream may have missed: map index, trajectory, budget, job, status. */
+async function sync() {
+  const results = await Promise.allSettled([
+    loadMap(), loadTrajectory(), budget.load({ keepEdits: true }), tuning.load(), loadStatus(),
+  ]);
+  if (results.some((r) => r.status === 'rejected')) {
+    // Try again while the stream is up; if it is down, its next `hello` syncs.
+    setTimeout(() => {
+      if (body.dataset.connected === 'true') sync();
+      else needsSync = true;
+    }, kSyncRetryMs);
+  }
+}
+
+function parse(handler) {
+  return (event) => handler(JSON.parse(event.data));
+}
+
+function connect() {
+  const events = new EventSource('/api/v1/events');
+  events.addEventListener('hello', parse((hello) => {
+    setConnected('connected');
+    if (typeof hello.simulated === 'boolean') setSimulated(hello.simulated);
+    if (needsSync) {
+      needsSync = false;
+      sync();
+    }
+  }));
+  events.addEventListener('tiles', parse((data) => map.announceTiles(data.tiles ?? [])));
+  events.addEventListener('pose', parse(onPose));
+  events.addEventListener('metrics', parse((metrics) => plots?.push(metrics)));
+  events.addEventListener('budget', parse((data) => budget.applyRemote(data)));
+  events.addEventListener('job', parse((job) => tuning.show(job)));
+  events.addEventListener('status', parse((states) => {
+    setLinkState(states.link);
+    setSlamState(states.slam);
+    loadStatus().catch(() => {});
+  }));
+  events.addEventListener('reset', () => {
+    map.clearTiles();  // the tiles follow in `tiles` events
+    map.clearTrajectory();
+    plots?.clear();
+    loadTrajectory().catch(() => {});
+  });
+  events.addEventListener('error', () => {
+    setConnected('disconnected');
+    needsSync = true;
+    map.suspend();
+    if (events.readyState === EventSource.CLOSED) {
+      // The browser gave up (e.g. 503 too many streams): open a new stream a little later.
+      setTimeout(connect, kReopenDelayMs);
+    }
+  });
+}
+
+// ---- start -----------------------------------------------------------------------------------
+
+setConnected('connecting…');
+connect();
+sync();
+setInterval(() => {
+  if (!document.hidden && !needsSync) loadStatus().catch(() => {});
+}, kStatusPeriodMs);
