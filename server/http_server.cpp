@@ -704,7 +704,11 @@ json HttpServer::Impl::StatusJson() {
           {"slam", slam},
           {"pose", snapshot->has_pose ? PoseJson(snapshot->pose) : json(nullptr)},
           {"budget", BudgetJson(service.Budget())},
-          {"job", job ? *job : json(nullptr)}};
+          {"job", job ? *job : json(nullptr)},
+          {"features",
+           {{"save", !options.state_dir.empty()},
+            {"tuning", jobs.configured()},
+            {"experiments", jobs.Experiments()}}}};
 }
 
 std::string HttpServer::Impl::MetricsText() {
