@@ -139,8 +139,14 @@ ConfigErrors BudgetFromJson(const json& body, BudgetSettings& out) {
     const auto n = particles.get<int64_t>();
     b.max_particles = static_cast<int>(std::clamp<int64_t>(n, -1, 1 << 30));
   }
-  if (errors.size() > unknown) return errors;  // wrong types: ranges would say nothing more
-  for (ConfigError& e : Validate(b)) errors.push_back(std::move(e));
+  // Ranges of the values whose type was right (a mistyped value has no range to check).
+  std::vector<std::string> mistyped;
+  for (size_t i = unknown; i < errors.size(); ++i) mistyped.push_back(errors[i].pointer);
+  for (ConfigError& e : Validate(b)) {
+    if (std::find(mistyped.begin(), mistyped.end(), e.pointer) == mistyped.end()) {
+      errors.push_back(std::move(e));
+    }
+  }
   if (errors.empty()) out = b;
   return errors;
 }
@@ -283,6 +289,11 @@ struct HttpServer::Impl {
   void HandleSave(httplib::Response& res);
   void HandleReset(httplib::Response& res);
   json StatusJson();
+  json SourceJson() {
+    return {{"spec", options.source_spec},
+            {"description", link.Status().source},
+            {"simulated", service.simulated()}};
+  }
   std::string MetricsText();
 };
 
@@ -552,7 +563,7 @@ void HttpServer::Impl::HandleEvents(const httplib::Request& req, httplib::Respon
                        {{"version", SLAMD_VERSION},
                         {"epoch", snapshot->epoch},
                         {"instance", instance},
-                        {"source", options.source_spec},
+                        {"source", SourceJson()},
                         {"simulated", service.simulated()},
                         {"map_version", snapshot->map_version}});
           // What the client already has (Last-Event-ID) is not resent.
@@ -696,10 +707,7 @@ json HttpServer::Impl::StatusJson() {
   const auto job = jobs.Latest();
   return {{"version", SLAMD_VERSION},
           {"uptime_s", Seconds(Clock::now() - started)},
-          {"source",
-           {{"spec", options.source_spec},
-            {"description", link_status.source},
-            {"simulated", service.simulated()}}},
+          {"source", SourceJson()},
           {"link", LinkJson(link_status)},
           {"slam", slam},
           {"pose", snapshot->has_pose ? PoseJson(snapshot->pose) : json(nullptr)},
@@ -781,6 +789,10 @@ void HttpServer::Impl::Setup() {
   // Pool: every event stream holds a thread for its lifetime (notes point 2).
   const size_t threads = static_cast<size_t>(options.max_streams) + 8;
   server.new_task_queue = [threads] { return new httplib::ThreadPool(threads); };
+  // Small responses must not wait for the client's delayed ACK (Nagle: +40 ms per request on
+  // a keep-alive connection).
+  server.set_tcp_nodelay(true);
+  server.set_keep_alive_max_count(1000);
   server.set_keep_alive_timeout(2);  // short: stop() waits for idle keep-alive connections
   server.set_read_timeout(5);
   server.set_write_timeout(5);
@@ -962,7 +974,7 @@ void HttpServer::Impl::Setup() {
       {std::regex(R"(/api/v1/(health|status|map|map\.pgm|map\.yaml|map\.png|trajectory|events|jobs))"), "GET"},
       {std::regex(R"(/api/v1/budget)"), "GET, PUT, PATCH"},
       {std::regex(R"(/api/v1/params)"), "GET, PATCH"},
-      {std::regex(R"(/api/v1/map/tiles/[^/]+/[^/]+\.png)"), "GET"},
+      {std::regex(R"(/api/v1/map/tiles/-?\d{1,9}/-?\d{1,9}\.png)"), "GET"},
       {std::regex(R"(/api/v1/(map/save|reset|jobs/tune))"), "POST"},
       {std::regex(R"(/api/v1/jobs/[^/]+)"), "GET, DELETE"},
       {std::regex(R"(/metrics)"), "GET"},

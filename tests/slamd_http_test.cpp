@@ -1,1 +1,2290 @@
+// slamd over HTTP, as a black box (docs/http-api.md): every route and every error path, the
+// event stream, tokens, caps, saving and resuming, reset and tuning jobs.
+//
+// Each fixture starts its own slamd child process (`--port 0 --speed 4 --quiet` plus its flags),
+// reads the URL from its first stdout line, waits for /api/v1/health and kills it at the end.
+// Tests that do not disturb each other share one slamd per suite; tokens, state directories,
+// stream caps, resets and jobs get their own. Waiting is always bounded polling, never a fixed
+// sleep. The slamd binary is `$SLAMD_BIN` if set (to run this suite against another build),
+// else the one built with the tests; slam-sim (which writes the tuning experiments) is
+// `$SLAM_SIM_BIN`, else `tools/slam-sim` of slamd's build tree.
+
+#include <arpa/inet.h>
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <httplib.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/prctl.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <condition_variable>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <set>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace slamd_test {
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+// ---------------------------------------------------------------------------------------------
+// Small utilities
+
+std::string SlamdBinary() {
+  const char* from_env = std::getenv("SLAMD_BIN");
+  return from_env != nullptr && *from_env != '\0' ? std::string(from_env) : std::string(SLAMD_BIN);
+}
+
+/// slam-sim sits in the build tree next to slamd: <build>/server/slamd -> <build>/tools/slam-sim.
+std::string SlamSimBinary() {
+  const char* from_env = std::getenv("SLAM_SIM_BIN");
+  if (from_env != nullptr && *from_env != '\0') return from_env;
+  return (fs::path(SlamdBinary()).parent_path() / ".." / "tools" / "slam-sim").string();
+}
+
+Clock::time_point After(double seconds) {
+  return Clock::now() + std::chrono::microseconds(static_cast<int64_t>(seconds * 1e6));
+}
+
+double SecondsSince(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+void Nap() { std::this_thread::sleep_for(std::chrono::milliseconds(50)); }
+
+std::string Lower(std::string text) {
+  std::transform(text.begin(), text.end(), text.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return text;
+}
+
+bool StartsWith(const std::string& text, const std::string& prefix) {
+  return text.compare(0, prefix.size(), prefix) == 0;
+}
+
+std::string ReadFile(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream out;
+  out << in.rdbuf();
+  return out.str();
+}
+
+void WriteFile(const fs::path& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary);
+  out << text;
+}
+
+/// A fresh directory under the test temp dir, removed by the destructor.
+class ScratchDir {
+ public:
+  explicit ScratchDir(const std::string& name)
+      : path_(fs::path(::testing::TempDir()) /
+              ("slamd_http_" + std::to_string(::getpid()) + "_" + name)) {
+    fs::remove_all(path_);
+    fs::create_directories(path_);
+  }
+  ~ScratchDir() {
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  ScratchDir(const ScratchDir&) = delete;
+  ScratchDir& operator=(const ScratchDir&) = delete;
+  const fs::path& path() const { return path_; }
+
+ private:
+  fs::path path_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// The slamd child process
+
+class SlamdProcess {
+ public:
+  SlamdProcess() = default;
+  SlamdProcess(const SlamdProcess&) = delete;
+  SlamdProcess& operator=(const SlamdProcess&) = delete;
+  ~SlamdProcess() {
+    Stop();
+    std::error_code ec;
+    if (!stderr_path_.empty()) fs::remove(stderr_path_, ec);
+  }
+
+  /// Spawns slamd with the common flags plus `extra_args`; does not wait for anything.
+  bool Spawn(const std::vector<std::string>& extra_args, std::string* error) {
+    std::vector<std::string> args = {SlamdBinary(), "--port", "0", "--speed", "4", "--quiet"};
+    args.insert(args.end(), extra_args.begin(), extra_args.end());
+    command_line_.clear();
+    for (const auto& arg : args) command_line_ += arg + " ";
+    stderr_path_ =
+        fs::path(::testing::TempDir()) / ("slamd_stderr_" + std::to_string(::getpid()) + "_" +
+                                          std::to_string(++spawn_counter_) + ".txt");
+    int pipe_fds[2];
+    if (::pipe2(pipe_fds, O_CLOEXEC) != 0) {
+      *error = std::string("pipe2: ") + std::strerror(errno);
+      return false;
+    }
+    // Everything the child needs is prepared before fork: only async-signal-safe calls after.
+    std::vector<char*> argv;
+    for (auto& arg : args) argv.push_back(arg.data());
+    argv.push_back(nullptr);
+    const std::string stderr_path = stderr_path_.string();
+    const pid_t parent = ::getpid();
+    const pid_t pid = ::fork();
+    if (pid < 0) {
+      *error = std::string("fork: ") + std::strerror(errno);
+      ::close(pipe_fds[0]);
+      ::close(pipe_fds[1]);
+      return false;
+    }
+    if (pid == 0) {
+      // A crashed test binary must not leave slamd behind.
+      ::prctl(PR_SET_PDEATHSIG, SIGKILL);
+      if (::getppid() != parent) ::_exit(127);
+      ::dup2(pipe_fds[1], STDOUT_FILENO);
+      const int err_fd = ::open(stderr_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      if (err_fd >= 0) ::dup2(err_fd, STDERR_FILENO);
+      ::execv(argv[0], argv.data());
+      ::_exit(127);
+    }
+    ::close(pipe_fds[1]);
+    pid_ = pid;
+    exit_status_.reset();
+    stdout_fd_ = pipe_fds[0];
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stdout_text_.clear();
+      stdout_closed_ = false;
+    }
+    // The pipe is drained continuously so that slamd can never block on its stdout.
+    drain_thread_ = std::thread([this] { DrainStdout(); });
+    return true;
+  }
+
+  /// Spawns slamd and waits (bounded) for its "serving" line and a healthy /api/v1/health.
+  bool Start(const std::vector<std::string>& extra_args, std::string* error) {
+    if (!Spawn(extra_args, error)) return false;
+    const std::string marker = "slamd: serving http://";
+    std::string line;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      const bool got = cv_.wait_until(lock, After(20.0), [&] {
+        const size_t at = stdout_text_.find(marker);
+        return stdout_closed_ ||
+               (at != std::string::npos && stdout_text_.find('\n', at) != std::string::npos);
+      });
+      const size_t at = stdout_text_.find(marker);
+      if (!got || at == std::string::npos) {
+        *error = "no 'slamd: serving' line from `" + command_line_ + "`; stdout: " + stdout_text_ +
+                 "; stderr: " + Stderr();
+        return false;
+      }
+      line = stdout_text_.substr(at, stdout_text_.find('\n', at) - at);
+    }
+    // "slamd: serving http://127.0.0.1:PORT/ (source ...)"
+    const std::string rest = line.substr(marker.size());
+    const size_t colon = rest.find(':');
+    const size_t slash = rest.find('/');
+    if (colon == std::string::npos || slash == std::string::npos || slash < colon) {
+      *error = "cannot parse the serving line: " + line;
+      return false;
+    }
+    host_ = rest.substr(0, colon);
+    port_ = std::atoi(rest.substr(colon + 1, slash - colon - 1).c_str());
+    url_ = "http://" + rest.substr(0, slash + 1);
+    serving_line_ = line;
+    if (port_ <= 0) {
+      *error = "bad port in: " + line;
+      return false;
+    }
+    httplib::Client client(host_, port_);
+    client.set_connection_timeout(1);
+    client.set_read_timeout(2);
+    const auto deadline = After(10.0);
+    while (Clock::now() < deadline) {
+      auto result = client.Get("/api/v1/health");
+      if (result && result->status == 200) return true;
+      if (Exited()) break;
+      Nap();
+    }
+    *error = "slamd did not become healthy: " + line + "; stderr: " + Stderr();
+    return false;
+  }
+
+  /// Waits (bounded) for the process to exit by itself; its exit code, or 128 + signal.
+  std::optional<int> WaitExit(double timeout_s) {
+    const auto deadline = After(timeout_s);
+    while (true) {
+      if (Exited()) return exit_status_;
+      if (Clock::now() >= deadline) return std::nullopt;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+  }
+
+  /// SIGTERM, then SIGKILL after 5 s; reaps the process. Returns its exit status (idempotent).
+  std::optional<int> Stop() {
+    if (pid_ > 0 && !Exited()) {
+      ::kill(pid_, SIGTERM);
+      if (!WaitExit(5.0)) {
+        ::kill(pid_, SIGKILL);
+        WaitExit(5.0);
+      }
+    }
+    if (drain_thread_.joinable()) drain_thread_.join();
+    if (stdout_fd_ >= 0) {
+      ::close(stdout_fd_);
+      stdout_fd_ = -1;
+    }
+    return exit_status_;
+  }
+
+  std::string Stderr() const { return ReadFile(stderr_path_); }
+  std::string Stdout() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return stdout_text_;
+  }
+  const std::string& host() const { return host_; }
+  int port() const { return port_; }
+  const std::string& url() const { return url_; }
+  const std::string& serving_line() const { return serving_line_; }
+  pid_t pid() const { return pid_; }
+
+ private:
+  /// Reaps the child if it has exited; true once it has.
+  bool Exited() {
+    if (exit_status_) return true;
+    if (pid_ <= 0) return true;
+    int status = 0;
+    const pid_t got = ::waitpid(pid_, &status, WNOHANG);
+    if (got == pid_) {
+      exit_status_ = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+      return true;
+    }
+    return false;
+  }
+
+  void DrainStdout() {
+    char buffer[4096];
+    while (true) {
+      const ssize_t n = ::read(stdout_fd_, buffer, sizeof buffer);
+      if (n < 0 && errno == EINTR) continue;
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (n <= 0) {
+        stdout_closed_ = true;
+        cv_.notify_all();
+        return;
+      }
+      stdout_text_.append(buffer, static_cast<size_t>(n));
+      cv_.notify_all();
+    }
+  }
+
+  static inline int spawn_counter_ = 0;
+  pid_t pid_ = -1;
+  std::optional<int> exit_status_;
+  int stdout_fd_ = -1;
+  std::thread drain_thread_;
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::string stdout_text_;
+  bool stdout_closed_ = false;
+  fs::path stderr_path_;
+  std::string command_line_;
+  std::string host_;
+  int port_ = 0;
+  std::string url_;
+  std::string serving_line_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// HTTP through httplib's client
+
+struct Reply {
+  int status = -1;  // -1: transport failure (see `error`)
+  std::string error;
+  httplib::Headers headers;
+  std::string body;
+
+  std::string Header(const std::string& name) const {
+    for (const auto& [key, value] : headers) {
+      if (Lower(key) == Lower(name)) return value;
+    }
+    return "";
+  }
+  bool HasHeader(const std::string& name) const {
+    for (const auto& entry : headers) {
+      if (Lower(entry.first) == Lower(name)) return true;
+    }
+    return false;
+  }
+  std::string ContentType() const { return Header("Content-Type"); }
+  json Json() const {
+    json parsed = json::parse(body, nullptr, /*allow_exceptions=*/false);
+    return parsed;
+  }
+};
+
+std::ostream& operator<<(std::ostream& out, const Reply& reply) {
+  out << "HTTP " << reply.status << " " << reply.error << " [" << reply.ContentType() << "] "
+      << reply.body.substr(0, 400);
+  return out;
+}
+
+class Http {
+ public:
+  Http(const std::string& host, int port) : client_(host, port) {
+    client_.set_connection_timeout(2);
+    client_.set_read_timeout(10);
+    client_.set_write_timeout(5);
+  }
+
+  Reply Get(const std::string& path, const httplib::Headers& headers = {}) {
+    return Send("GET", path, "", "", headers);
+  }
+
+  /// Any method; `content_type` empty sends no Content-Type.
+  Reply Send(const std::string& method, const std::string& path, const std::string& body,
+             const std::string& content_type, const httplib::Headers& headers = {}) {
+    httplib::Request request;
+    request.method = method;
+    request.path = path;
+    request.headers = headers;
+    request.body = body;
+    if (!content_type.empty()) request.headers.emplace("Content-Type", content_type);
+    auto result = client_.send(request);
+    Reply reply;
+    if (!result) {
+      reply.error = httplib::to_string(result.error());
+      return reply;
+    }
+    reply.status = result->status;
+    reply.headers = result->headers;
+    reply.body = result->body;
+    return reply;
+  }
+
+  Reply PostJson(const std::string& path, const std::string& body,
+                 const httplib::Headers& headers = {}) {
+    return Send("POST", path, body, "application/json", headers);
+  }
+  Reply MergePatch(const std::string& path, const std::string& body,
+                   const httplib::Headers& headers = {}) {
+    return Send("PATCH", path, body, "application/merge-patch+json", headers);
+  }
+  Reply PutJson(const std::string& path, const std::string& body,
+                const httplib::Headers& headers = {}) {
+    return Send("PUT", path, body, "application/json", headers);
+  }
+
+ private:
+  httplib::Client client_;
+};
+
+/// GET `path` and its JSON body (fails the test if it is not 200 JSON).
+json GetJson(Http& http, const std::string& path) {
+  const Reply reply = http.Get(path);
+  EXPECT_EQ(reply.status, 200) << path << ": " << reply;
+  EXPECT_TRUE(StartsWith(reply.ContentType(), "application/json")) << path << ": " << reply;
+  json parsed = reply.Json();
+  EXPECT_FALSE(parsed.is_discarded()) << path << ": " << reply;
+  return parsed.is_discarded() ? json() : parsed;
+}
+
+/// Checks an RFC 9457 problem with `status` and returns it (null json if it is not one).
+json ExpectProblem(const Reply& reply, int status) {
+  EXPECT_EQ(reply.status, status) << reply;
+  EXPECT_TRUE(StartsWith(reply.ContentType(), "application/problem+json")) << reply;
+  json problem = reply.Json();
+  EXPECT_TRUE(problem.is_object()) << reply;
+  if (!problem.is_object()) return json();
+  EXPECT_EQ(problem.value("status", -1), status) << reply;
+  EXPECT_TRUE(problem.contains("title") && problem["title"].is_string()) << reply;
+  EXPECT_TRUE(problem.contains("type") && problem["type"].is_string()) << reply;
+  return problem;
+}
+
+/// The JSON pointers of a 422 problem's `errors` (each error must have a pointer and a detail).
+std::multiset<std::string> ErrorPointers(const json& problem) {
+  std::multiset<std::string> pointers;
+  if (!problem.is_object() || !problem.contains("errors") || !problem["errors"].is_array()) {
+    ADD_FAILURE() << "no errors[] in " << problem.dump();
+    return pointers;
+  }
+  for (const auto& error : problem["errors"]) {
+    EXPECT_TRUE(error.contains("pointer") && error["pointer"].is_string()) << error.dump();
+    EXPECT_TRUE(error.contains("detail") && error["detail"].is_string()) << error.dump();
+    if (error.contains("pointer") && error["pointer"].is_string()) {
+      pointers.insert(error["pointer"].get<std::string>());
+    }
+  }
+  return pointers;
+}
+
+/// A 422 whose errors point exactly at `pointers` (one error per problem).
+void Expect422At(const Reply& reply, const std::multiset<std::string>& pointers) {
+  const json problem = ExpectProblem(reply, 422);
+  EXPECT_EQ(ErrorPointers(problem), pointers) << reply;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Raw sockets: requests httplib's client cannot send, and the event stream
+
+int ConnectTo(int port) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return -1;
+  sockaddr_in address{};
+  address.sin_family = AF_INET;
+  address.sin_port = htons(static_cast<uint16_t>(port));
+  address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  if (::connect(fd, reinterpret_cast<sockaddr*>(&address), sizeof address) != 0) {
+    ::close(fd);
+    return -1;
+  }
+  return fd;
+}
+
+bool SendAll(int fd, const std::string& data) {
+  size_t sent = 0;
+  while (sent < data.size()) {
+    const ssize_t n = ::send(fd, data.data() + sent, data.size() - sent, MSG_NOSIGNAL);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return false;
+    sent += static_cast<size_t>(n);
+  }
+  return true;
+}
+
+/// Reads what is available within `timeout_s`; 0 on EOF or error, -1 on timeout.
+ssize_t ReadSome(int fd, std::string& into, double timeout_s) {
+  pollfd waiter{fd, POLLIN, 0};
+  const int timeout_ms = std::max(0, static_cast<int>(timeout_s * 1000.0));
+  const int ready = ::poll(&waiter, 1, timeout_ms);
+  if (ready == 0) return -1;
+  if (ready < 0) return errno == EINTR ? -1 : 0;
+  char buffer[8192];
+  const ssize_t n = ::recv(fd, buffer, sizeof buffer, 0);
+  if (n <= 0) return 0;
+  into.append(buffer, static_cast<size_t>(n));
+  return n;
+}
+
+struct RawReply {
+  int status = -1;
+  std::map<std::string, std::string> headers;  // lower-case names
+  std::string body;
+  double seconds = 0.0;
+  std::string raw;
+
+  std::string Header(const std::string& name) const {
+    const auto it = headers.find(Lower(name));
+    return it == headers.end() ? "" : it->second;
+  }
+};
+
+std::ostream& operator<<(std::ostream& out, const RawReply& reply) {
+  out << "raw HTTP " << reply.status << " after " << reply.seconds
+      << " s: " << reply.raw.substr(0, 400);
+  return out;
+}
+
+/// Parses "HTTP/1.1 CODE ...\r\nName: value\r\n...\r\n\r\n"; false if incomplete.
+bool ParseHead(const std::string& raw, int* status, std::map<std::string, std::string>* headers,
+               size_t* body_start) {
+  const size_t end = raw.find("\r\n\r\n");
+  if (end == std::string::npos) return false;
+  std::istringstream head(raw.substr(0, end));
+  std::string line;
+  std::getline(head, line);
+  *status = -1;
+  if (StartsWith(line, "HTTP/1.") && line.size() >= 12) *status = std::atoi(line.c_str() + 9);
+  while (std::getline(head, line)) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    const size_t colon = line.find(':');
+    if (colon == std::string::npos) continue;
+    std::string value = line.substr(colon + 1);
+    while (!value.empty() && value.front() == ' ') value.erase(0, 1);
+    (*headers)[Lower(line.substr(0, colon))] = value;
+  }
+  *body_start = end + 4;
+  return true;
+}
+
+/// Sends `request` verbatim and reads one response (until its Content-Length, or EOF).
+RawReply RawExchange(int port, const std::string& request, double timeout_s = 5.0) {
+  RawReply reply;
+  const auto start = Clock::now();
+  const int fd = ConnectTo(port);
+  if (fd < 0) return reply;
+  SendAll(fd, request);  // the server may answer and close before reading everything
+  const auto deadline = After(timeout_s);
+  size_t body_start = 0;
+  bool have_head = false;
+  while (Clock::now() < deadline) {
+    if (!have_head) {
+      reply.headers.clear();
+      have_head = ParseHead(reply.raw, &reply.status, &reply.headers, &body_start);
+    }
+    if (have_head && !reply.Header("Content-Length").empty()) {
+      const size_t length = static_cast<size_t>(std::atol(reply.Header("Content-Length").c_str()));
+      if (reply.raw.size() >= body_start + length) break;
+    }
+    const double left = std::chrono::duration<double>(deadline - Clock::now()).count();
+    if (ReadSome(fd, reply.raw, left) == 0) break;
+  }
+  ::close(fd);
+  if (!have_head) {
+    reply.headers.clear();
+    have_head = ParseHead(reply.raw, &reply.status, &reply.headers, &body_start);
+  }
+  if (have_head) reply.body = reply.raw.substr(body_start);
+  if (!have_head) reply.status = -1;
+  reply.seconds = SecondsSince(start);
+  return reply;
+}
+
+struct SseEvent {
+  std::string name = "message";
+  std::string id;
+  bool has_id = false;
+  std::string data;
+  json Json() const { return json::parse(data, nullptr, false); }
+  int64_t Id() const { return std::atoll(id.c_str()); }
+};
+
+/// A minimal text/event-stream reader over a plain socket (handles chunked framing).
+class EventStream {
+ public:
+  EventStream() = default;
+  EventStream(const EventStream&) = delete;
+  EventStream& operator=(const EventStream&) = delete;
+  ~EventStream() { Close(); }
+
+  /// Connects and reads the response head; the HTTP status (or -1).
+  int Open(int port, const std::string& last_event_id = "", double timeout_s = 5.0) {
+    Close();
+    fd_ = ConnectTo(port);
+    if (fd_ < 0) return -1;
+    std::string request = "GET /api/v1/events HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port) +
+                          "\r\nAccept: text/event-stream\r\nCache-Control: no-cache\r\n";
+    if (!last_event_id.empty()) request += "Last-Event-ID: " + last_event_id + "\r\n";
+    request += "\r\n";
+    if (!SendAll(fd_, request)) return -1;
+    const auto deadline = After(timeout_s);
+    std::string raw;
+    size_t body_start = 0;
+    while (!ParseHead(raw, &status_, &headers_, &body_start)) {
+      const double left = std::chrono::duration<double>(deadline - Clock::now()).count();
+      if (left <= 0 || ReadSome(fd_, raw, left) <= 0) return -1;
+    }
+    chunked_ = Lower(Header("Transfer-Encoding")).find("chunked") != std::string::npos;
+    wire_ = raw.substr(body_start);
+    Decode();
+    return status_;
+  }
+
+  /// The next event (comments are counted, not returned); nullopt on timeout or end of stream.
+  std::optional<SseEvent> Next(double timeout_s) {
+    const auto deadline = After(timeout_s);
+    while (true) {
+      if (auto event = ParseEvent()) return event;
+      if (ended_ || fd_ < 0) return std::nullopt;
+      const double left = std::chrono::duration<double>(deadline - Clock::now()).count();
+      if (left <= 0) return std::nullopt;
+      const ssize_t n = ReadSome(fd_, wire_, left);
+      if (n == 0) ended_ = true;
+      Decode();
+    }
+  }
+
+  /// The next event called `name`, skipping others; nullopt if none within `timeout_s`.
+  std::optional<SseEvent> WaitFor(const std::string& name, double timeout_s) {
+    const auto deadline = After(timeout_s);
+    while (Clock::now() < deadline) {
+      const double left = std::chrono::duration<double>(deadline - Clock::now()).count();
+      auto event = Next(left);
+      if (!event) return std::nullopt;
+      if (event->name == name) return event;
+    }
+    return std::nullopt;
+  }
+
+  void Close() {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = -1;
+    wire_.clear();
+    text_.clear();
+    headers_.clear();
+    ended_ = false;
+  }
+
+  std::string Header(const std::string& name) const {
+    const auto it = headers_.find(Lower(name));
+    return it == headers_.end() ? "" : it->second;
+  }
+  int status() const { return status_; }
+  bool ended() const { return ended_; }
+
+ private:
+  /// Moves complete bytes from the wire buffer to the text buffer, undoing chunked framing.
+  void Decode() {
+    if (!chunked_) {
+      text_ += wire_;
+      wire_.clear();
+      return;
+    }
+    while (true) {
+      const size_t line_end = wire_.find("\r\n");
+      if (line_end == std::string::npos) return;
+      const size_t size = std::strtoul(wire_.substr(0, line_end).c_str(), nullptr, 16);
+      if (size == 0) {
+        ended_ = true;
+        wire_.clear();
+        return;
+      }
+      if (wire_.size() < line_end + 2 + size + 2) return;
+      text_ += wire_.substr(line_end + 2, size);
+      wire_.erase(0, line_end + 2 + size + 2);
+    }
+  }
+
+  std::optional<SseEvent> ParseEvent() {
+    while (true) {
+      // Events end with a blank line; accept \n\n and \r\n\r\n.
+      size_t end = text_.find("\n\n");
+      size_t skip = 2;
+      const size_t end_crlf = text_.find("\r\n\r\n");
+      if (end_crlf != std::string::npos && (end == std::string::npos || end_crlf < end)) {
+        end = end_crlf;
+        skip = 4;
+      }
+      if (end == std::string::npos) return std::nullopt;
+      const std::string block = text_.substr(0, end);
+      text_.erase(0, end + skip);
+      SseEvent event;
+      bool has_field = false;
+      std::istringstream lines(block);
+      std::string line;
+      while (std::getline(lines, line)) {
+        if (!line.empty() && line.back() == '\r') line.pop_back();
+        if (line.empty()) continue;
+        if (line.front() == ':') continue;  // a comment (keep-alive ping)
+        const size_t colon = line.find(':');
+        const std::string field = line.substr(0, colon);
+        std::string value = colon == std::string::npos ? "" : line.substr(colon + 1);
+        if (!value.empty() && value.front() == ' ') value.erase(0, 1);
+        has_field = true;
+        if (field == "event") event.name = value;
+        if (field == "id") {
+          event.id = value;
+          event.has_id = true;
+        }
+        if (field == "data") event.data += (event.data.empty() ? "" : "\n") + value;
+      }
+      if (has_field) return event;
+    }
+  }
+
+  int fd_ = -1;
+  int status_ = -1;
+  std::map<std::string, std::string> headers_;
+  bool chunked_ = false;
+  bool ended_ = false;
+  std::string wire_;
+  std::string text_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Prometheus text format
+
+struct MetricSample {
+  std::string name;
+  std::map<std::string, std::string> labels;
+  double value = 0.0;
+};
+
+std::vector<MetricSample> ParseMetrics(const std::string& text) {
+  std::vector<MetricSample> samples;
+  std::istringstream lines(text);
+  std::string line;
+  while (std::getline(lines, line)) {
+    if (line.empty() || line.front() == '#') continue;
+    MetricSample sample;
+    size_t at = line.find_first_of("{ ");
+    if (at == std::string::npos) continue;
+    sample.name = line.substr(0, at);
+    if (line[at] == '{') {
+      const size_t close = line.find('}', at);
+      if (close == std::string::npos) continue;
+      const std::string labels = line.substr(at + 1, close - at - 1);
+      size_t pos = 0;
+      while (pos < labels.size()) {
+        const size_t equal = labels.find('=', pos);
+        const size_t open_quote = labels.find('"', equal);
+        const size_t close_quote = labels.find('"', open_quote + 1);
+        if (equal == std::string::npos || open_quote == std::string::npos ||
+            close_quote == std::string::npos) {
+          break;
+        }
+        std::string key = labels.substr(pos, equal - pos);
+        key.erase(0, key.find_first_not_of(" ,"));
+        sample.labels[key] = labels.substr(open_quote + 1, close_quote - open_quote - 1);
+        pos = close_quote + 1;
+      }
+      at = close + 1;
+    }
+    sample.value = std::strtod(line.c_str() + at, nullptr);
+    samples.push_back(sample);
+  }
+  return samples;
+}
+
+/// The sum of every sample of `name` whose labels include `labels`; nullopt if none.
+std::optional<double> Metric(const std::vector<MetricSample>& samples, const std::string& name,
+                             const std::map<std::string, std::string>& labels = {}) {
+  std::optional<double> sum;
+  for (const auto& sample : samples) {
+    if (sample.name != name) continue;
+    bool match = true;
+    for (const auto& [key, value] : labels) {
+      const auto it = sample.labels.find(key);
+      if (it == sample.labels.end() || it->second != value) match = false;
+    }
+    if (match) sum = sum.value_or(0.0) + sample.value;
+  }
+  return sum;
+}
+
+std::vector<MetricSample> GetMetrics(Http& http) {
+  const Reply reply = http.Get("/metrics");
+  EXPECT_EQ(reply.status, 200) << reply;
+  return ParseMetrics(reply.body);
+}
+
+/// Polls /metrics until `name` satisfies `done`; its last value.
+template <typename Predicate>
+std::optional<double> PollMetric(Http& http, const std::string& name, double timeout_s,
+                                 Predicate done) {
+  const auto deadline = After(timeout_s);
+  std::optional<double> value;
+  while (true) {
+    value = Metric(GetMetrics(http), name);
+    if (value && done(*value)) return value;
+    if (Clock::now() >= deadline) return value;
+    Nap();
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Map helpers
+
+/// Polls GET /api/v1/map until it lists at least `min_tiles` tiles; the last index.
+json WaitForTiles(Http& http, size_t min_tiles, double timeout_s = 15.0) {
+  const auto deadline = After(timeout_s);
+  json map;
+  while (true) {
+    map = GetJson(http, "/api/v1/map");
+    if (map.contains("tiles") && map["tiles"].is_array() && map["tiles"].size() >= min_tiles) {
+      return map;
+    }
+    if (Clock::now() >= deadline) {
+      ADD_FAILURE() << "fewer than " << min_tiles << " tiles after " << timeout_s
+                    << " s: " << map.dump().substr(0, 300);
+      return map;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+}
+
+/// Polls the JSON trajectory until its SLAM part has at least `min_poses` poses.
+json WaitForTrajectory(Http& http, size_t min_poses, double timeout_s = 15.0) {
+  const auto deadline = After(timeout_s);
+  json trajectory;
+  while (true) {
+    trajectory = GetJson(http, "/api/v1/trajectory");
+    if (trajectory.contains("slam") && trajectory["slam"].is_array() &&
+        trajectory["slam"].size() >= min_poses) {
+      return trajectory;
+    }
+    if (Clock::now() >= deadline) {
+      ADD_FAILURE() << "fewer than " << min_poses << " poses after " << timeout_s << " s";
+      return trajectory;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+}
+
+int64_t MapVersion(Http& http) {
+  return GetJson(http, "/api/v1/map").value("version", int64_t{-1});
+}
+
+/// Big-endian 32-bit integer at `at` (PNG header fields).
+uint32_t BigEndian32(const std::string& bytes, size_t at) {
+  uint32_t value = 0;
+  for (size_t i = 0; i < 4; ++i) {
+    value = (value << 8) | static_cast<uint32_t>(static_cast<unsigned char>(bytes[at + i]));
+  }
+  return value;
+}
+
+const std::string kPngSignature = "\x89PNG\r\n\x1a\n";
+
+/// TUM lines "t x y z qx qy qz qw" (comments skipped).
+std::vector<std::vector<double>> ParseTum(const std::string& text) {
+  std::vector<std::vector<double>> rows;
+  std::istringstream lines(text);
+  std::string line;
+  while (std::getline(lines, line)) {
+    if (line.empty() || line.front() == '#') continue;
+    std::istringstream fields(line);
+    std::vector<double> row;
+    double value = 0.0;
+    while (fields >> value) row.push_back(value);
+    rows.push_back(row);
+  }
+  return rows;
+}
+
+const std::string kBudgetPath = "/api/v1/budget";
+const std::string kParamsPath = "/api/v1/params";
+const std::string kMergePatch = "application/merge-patch+json";
+
+// ---------------------------------------------------------------------------------------------
+// Fixtures
+
+/// One slamd for a whole suite; `Flags()` of the derived fixture are added to the command line.
+class SlamdSuite : public ::testing::Test {
+ protected:
+  static void StartShared(const std::vector<std::string>& flags) {
+    slamd_ = std::make_unique<SlamdProcess>();
+    std::string error;
+    if (!slamd_->Start(flags, &error)) start_error_ = error;
+  }
+  static void StopShared() {
+    if (slamd_) slamd_->Stop();
+    slamd_.reset();
+    start_error_.clear();
+  }
+  void SetUp() override {
+    ASSERT_TRUE(slamd_ != nullptr);
+    ASSERT_TRUE(start_error_.empty()) << start_error_;
+    http_ = std::make_unique<Http>(slamd_->host(), slamd_->port());
+  }
+  int port() const { return slamd_->port(); }
+  Http& http() { return *http_; }
+
+  static inline std::unique_ptr<SlamdProcess> slamd_;
+  static inline std::string start_error_;
+  std::unique_ptr<Http> http_;
+};
+
+/// The default virtual marXbot, no token, no state dir, no experiments: routes that only read,
+/// and changes that every test undoes.
+class SharedSlamd : public SlamdSuite {
+ protected:
+  static void SetUpTestSuite() {
+    web_root_ = std::make_unique<ScratchDir>("web");
+    WriteFile(web_root_->path() / "index.html", "<html><body>slamd test page</body></html>\n");
+    StartShared({"--web-root", web_root_->path().string()});
+  }
+  static void TearDownTestSuite() {
+    StopShared();
+    web_root_.reset();
+  }
+  static inline std::unique_ptr<ScratchDir> web_root_;
+};
+
+// --- health, status, static page --------------------------------------------------------------
+
+TEST_F(SharedSlamd, ServingLineNamesTheUrlAndTheSource) {
+  EXPECT_TRUE(StartsWith(slamd_->url(), "http://127.0.0.1:")) << slamd_->serving_line();
+  EXPECT_NE(slamd_->serving_line().find("(source sim:rooms)"), std::string::npos)
+      << slamd_->serving_line();
+}
+
+TEST_F(SharedSlamd, HealthIsOk) {
+  const json health = GetJson(http(), "/api/v1/health");
+  EXPECT_EQ(health, json({{"status", "ok"}}));
+}
+
+TEST_F(SharedSlamd, StatusHasTheDocumentedShape) {
+  WaitForTiles(http(), 1);
+  const json status = GetJson(http(), "/api/v1/status");
+  ASSERT_TRUE(status.is_object()) << status.dump();
+  EXPECT_TRUE(status["version"].is_string());
+  EXPECT_TRUE(status["uptime_s"].is_number());
+  EXPECT_GE(status.value("uptime_s", -1.0), 0.0);
+
+  const json& source = status["source"];
+  EXPECT_EQ(source.value("spec", ""), "sim:rooms");
+  EXPECT_TRUE(source["description"].is_string());
+  EXPECT_EQ(source.value("simulated", false), true);
+
+  const json& link = status["link"];
+  const std::set<std::string> link_states = {"idle", "running", "source_error", "ended", "stopped"};
+  EXPECT_TRUE(link_states.count(link.value("state", "?"))) << link.dump();
+  EXPECT_EQ(link.value("state", ""), "running");
+  EXPECT_TRUE(link["last_error"].is_string());
+  for (const char* key :
+       {"frames", "source_errors", "events_queued", "queue_drops", "queue_size"}) {
+    EXPECT_TRUE(link[key].is_number_integer()) << key << " in " << link.dump();
+  }
+  EXPECT_GT(link.value("frames", 0), 0);
+  for (const char* key : {"reassembly", "decoder", "source_counters"}) {
+    EXPECT_TRUE(link[key].is_object()) << key << " in " << link.dump();
+  }
+
+  const json& slam = status["slam"];
+  EXPECT_EQ(slam.value("state", ""), "running") << slam.dump();
+  for (const char* key : {"scans", "late_scans", "particles", "map_version", "tiles"}) {
+    EXPECT_TRUE(slam[key].is_number_integer()) << key << " in " << slam.dump();
+  }
+  for (const char* key : {"last_latency_ms", "cpu_share", "realtime_ratio", "robot_time_s"}) {
+    EXPECT_TRUE(slam[key].is_number()) << key << " in " << slam.dump();
+  }
+  EXPECT_GT(slam.value("scans", 0), 0);
+  EXPECT_GT(slam.value("tiles", 0), 0);
+
+  const json& pose = status["pose"];
+  for (const char* key : {"t", "x", "y", "theta"}) {
+    EXPECT_TRUE(pose[key].is_number()) << key << " in " << pose.dump();
+  }
+  EXPECT_EQ(status["budget"], GetJson(http(), kBudgetPath));
+  EXPECT_TRUE(status.contains("job"));
+  EXPECT_TRUE(status["job"].is_null());
+}
+
+TEST_F(SharedSlamd, ServesThePageFromTheWebRoot) {
+  const Reply page = http().Get("/");
+  EXPECT_EQ(page.status, 200) << page;
+  EXPECT_NE(page.body.find("slamd test page"), std::string::npos) << page;
+  EXPECT_TRUE(StartsWith(page.ContentType(), "text/html")) << page;
+}
+
+// --- unknown routes, methods ----------------------------------------------------------------
+
+TEST_F(SharedSlamd, UnknownRouteIs404Problem) {
+  ExpectProblem(http().Get("/api/v1/nope"), 404);
+  ExpectProblem(http().Get("/api/v2/status"), 404);
+  ExpectProblem(http().PostJson("/api/v1/nope", "{}"), 404);
+  ExpectProblem(http().Get("/api/v1/jobs/999"), 404);
+  ExpectProblem(http().Send("DELETE", "/api/v1/jobs/999", "", ""), 404);
+}
+
+TEST_F(SharedSlamd, WrongMethodOnAKnownRouteIs405WithAllow) {
+  struct Case {
+    std::string method, path, allowed;
+  };
+  const std::vector<Case> cases = {
+      {"DELETE", kBudgetPath, "PATCH"},    {"POST", kBudgetPath, "PUT"},
+      {"PUT", kParamsPath, "PATCH"},       {"POST", "/api/v1/health", "GET"},
+      {"PATCH", "/api/v1/status", "GET"},  {"GET", "/api/v1/map/save", "POST"},
+      {"GET", "/api/v1/reset", "POST"},    {"POST", "/api/v1/jobs", "GET"},
+      {"PUT", "/api/v1/jobs/1", "DELETE"}, {"DELETE", "/api/v1/map", "GET"},
+      {"POST", "/metrics", "GET"},
+  };
+  for (const auto& c : cases) {
+    const bool bodied = c.method != "GET" && c.method != "DELETE";
+    const Reply reply =
+        http().Send(c.method, c.path, bodied ? "{}" : "", bodied ? "application/json" : "");
+    SCOPED_TRACE(c.method + " " + c.path);
+    ExpectProblem(reply, 405);
+    EXPECT_NE(reply.Header("Allow").find(c.allowed), std::string::npos)
+        << "Allow: " << reply.Header("Allow");
+  }
+}
+
+// --- budget -----------------------------------------------------------------------------------
+
+TEST_F(SharedSlamd, BudgetGetHasAnETagAndTheDocumentedKeys) {
+  const Reply reply = http().Get(kBudgetPath);
+  ASSERT_EQ(reply.status, 200) << reply;
+  EXPECT_TRUE(StartsWith(reply.ContentType(), "application/json")) << reply;
+  const std::string etag = reply.Header("ETag");
+  ASSERT_GE(etag.size(), 3u) << reply;
+  EXPECT_EQ(etag.front(), '"');
+  EXPECT_EQ(etag.back(), '"');
+  const json budget = reply.Json();
+  EXPECT_TRUE(budget["mode"] == "rays" || budget["mode"] == "cpu_share") << budget.dump();
+  EXPECT_TRUE(budget["rays_per_scan"].is_number_integer()) << budget.dump();
+  EXPECT_TRUE(budget["cpu_share"].is_number()) << budget.dump();
+  EXPECT_TRUE(budget["policy"] == "fixed" || budget["policy"] == "adaptive") << budget.dump();
+  EXPECT_TRUE(budget["max_particles"].is_number_integer()) << budget.dump();
+  EXPECT_EQ(budget.size(), 5u) << budget.dump();
+  // The ETag is stable while nothing changes.
+  EXPECT_EQ(http().Get(kBudgetPath).Header("ETag"), etag);
+}
+
+TEST_F(SharedSlamd, BudgetMergePatchAppliesAndNullResetsToTheDefault) {
+  const Reply before = http().Get(kBudgetPath);
+  ASSERT_EQ(before.status, 200);
+  const json original = before.Json();
+  const int64_t default_rays = original["rays_per_scan"].get<int64_t>();
+  const int64_t new_rays = default_rays == 12345 ? 23456 : 12345;
+
+  const Reply patched = http().MergePatch(kBudgetPath, json({{"rays_per_scan", new_rays}}).dump());
+  ASSERT_EQ(patched.status, 200) << patched;
+  EXPECT_TRUE(StartsWith(patched.ContentType(), "application/json")) << patched;
+  json expected = original;
+  expected["rays_per_scan"] = new_rays;
+  EXPECT_EQ(patched.Json(), expected);
+  const std::string new_etag = patched.Header("ETag");
+  EXPECT_FALSE(new_etag.empty());
+  EXPECT_NE(new_etag, before.Header("ETag"));
+  const Reply after = http().Get(kBudgetPath);
+  EXPECT_EQ(after.Json(), expected);
+  EXPECT_EQ(after.Header("ETag"), new_etag);
+  // The status reports the same object.
+  EXPECT_EQ(GetJson(http(), "/api/v1/status")["budget"], expected);
+
+  // Two keys at once.
+  const Reply two = http().MergePatch(kBudgetPath, R"({"policy": "adaptive", "max_particles": 7})");
+  ASSERT_EQ(two.status, 200) << two;
+  EXPECT_EQ(two.Json()["policy"], "adaptive");
+  EXPECT_EQ(two.Json()["max_particles"], 7);
+  EXPECT_EQ(two.Json()["rays_per_scan"], new_rays);
+
+  // null puts every named key back to its default (slamd was started without budget flags).
+  const Reply reset = http().MergePatch(
+      kBudgetPath, R"({"rays_per_scan": null, "policy": null, "max_particles": null})");
+  ASSERT_EQ(reset.status, 200) << reset;
+  EXPECT_EQ(reset.Json(), original);
+  EXPECT_EQ(http().Get(kBudgetPath).Json(), original);
+}
+
+TEST_F(SharedSlamd, BudgetPutReplacesTheWholeObject) {
+  const json original = GetJson(http(), kBudgetPath);
+  const json replacement = {{"mode", "cpu_share"},
+                            {"rays_per_scan", 4321},
+                            {"cpu_share", 0.5},
+                            {"policy", "adaptive"},
+                            {"max_particles", 3}};
+  const Reply put = http().PutJson(kBudgetPath, replacement.dump());
+  ASSERT_EQ(put.status, 200) << put;
+  EXPECT_EQ(put.Json(), replacement);
+  EXPECT_FALSE(put.Header("ETag").empty());
+  EXPECT_EQ(GetJson(http(), kBudgetPath), replacement);
+
+  // PUT wants every key: a missing one is a validation error and changes nothing.
+  json partial = original;
+  partial.erase("policy");
+  const Reply missing = http().PutJson(kBudgetPath, partial.dump());
+  const json problem = ExpectProblem(missing, 422);
+  const auto pointers = ErrorPointers(problem);
+  EXPECT_TRUE(pointers.count("/policy") == 1 || pointers.count("") == 1) << missing;
+  EXPECT_EQ(GetJson(http(), kBudgetPath), replacement);
+
+  // Wrong type in a PUT.
+  json wrong = original;
+  wrong["max_particles"] = "many";
+  Expect422At(http().PutJson(kBudgetPath, wrong.dump()), {"/max_particles"});
+
+  const Reply restore = http().PutJson(kBudgetPath, original.dump());
+  ASSERT_EQ(restore.status, 200) << restore;
+  EXPECT_EQ(GetJson(http(), kBudgetPath), original);
+}
+
+TEST_F(SharedSlamd, BudgetRejectsWrongContentTypeWith415) {
+  const Reply before = http().Get(kBudgetPath);
+  ExpectProblem(http().Send("PATCH", kBudgetPath, R"({"rays_per_scan": 777})", "text/plain"), 415);
+  ExpectProblem(http().Send("PATCH", kBudgetPath, R"({"rays_per_scan": 777})", ""), 415);
+  ExpectProblem(http().Send("PUT", kBudgetPath, before.body, "text/plain"), 415);
+  EXPECT_EQ(http().Get(kBudgetPath).body, before.body);
+}
+
+TEST_F(SharedSlamd, BudgetRejectsMalformedJsonWith400) {
+  const Reply before = http().Get(kBudgetPath);
+  for (const std::string body : {R"({"rays_per_scan": )", "not json", R"({"a":1}})", ""}) {
+    SCOPED_TRACE(body);
+    ExpectProblem(http().MergePatch(kBudgetPath, body), 400);
+  }
+  ExpectProblem(http().PutJson(kBudgetPath, "{"), 400);
+  EXPECT_EQ(http().Get(kBudgetPath).body, before.body);
+  EXPECT_EQ(http().Get(kBudgetPath).Header("ETag"), before.Header("ETag"));
+}
+
+TEST_F(SharedSlamd, BudgetValidationErrorsAre422WithOnePointerPerProblem) {
+  const Reply before = http().Get(kBudgetPath);
+  // Wrong types.
+  Expect422At(http().MergePatch(kBudgetPath, R"({"rays_per_scan": "many"})"), {"/rays_per_scan"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 1.5})"), {"/rays_per_scan"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"cpu_share": "half"})"), {"/cpu_share"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"policy": 3})"), {"/policy"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"mode": true})"), {"/mode"});
+  // Out of range, all bounds.
+  Expect422At(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 0})"), {"/rays_per_scan"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 100000001})"),
+              {"/rays_per_scan"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"cpu_share": 0})"), {"/cpu_share"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"cpu_share": 1.01})"), {"/cpu_share"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"max_particles": 0})"), {"/max_particles"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"max_particles": 1001})"), {"/max_particles"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"mode": "fast"})"), {"/mode"});
+  Expect422At(http().MergePatch(kBudgetPath, R"({"policy": "lazy"})"), {"/policy"});
+  // Unknown keys.
+  Expect422At(http().MergePatch(kBudgetPath, R"({"rays": 5})"), {"/rays"});
+  // Several problems at once: one error each, and nothing applied (not even the valid key).
+  Expect422At(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 0, "cpu_share": 2,
+                                                 "max_particles": "x", "bogus": 1,
+                                                 "policy": "adaptive"})"),
+              {"/rays_per_scan", "/cpu_share", "/max_particles", "/bogus"});
+  // A body that is not an object is wrong as a whole.
+  Expect422At(http().MergePatch(kBudgetPath, "[1, 2]"), {""});
+  Expect422At(http().PutJson(kBudgetPath, "42"), {""});
+
+  const Reply after = http().Get(kBudgetPath);
+  EXPECT_EQ(after.body, before.body);
+  EXPECT_EQ(after.Header("ETag"), before.Header("ETag"));
+  // The boundaries themselves are valid.
+  const json original = before.Json();
+  const Reply edge = http().MergePatch(
+      kBudgetPath, R"({"rays_per_scan": 1, "cpu_share": 1, "max_particles": 1000})");
+  EXPECT_EQ(edge.status, 200) << edge;
+  const Reply restore = http().PutJson(kBudgetPath, original.dump());
+  EXPECT_EQ(restore.status, 200) << restore;
+}
+
+TEST_F(SharedSlamd, BudgetIfMatchStaleIs412AndCurrentApplies) {
+  const Reply before = http().Get(kBudgetPath);
+  const std::string etag = before.Header("ETag");
+  ASSERT_FALSE(etag.empty());
+  const json original = before.Json();
+  const int64_t rays = original["rays_per_scan"].get<int64_t>();
+
+  const Reply stale = http().MergePatch(kBudgetPath, json({{"rays_per_scan", rays + 1}}).dump(),
+                                        {{"If-Match", "\"stale-etag\""}});
+  ExpectProblem(stale, 412);
+  EXPECT_EQ(http().Get(kBudgetPath).body, before.body);
+  EXPECT_EQ(http().Get(kBudgetPath).Header("ETag"), etag);
+  json replacement = original;
+  replacement["rays_per_scan"] = rays + 1;
+  ExpectProblem(http().PutJson(kBudgetPath, replacement.dump(), {{"If-Match", "\"b0-old\""}}), 412);
+  EXPECT_EQ(http().Get(kBudgetPath).body, before.body);
+
+  const Reply current = http().MergePatch(kBudgetPath, json({{"rays_per_scan", rays + 1}}).dump(),
+                                          {{"If-Match", etag}});
+  ASSERT_EQ(current.status, 200) << current;
+  const std::string new_etag = current.Header("ETag");
+  EXPECT_FALSE(new_etag.empty());
+  EXPECT_NE(new_etag, etag);
+  EXPECT_EQ(current.Json()["rays_per_scan"], rays + 1);
+  // The old ETag is stale now.
+  ExpectProblem(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 5})", {{"If-Match", etag}}),
+                412);
+  // PUT with the current ETag restores.
+  const Reply restore = http().PutJson(kBudgetPath, original.dump(), {{"If-Match", new_etag}});
+  ASSERT_EQ(restore.status, 200) << restore;
+  EXPECT_EQ(restore.Json(), original);
+}
+
+// --- params -----------------------------------------------------------------------------------
+
+const std::vector<std::string> kParamKeys = {
+    "dist_error_ratio",        "dist_error_const_m",      "angle_error_ratio",
+    "angle_error_const_deg",   "min_pos_uncertainty_m",   "min_angle_uncertainty_deg",
+    "resampling_period_scans", "angle_between_scans_deg", "particles"};
+
+TEST_F(SharedSlamd, ParamsGetHasTheTableIIKeysAndAnETag) {
+  const Reply reply = http().Get(kParamsPath);
+  ASSERT_EQ(reply.status, 200) << reply;
+  EXPECT_TRUE(StartsWith(reply.ContentType(), "application/json")) << reply;
+  EXPECT_FALSE(reply.Header("ETag").empty());
+  const json params = reply.Json();
+  ASSERT_TRUE(params.is_object()) << reply;
+  EXPECT_EQ(params.size(), kParamKeys.size()) << params.dump();
+  for (const auto& key : kParamKeys) {
+    EXPECT_TRUE(params.contains(key) && params[key].is_number()) << key;
+  }
+  // slamd was started without --params: the shipped defaults.
+  const json shipped =
+      json::parse(ReadFile(fs::path(SLAM_SOURCE_DIR) / "config" / "params.default.json"));
+  for (const auto& [key, value] : shipped.items()) {
+    EXPECT_DOUBLE_EQ(params.value(key, -1.0), value.get<double>()) << key;
+  }
+}
+
+TEST_F(SharedSlamd, ParamsMergePatchAppliesAndNullResetsToTheDefault) {
+  const Reply before = http().Get(kParamsPath);
+  const json original = before.Json();
+  const Reply patched =
+      http().MergePatch(kParamsPath, R"({"particles": 2, "dist_error_ratio": 0.1})");
+  ASSERT_EQ(patched.status, 200) << patched;
+  json expected = original;
+  expected["particles"] = 2;
+  expected["dist_error_ratio"] = 0.1;
+  EXPECT_EQ(patched.Json(), expected);
+  EXPECT_NE(patched.Header("ETag"), before.Header("ETag"));
+  EXPECT_FALSE(patched.Header("ETag").empty());
+  EXPECT_EQ(GetJson(http(), kParamsPath), expected);
+
+  const Reply reset =
+      http().MergePatch(kParamsPath, R"({"particles": null, "dist_error_ratio": null})");
+  ASSERT_EQ(reset.status, 200) << reset;
+  EXPECT_EQ(reset.Json(), original);
+  EXPECT_EQ(GetJson(http(), kParamsPath), original);
+}
+
+TEST_F(SharedSlamd, ParamsErrorsAre415And400And422AndChangeNothing) {
+  const Reply before = http().Get(kParamsPath);
+  ExpectProblem(http().Send("PATCH", kParamsPath, R"({"particles": 2})", "text/plain"), 415);
+  ExpectProblem(http().MergePatch(kParamsPath, R"({"particles": )"), 400);
+  Expect422At(http().MergePatch(kParamsPath, R"({"particles": "two"})"), {"/particles"});
+  Expect422At(http().MergePatch(kParamsPath, R"({"particles": 2.5})"), {"/particles"});
+  Expect422At(http().MergePatch(kParamsPath, R"({"particles": 0})"), {"/particles"});
+  Expect422At(http().MergePatch(kParamsPath, R"({"particles": 1001})"), {"/particles"});
+  Expect422At(http().MergePatch(kParamsPath, R"({"dist_error_ratio": 1.5})"),
+              {"/dist_error_ratio"});
+  Expect422At(http().MergePatch(kParamsPath, R"({"min_angle_uncertainty_deg": -1})"),
+              {"/min_angle_uncertainty_deg"});
+  Expect422At(http().MergePatch(kParamsPath, R"({"resampling_period_scans": 0})"),
+              {"/resampling_period_scans"});
+  Expect422At(http().MergePatch(kParamsPath, R"({"foo": 1})"), {"/foo"});
+  Expect422At(http().MergePatch(kParamsPath,
+                                R"({"particles": 0, "angle_between_scans_deg": 200,
+                                    "foo": 1, "dist_error_const_m": "x"})"),
+              {"/particles", "/angle_between_scans_deg", "/foo", "/dist_error_const_m"});
+  Expect422At(http().MergePatch(kParamsPath, R"("text")"), {""});
+  const Reply after = http().Get(kParamsPath);
+  EXPECT_EQ(after.body, before.body);
+  EXPECT_EQ(after.Header("ETag"), before.Header("ETag"));
+}
+
+TEST_F(SharedSlamd, ParamsIfMatchStaleIs412AndCurrentApplies) {
+  const Reply before = http().Get(kParamsPath);
+  const std::string etag = before.Header("ETag");
+  ASSERT_FALSE(etag.empty());
+  ExpectProblem(http().MergePatch(kParamsPath, R"({"particles": 3})", {{"If-Match", "\"p999\""}}),
+                412);
+  EXPECT_EQ(http().Get(kParamsPath).body, before.body);
+  EXPECT_EQ(http().Get(kParamsPath).Header("ETag"), etag);
+
+  const Reply current = http().MergePatch(kParamsPath, R"({"particles": 3})", {{"If-Match", etag}});
+  ASSERT_EQ(current.status, 200) << current;
+  EXPECT_EQ(current.Json()["particles"], 3);
+  const std::string new_etag = current.Header("ETag");
+  EXPECT_NE(new_etag, etag);
+  EXPECT_FALSE(new_etag.empty());
+  const Reply restore =
+      http().MergePatch(kParamsPath, R"({"particles": null})", {{"If-Match", new_etag}});
+  ASSERT_EQ(restore.status, 200) << restore;
+  EXPECT_EQ(restore.Json(), before.Json());
+}
+
+// --- map --------------------------------------------------------------------------------------
+
+TEST_F(SharedSlamd, MapIndexListsTilesWithinSecondsAndVersionsGrow) {
+  const json map = WaitForTiles(http(), 1);
+  EXPECT_DOUBLE_EQ(map.value("resolution_m", 0.0), 0.01);
+  EXPECT_EQ(map.value("tile_size", 0), 64);
+  ASSERT_TRUE(map["origin"].is_array() && map["origin"].size() == 2) << map.dump();
+  EXPECT_TRUE(map["origin"][0].is_number() && map["origin"][1].is_number());
+  int64_t largest = 0;
+  std::set<std::pair<int64_t, int64_t>> seen;
+  for (const auto& tile : map["tiles"]) {
+    ASSERT_TRUE(tile["x"].is_number_integer() && tile["y"].is_number_integer() &&
+                tile["version"].is_number_integer())
+        << tile.dump();
+    EXPECT_TRUE(seen.insert({tile["x"].get<int64_t>(), tile["y"].get<int64_t>()}).second)
+        << "duplicate tile " << tile.dump();
+    largest = std::max(largest, tile["version"].get<int64_t>());
+  }
+  EXPECT_EQ(map.value("version", int64_t{-1}), largest);
+
+  const int64_t first = map["version"].get<int64_t>();
+  const auto deadline = After(10.0);
+  int64_t now = first;
+  while (now <= first && Clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    now = MapVersion(http());
+  }
+  EXPECT_GT(now, first) << "the map version did not grow in 10 s";
+}
+
+TEST_F(SharedSlamd, TilePngIs64x64GreyWithETagAndConditionalGet) {
+  const json map = WaitForTiles(http(), 1);
+  // The least recently changed tile, so that it stays put while we ask for it twice.
+  json oldest = map["tiles"][0];
+  for (const auto& tile : map["tiles"]) {
+    if (tile["version"].get<int64_t>() < oldest["version"].get<int64_t>()) oldest = tile;
+  }
+  const std::string path = "/api/v1/map/tiles/" + std::to_string(oldest["x"].get<int64_t>()) + "/" +
+                           std::to_string(oldest["y"].get<int64_t>()) + ".png";
+  const Reply tile = http().Get(path);
+  ASSERT_EQ(tile.status, 200) << path << " " << tile;
+  EXPECT_EQ(tile.ContentType(), "image/png");
+  ASSERT_GE(tile.body.size(), 33u);
+  EXPECT_EQ(tile.body.substr(0, 8), kPngSignature);
+  EXPECT_EQ(tile.body.substr(12, 4), "IHDR");
+  EXPECT_EQ(BigEndian32(tile.body, 16), 64u);     // width
+  EXPECT_EQ(BigEndian32(tile.body, 20), 64u);     // height
+  EXPECT_EQ(static_cast<int>(tile.body[24]), 8);  // bit depth
+  EXPECT_EQ(static_cast<int>(tile.body[25]), 0);  // colour type: grey
+
+  // ETag: "VERSION", at least the version the index listed.
+  const std::string etag = tile.Header("ETag");
+  ASSERT_GE(etag.size(), 3u);
+  ASSERT_EQ(etag.front(), '"');
+  ASSERT_EQ(etag.back(), '"');
+  const int64_t version = std::atoll(etag.substr(1, etag.size() - 2).c_str());
+  EXPECT_GE(version, oldest["version"].get<int64_t>()) << etag;
+  EXPECT_EQ(etag, "\"" + std::to_string(version) + "\"");
+
+  // If-None-Match with the current ETag: 304 (a changed tile answers 200 with a new ETag).
+  std::string current = etag;
+  bool got_304 = false;
+  for (int attempt = 0; attempt < 5 && !got_304; ++attempt) {
+    const Reply again = http().Get(path, {{"If-None-Match", current}});
+    if (again.status == 304) {
+      got_304 = true;
+      EXPECT_TRUE(again.body.empty());
+    } else {
+      ASSERT_EQ(again.status, 200) << again;
+      EXPECT_NE(again.Header("ETag"), current) << "200 for an unchanged ETag";
+      current = again.Header("ETag");
+    }
+  }
+  EXPECT_TRUE(got_304);
+  // A stale ETag gets the tile.
+  EXPECT_EQ(http().Get(path, {{"If-None-Match", "\"0\""}}).status, 200);
+  // ?v= is only for cache busting.
+  const Reply busted = http().Get(path + "?v=1");
+  EXPECT_EQ(busted.status, 200) << busted;
+  EXPECT_EQ(busted.body.substr(0, 8), kPngSignature);
+}
+
+TEST_F(SharedSlamd, UnknownTileIs404Problem) {
+  ExpectProblem(http().Get("/api/v1/map/tiles/100000/100000.png"), 404);
+  ExpectProblem(http().Get("/api/v1/map/tiles/-100000/7.png"), 404);
+  ExpectProblem(http().Get("/api/v1/map/tiles/a/b.png"), 404);
+}
+
+TEST_F(SharedSlamd, WholeMapAsPgmYamlAndPng) {
+  WaitForTiles(http(), 1);
+  const Reply pgm = http().Get("/api/v1/map.pgm");
+  ASSERT_EQ(pgm.status, 200) << pgm;
+  EXPECT_NE(pgm.Header("Content-Disposition").find("attachment"), std::string::npos);
+  ASSERT_GE(pgm.body.size(), 2u);
+  EXPECT_EQ(pgm.body.substr(0, 2), "P5");
+  {
+    // "P5 <w> <h> <max>\n" then w*h bytes (comments allowed after the magic).
+    std::istringstream head(pgm.body);
+    std::string magic, token;
+    head >> magic;
+    std::vector<long> numbers;
+    while (numbers.size() < 3 && head >> token) {
+      if (token.front() == '#') {
+        std::getline(head, token);
+        continue;
+      }
+      numbers.push_back(std::atol(token.c_str()));
+    }
+    ASSERT_EQ(numbers.size(), 3u);
+    EXPECT_GT(numbers[0], 0);
+    EXPECT_GT(numbers[1], 0);
+    EXPECT_EQ(numbers[2], 255);
+    const auto header_end = static_cast<size_t>(head.tellg()) + 1;
+    EXPECT_EQ(pgm.body.size() - header_end, static_cast<size_t>(numbers[0] * numbers[1]));
+  }
+
+  const Reply yaml = http().Get("/api/v1/map.yaml");
+  ASSERT_EQ(yaml.status, 200) << yaml;
+  EXPECT_NE(yaml.Header("Content-Disposition").find("attachment"), std::string::npos);
+  EXPECT_NE(yaml.body.find("image: map.pgm"), std::string::npos) << yaml.body;
+  const size_t resolution = yaml.body.find("resolution:");
+  ASSERT_NE(resolution, std::string::npos) << yaml.body;
+  EXPECT_DOUBLE_EQ(std::strtod(yaml.body.c_str() + resolution + 11, nullptr), 0.01);
+  EXPECT_NE(yaml.body.find("origin:"), std::string::npos) << yaml.body;
+
+  const Reply png = http().Get("/api/v1/map.png");
+  ASSERT_EQ(png.status, 200) << png;
+  EXPECT_EQ(png.ContentType(), "image/png");
+  EXPECT_NE(png.Header("Content-Disposition").find("attachment"), std::string::npos);
+  EXPECT_EQ(png.body.substr(0, 8), kPngSignature);
+}
+
+// --- trajectory -------------------------------------------------------------------------------
+
+TEST_F(SharedSlamd, TrajectoryJsonGrowsAndHasGroundTruth) {
+  const json first = WaitForTrajectory(http(), 2);
+  ASSERT_TRUE(first["slam"].is_array());
+  for (const auto& pose : first["slam"]) {
+    ASSERT_TRUE(pose.is_array() && pose.size() == 4) << pose.dump();
+    for (const auto& value : pose) EXPECT_TRUE(value.is_number());
+  }
+  ASSERT_TRUE(first.contains("ground_truth")) << "simulated source: ground truth expected";
+  ASSERT_TRUE(first["ground_truth"].is_array());
+  EXPECT_FALSE(first["ground_truth"].empty());
+  for (const auto& pose : first["ground_truth"]) {
+    ASSERT_TRUE(pose.is_array() && pose.size() == 4) << pose.dump();
+  }
+  // Times do not go back.
+  for (size_t i = 1; i < first["slam"].size(); ++i) {
+    EXPECT_GE(first["slam"][i][0].get<double>(), first["slam"][i - 1][0].get<double>());
+  }
+  const json explicit_json = GetJson(http(), "/api/v1/trajectory?format=json");
+  EXPECT_GE(explicit_json["slam"].size(), first["slam"].size());
+  const json later = WaitForTrajectory(http(), first["slam"].size() + 2, 10.0);
+  EXPECT_GT(later["slam"].size(), first["slam"].size());
+}
+
+TEST_F(SharedSlamd, TrajectoryTumIsTextWithEightColumns) {
+  WaitForTrajectory(http(), 2);
+  const Reply tum = http().Get("/api/v1/trajectory?format=tum");
+  ASSERT_EQ(tum.status, 200) << tum;
+  EXPECT_TRUE(StartsWith(tum.ContentType(), "text/plain")) << tum;
+  const auto rows = ParseTum(tum.body);
+  ASSERT_GE(rows.size(), 2u) << tum.body;
+  for (const auto& row : rows) {
+    ASSERT_EQ(row.size(), 8u);
+    EXPECT_NEAR(row[4] * row[4] + row[5] * row[5] + row[6] * row[6] + row[7] * row[7], 1.0, 1e-3);
+  }
+}
+
+TEST_F(SharedSlamd, TrajectoryUnknownFormatIs400) {
+  ExpectProblem(http().Get("/api/v1/trajectory?format=xml"), 400);
+  ExpectProblem(http().Get("/api/v1/trajectory?format="), 400);
+}
+
+// --- save, reset and jobs where they are not configured ----------------------------------------
+
+TEST_F(SharedSlamd, SaveWithoutStateDirIs409) {
+  ExpectProblem(http().PostJson("/api/v1/map/save", "{}"), 409);
+}
+
+TEST_F(SharedSlamd, TuningWithoutExperimentsIs409) {
+  ExpectProblem(http().PostJson("/api/v1/jobs/tune", "{}"), 409);
+  const json jobs = GetJson(http(), "/api/v1/jobs");
+  ASSERT_TRUE(jobs["jobs"].is_array()) << jobs.dump();
+  EXPECT_TRUE(jobs["jobs"].empty());
+}
+
+// --- request framing and origin ------------------------------------------------------------
+
+// Every framing refusal below targets POST /api/v1/map/save: accepted by mistake, it would
+// answer 409 (no --state-dir), never the status under test.
+
+TEST_F(SharedSlamd, CrossOriginMutationIs403AndSameOriginIsAllowed) {
+  const Reply before = http().Get(kBudgetPath);
+  const json original = before.Json();
+  const std::string same_value = json({{"rays_per_scan", original["rays_per_scan"]}}).dump();
+  ExpectProblem(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 99})",
+                                  {{"Origin", "http://evil.example"}}),
+                403);
+  ExpectProblem(http().PostJson("/api/v1/reset", "{}", {{"Origin", "http://evil.example"}}), 403);
+  ExpectProblem(http().PostJson("/api/v1/map/save", "{}",
+                                {{"Origin", "http://localhost:" + std::to_string(port())}}),
+                403);
+  EXPECT_EQ(http().Get(kBudgetPath).body, before.body);
+  const std::string own_origin = "http://127.0.0.1:" + std::to_string(port());
+  EXPECT_EQ(http().MergePatch(kBudgetPath, same_value, {{"Origin", own_origin}}).status, 200);
+  // Reading is never refused.
+  EXPECT_EQ(http().Get(kBudgetPath, {{"Origin", "http://evil.example"}}).status, 200);
+}
+
+TEST_F(SharedSlamd, BodyOver64KiBIs413) {
+  const std::string body = "{\"pad\": \"" + std::string(70 * 1024, 'x') + "\"}";
+  const std::string request =
+      "POST /api/v1/map/save HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port()) +
+      "\r\nContent-Type: application/json\r\nContent-Length: " + std::to_string(body.size()) +
+      "\r\nConnection: close\r\n\r\n" + body;
+  const RawReply reply = RawExchange(port(), request);
+  EXPECT_EQ(reply.status, 413) << reply;
+  // Exactly 64 KiB is still fine (and then the route answers).
+  const std::string edge_body = "{\"pad\": \"" + std::string(64 * 1024 - 12, 'x') + "\"}";
+  ASSERT_EQ(edge_body.size(), 64u * 1024u - 1u);
+  const RawReply edge = RawExchange(
+      port(), "POST /api/v1/map/save HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port()) +
+                  "\r\nContent-Type: application/json\r\nContent-Length: " +
+                  std::to_string(edge_body.size()) + "\r\nConnection: close\r\n\r\n" + edge_body);
+  EXPECT_EQ(edge.status, 409) << edge;
+}
+
+TEST_F(SharedSlamd, ChunkedBodyIs411) {
+  const std::string request =
+      "POST /api/v1/map/save HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port()) +
+      "\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked\r\n"
+      "Connection: close\r\n\r\n2\r\n{}\r\n0\r\n\r\n";
+  const RawReply reply = RawExchange(port(), request);
+  EXPECT_EQ(reply.status, 411) << reply;
+  EXPECT_TRUE(StartsWith(reply.Header("Content-Type"), "application/problem+json")) << reply;
+}
+
+TEST_F(SharedSlamd, PostWithoutContentLengthIs411Quickly) {
+  const std::string request =
+      "POST /api/v1/map/save HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port()) +
+      "\r\nContent-Type: application/json\r\n\r\n";
+  const RawReply reply = RawExchange(port(), request, 4.0);
+  EXPECT_EQ(reply.status, 411) << reply;
+  EXPECT_LT(reply.seconds, 1.0) << reply;
+}
+
+TEST_F(SharedSlamd, ContentEncodingIs415) {
+  // gzip of "{}".
+  const unsigned char gzip_bytes[] = {0x1f, 0x8b, 0x08, 0x00, 0x00, 0x00, 0x00, 0x00,
+                                      0x00, 0x03, 0xab, 0xae, 0x05, 0x00, 0x43, 0xbf,
+                                      0xa6, 0xa3, 0x02, 0x00, 0x00, 0x00};
+  const std::string body(reinterpret_cast<const char*>(gzip_bytes), sizeof gzip_bytes);
+  const std::string request =
+      "POST /api/v1/map/save HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port()) +
+      "\r\nContent-Type: application/json\r\nContent-Encoding: gzip\r\nContent-Length: " +
+      std::to_string(body.size()) + "\r\nConnection: close\r\n\r\n" + body;
+  const RawReply reply = RawExchange(port(), request);
+  EXPECT_EQ(reply.status, 415) << reply;
+  // Also on a PATCH, through the ordinary client.
+  ExpectProblem(
+      http().Send("PATCH", kBudgetPath, body, kMergePatch, {{"Content-Encoding", "gzip"}}), 415);
+}
+
+TEST_F(SharedSlamd, PostBodyMustBeJson) {
+  ExpectProblem(http().Send("POST", "/api/v1/map/save", "{}", "text/plain"), 415);
+  ExpectProblem(http().PostJson("/api/v1/map/save", "{"), 400);
+}
+
+// --- metrics ----------------------------------------------------------------------------------
+
+TEST_F(SharedSlamd, MetricsAreTextFormatWithEveryDocumentedName) {
+  WaitForTiles(http(), 1);
+  const Reply reply = http().Get("/metrics");
+  ASSERT_EQ(reply.status, 200) << reply;
+  EXPECT_TRUE(StartsWith(reply.ContentType(), "text/plain")) << reply.ContentType();
+  EXPECT_NE(reply.ContentType().find("0.0.4"), std::string::npos) << reply.ContentType();
+  const auto samples = ParseMetrics(reply.body);
+  for (const char* name : {"scans_total",
+                           "late_scans_total",
+                           "rays_planned_total",
+                           "rays_used_total",
+                           "rays_per_scan_planned",
+                           "rays_per_scan_used",
+                           "ray_quota",
+                           "cpu_share",
+                           "realtime_ratio",
+                           "particles",
+                           "map_tiles",
+                           "map_version",
+                           "link_frames_total",
+                           "link_events_total",
+                           "link_queue_drops_total",
+                           "link_source_errors_total",
+                           "link_frames_rejected_total",
+                           "link_up",
+                           "http_requests_total",
+                           "event_stream_clients",
+                           "event_streams_rejected_total",
+                           "jobs_running"}) {
+    EXPECT_TRUE(Metric(samples, std::string("slamd_") + name).has_value()) << name;
+  }
+  for (const char* suffix : {"_bucket", "_sum", "_count"}) {
+    EXPECT_TRUE(Metric(samples, std::string("slamd_scan_latency_seconds") + suffix).has_value())
+        << suffix;
+  }
+  EXPECT_TRUE(Metric(samples, "slamd_scan_latency_seconds_bucket", {{"le", "+Inf"}}).has_value());
+  EXPECT_NE(reply.body.find("# TYPE slamd_scans_total counter"), std::string::npos);
+  EXPECT_NE(reply.body.find("# TYPE slamd_scan_latency_seconds histogram"), std::string::npos);
+  EXPECT_NE(reply.body.find("# TYPE slamd_map_tiles gauge"), std::string::npos);
+  EXPECT_EQ(Metric(samples, "slamd_link_up"), 1.0);
+  EXPECT_EQ(Metric(samples, "slamd_jobs_running"), 0.0);
+  EXPECT_GT(Metric(samples, "slamd_map_tiles").value_or(0.0), 0.0);
+  EXPECT_GT(Metric(samples, "slamd_link_frames_total").value_or(0.0), 0.0);
+}
+
+TEST_F(SharedSlamd, MetricsScansTotalGrows) {
+  const double first = Metric(GetMetrics(http()), "slamd_scans_total").value_or(-1.0);
+  ASSERT_GE(first, 0.0);
+  const auto later =
+      PollMetric(http(), "slamd_scans_total", 10.0, [&](double value) { return value > first; });
+  ASSERT_TRUE(later.has_value());
+  EXPECT_GT(*later, first);
+  const auto samples = GetMetrics(http());
+  EXPECT_GE(Metric(samples, "slamd_rays_used_total").value_or(-1.0), 0.0);
+  EXPECT_GE(Metric(samples, "slamd_scan_latency_seconds_count").value_or(-1.0), *later);
+}
+
+TEST_F(SharedSlamd, MetricsCountHttpRequestsByMethodAndCode) {
+  const auto before = GetMetrics(http());
+  const double get_200 =
+      Metric(before, "slamd_http_requests_total", {{"method", "GET"}, {"code", "200"}})
+          .value_or(0.0);
+  const double get_404 =
+      Metric(before, "slamd_http_requests_total", {{"method", "GET"}, {"code", "404"}})
+          .value_or(0.0);
+  const double patch_422 =
+      Metric(before, "slamd_http_requests_total", {{"method", "PATCH"}, {"code", "422"}})
+          .value_or(0.0);
+  for (int i = 0; i < 5; ++i) ASSERT_EQ(http().Get("/api/v1/health").status, 200);
+  for (int i = 0; i < 3; ++i) ASSERT_EQ(http().Get("/api/v1/nope").status, 404);
+  ASSERT_EQ(http().MergePatch(kBudgetPath, R"({"bogus": 1})").status, 422);
+  const auto after = GetMetrics(http());
+  // >= 5: the /metrics request itself may or may not be counted before it answers.
+  const double get_200_after =
+      Metric(after, "slamd_http_requests_total", {{"method", "GET"}, {"code", "200"}})
+          .value_or(0.0);
+  EXPECT_GE(get_200_after - get_200, 5.0);
+  EXPECT_LE(get_200_after - get_200, 6.0);
+  EXPECT_EQ(Metric(after, "slamd_http_requests_total", {{"method", "GET"}, {"code", "404"}})
+                    .value_or(0.0) -
+                get_404,
+            3.0);
+  EXPECT_EQ(Metric(after, "slamd_http_requests_total", {{"method", "PATCH"}, {"code", "422"}})
+                    .value_or(0.0) -
+                patch_422,
+            1.0);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Process-level behaviour
+
+TEST(SlamdProcessTest, NonLoopbackBindWithoutTokenExits2WithAMessage) {
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Spawn({"--bind", "0.0.0.0"}, &error)) << error;
+  const auto code = slamd.WaitExit(10.0);
+  ASSERT_TRUE(code.has_value()) << "slamd kept running";
+  EXPECT_EQ(*code, 2);
+  const std::string message = Lower(slamd.Stderr());
+  EXPECT_NE(message.find("token"), std::string::npos) << message;
+  EXPECT_EQ(slamd.Stdout().find("slamd: serving"), std::string::npos) << slamd.Stdout();
+}
+
+TEST(SlamdProcessTest, SigtermStopsCleanlyWithExitCode0) {
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--budget", "8000"}, &error)) << error;
+  Http http(slamd.host(), slamd.port());
+  // With an open event stream too: stopping must not wait for it.
+  EventStream stream;
+  ASSERT_EQ(stream.Open(slamd.port()), 200);
+  ASSERT_TRUE(stream.WaitFor("hello", 5.0).has_value());
+  const auto start = Clock::now();
+  ::kill(slamd.pid(), SIGTERM);
+  const auto code = slamd.WaitExit(5.0);
+  ASSERT_TRUE(code.has_value()) << "slamd did not stop within 5 s of SIGTERM";
+  EXPECT_EQ(*code, 0);
+  EXPECT_LT(SecondsSince(start), 3.0);
+}
+
+TEST(SlamdProcessTest, BudgetFlagSetsTheInitialBudget) {
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(
+      slamd.Start({"--budget", "8000", "--policy", "adaptive", "--max-particles", "5"}, &error))
+      << error;
+  Http http(slamd.host(), slamd.port());
+  const json budget = GetJson(http, kBudgetPath);
+  EXPECT_EQ(budget.value("mode", ""), "rays");
+  EXPECT_EQ(budget.value("rays_per_scan", 0), 8000);
+  EXPECT_EQ(budget.value("policy", ""), "adaptive");
+  EXPECT_EQ(budget.value("max_particles", 0), 5);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bearer token
+
+class TokenSlamd : public SlamdSuite {
+ protected:
+  static constexpr const char* kToken = "s3cret-t0ken-0123456789";
+  static void SetUpTestSuite() {
+    dir_ = std::make_unique<ScratchDir>("token");
+    WriteFile(dir_->path() / "token", std::string(kToken) + "\n");
+    StartShared({"--token-file", (dir_->path() / "token").string(), "--budget", "8000"});
+  }
+  static void TearDownTestSuite() {
+    StopShared();
+    dir_.reset();
+  }
+  static inline std::unique_ptr<ScratchDir> dir_;
+};
+
+TEST_F(TokenSlamd, MissingTokenIs401WithWwwAuthenticate) {
+  const Reply before = http().Get(kBudgetPath);
+  const Reply reply = http().MergePatch(kBudgetPath, R"({"rays_per_scan": 9000})");
+  ExpectProblem(reply, 401);
+  EXPECT_NE(reply.Header("WWW-Authenticate").find("Bearer"), std::string::npos) << reply;
+  EXPECT_NE(reply.Header("WWW-Authenticate").find("realm=\"slamd\""), std::string::npos)
+      << reply.Header("WWW-Authenticate");
+  EXPECT_EQ(http().Get(kBudgetPath).body, before.body);
+  // Every mutating route.
+  ExpectProblem(http().PutJson(kBudgetPath, before.body), 401);
+  ExpectProblem(http().MergePatch(kParamsPath, R"({"particles": 2})"), 401);
+  ExpectProblem(http().PostJson("/api/v1/map/save", "{}"), 401);
+  ExpectProblem(http().PostJson("/api/v1/reset", "{}"), 401);
+  ExpectProblem(http().PostJson("/api/v1/jobs/tune", "{}"), 401);
+  ExpectProblem(http().Send("DELETE", "/api/v1/jobs/1", "", ""), 401);
+}
+
+TEST_F(TokenSlamd, WrongTokenIs401) {
+  const Reply before = http().Get(kBudgetPath);
+  for (const std::string value :
+       {"Bearer wrong-token-0123456789", "Bearer s3cret-t0ken-012345678",
+        "Bearer s3cret-t0ken-01234567890", "Basic czNjcmV0LXQwa2VuLTAxMjM0NTY3ODk=",
+        "s3cret-t0ken-0123456789", "Bearer", "bearer  s3cret-t0ken-0123456789x"}) {
+    SCOPED_TRACE(value);
+    const Reply reply =
+        http().MergePatch(kBudgetPath, R"({"rays_per_scan": 9000})", {{"Authorization", value}});
+    ExpectProblem(reply, 401);
+    EXPECT_NE(reply.Header("WWW-Authenticate").find("Bearer"), std::string::npos);
+  }
+  EXPECT_EQ(http().Get(kBudgetPath).body, before.body);
+}
+
+TEST_F(TokenSlamd, RightTokenIsAccepted) {
+  const httplib::Headers auth = {{"Authorization", std::string("Bearer ") + kToken}};
+  const Reply reply = http().MergePatch(kBudgetPath, R"({"rays_per_scan": 9000})", auth);
+  ASSERT_EQ(reply.status, 200) << reply;
+  EXPECT_EQ(reply.Json()["rays_per_scan"], 9000);
+  const Reply restore = http().MergePatch(kBudgetPath, R"({"rays_per_scan": 8000})", auth);
+  ASSERT_EQ(restore.status, 200) << restore;
+  EXPECT_EQ(GetJson(http(), kBudgetPath)["rays_per_scan"], 8000);
+  // With the token, the other checks still apply.
+  Expect422At(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 0})", auth), {"/rays_per_scan"});
+  ExpectProblem(http().PostJson("/api/v1/map/save", "{}", auth), 409);
+  ExpectProblem(http().Send("DELETE", "/api/v1/jobs/1", "", "", auth), 404);
+}
+
+TEST_F(TokenSlamd, ReadingNeedsNoToken) {
+  for (const std::string path :
+       {"/api/v1/health", "/api/v1/status", "/api/v1/budget", "/api/v1/params", "/api/v1/map",
+        "/api/v1/trajectory", "/api/v1/jobs", "/metrics"}) {
+    EXPECT_EQ(http().Get(path).status, 200) << path;
+  }
+  EventStream stream;
+  EXPECT_EQ(stream.Open(port()), 200);
+  EXPECT_TRUE(stream.WaitFor("hello", 5.0).has_value());
+}
+
+// ---------------------------------------------------------------------------------------------
+// The event stream (at most two concurrent streams here)
+
+class EventStreamSlamd : public SlamdSuite {
+ protected:
+  static void SetUpTestSuite() { StartShared({"--max-streams", "2", "--budget", "8000"}); }
+  static void TearDownTestSuite() { StopShared(); }
+
+  /// Waits (bounded) until slamd counts `expected` open streams; the last count.
+  double WaitForStreamClients(double expected, double timeout_s) {
+    return PollMetric(http(), "slamd_event_stream_clients", timeout_s,
+                      [&](double value) { return value == expected; })
+        .value_or(-1.0);
+  }
+};
+
+TEST_F(EventStreamSlamd, ConnectGivesHelloTilesThenLiveEvents) {
+  const json map = WaitForTiles(http(), 1);
+  EventStream stream;
+  ASSERT_EQ(stream.Open(port()), 200);
+  EXPECT_TRUE(StartsWith(stream.Header("Content-Type"), "text/event-stream"))
+      << stream.Header("Content-Type");
+
+  const auto hello = stream.Next(5.0);
+  ASSERT_TRUE(hello.has_value());
+  EXPECT_EQ(hello->name, "hello");
+  EXPECT_TRUE(hello->has_id);
+  const json hello_data = hello->Json();
+  EXPECT_TRUE(hello_data["version"].is_string()) << hello->data;
+  EXPECT_TRUE(hello_data["source"].is_object()) << hello->data;
+  EXPECT_EQ(hello_data.value("simulated", false), true) << hello->data;
+
+  // Next, every tile (no Last-Event-ID).
+  const auto tiles = stream.Next(5.0);
+  ASSERT_TRUE(tiles.has_value());
+  ASSERT_EQ(tiles->name, "tiles");
+  ASSERT_TRUE(tiles->has_id);
+  const json tiles_data = tiles->Json();
+  ASSERT_TRUE(tiles_data["tiles"].is_array()) << tiles->data;
+  EXPECT_GE(tiles_data["tiles"].size(), map["tiles"].size());
+  EXPECT_TRUE(tiles_data["version"].is_number_integer());
+  int64_t largest = 0;
+  for (const auto& tile : tiles_data["tiles"]) {
+    ASSERT_TRUE(tile["x"].is_number_integer() && tile["y"].is_number_integer() &&
+                tile["version"].is_number_integer())
+        << tile.dump();
+    largest = std::max(largest, tile["version"].get<int64_t>());
+  }
+  EXPECT_GE(largest, map["version"].get<int64_t>());
+  EXPECT_LE(largest, tiles->Id()) << "id is the map version at the time of the event";
+  EXPECT_EQ(tiles_data["version"].get<int64_t>(), largest);
+
+  // Live: pose, metrics and newer tiles within a few seconds.
+  bool saw_pose = false, saw_metrics = false, saw_newer_tiles = false;
+  const auto deadline = After(8.0);
+  while (!(saw_pose && saw_metrics && saw_newer_tiles) && Clock::now() < deadline) {
+    const auto event = stream.Next(std::chrono::duration<double>(deadline - Clock::now()).count());
+    if (!event) break;
+    const json data = event->Json();
+    if (event->name == "pose") {
+      saw_pose = true;
+      for (const char* key : {"scan", "t", "x", "y", "theta"}) {
+        EXPECT_TRUE(data[key].is_number()) << key << " in " << event->data;
+      }
+      ASSERT_TRUE(data.contains("truth")) << event->data;
+      EXPECT_TRUE(data["truth"].is_object()) << "simulated: truth expected " << event->data;
+      for (const char* key : {"x", "y", "theta"}) {
+        EXPECT_TRUE(data["truth"][key].is_number()) << key << " in " << event->data;
+      }
+    } else if (event->name == "metrics") {
+      saw_metrics = true;
+      for (const char* key : {"scan", "rays_planned", "rays_used", "quota", "latency_ms",
+                              "cpu_share", "realtime_ratio", "particles", "candidates", "ess"}) {
+        EXPECT_TRUE(data[key].is_number()) << key << " in " << event->data;
+      }
+      ASSERT_TRUE(data.contains("pose_error_m")) << event->data;
+      EXPECT_TRUE(data["pose_error_m"].is_number()) << "simulated: a pose error " << event->data;
+    } else if (event->name == "tiles") {
+      for (const auto& tile : data["tiles"]) {
+        EXPECT_GT(tile["version"].get<int64_t>(), tiles->Id()) << event->data;
+        EXPECT_LE(tile["version"].get<int64_t>(), event->Id()) << event->data;
+      }
+      saw_newer_tiles = saw_newer_tiles || !data["tiles"].empty();
+    }
+  }
+  EXPECT_TRUE(saw_pose);
+  EXPECT_TRUE(saw_metrics);
+  EXPECT_TRUE(saw_newer_tiles);
+}
+
+TEST_F(EventStreamSlamd, LastEventIdResendsOnlyNewerTiles) {
+  WaitForTiles(http(), 2);
+  int64_t first_id = 0;
+  {
+    EventStream stream;
+    ASSERT_EQ(stream.Open(port()), 200);
+    ASSERT_TRUE(stream.WaitFor("hello", 5.0).has_value());
+    const auto tiles = stream.WaitFor("tiles", 5.0);
+    ASSERT_TRUE(tiles.has_value());
+    first_id = tiles->Id();
+    ASSERT_GT(first_id, 0);
+  }
+  // Let the map move on past that id.
+  json map;
+  const auto deadline = After(10.0);
+  do {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    map = GetJson(http(), "/api/v1/map");
+  } while (map.value("version", int64_t{0}) <= first_id && Clock::now() < deadline);
+  ASSERT_GT(map.value("version", int64_t{0}), first_id);
+  size_t older = 0;
+  for (const auto& tile : map["tiles"]) older += tile["version"].get<int64_t>() <= first_id;
+  ASSERT_GT(older, 0u) << "precondition: some tiles did not change since id " << first_id;
+
+  EventStream resumed;
+  ASSERT_EQ(resumed.Open(port(), std::to_string(first_id)), 200);
+  const auto hello = resumed.Next(5.0);
+  ASSERT_TRUE(hello.has_value());
+  EXPECT_EQ(hello->name, "hello");
+  const auto tiles = resumed.Next(5.0);
+  ASSERT_TRUE(tiles.has_value());
+  ASSERT_EQ(tiles->name, "tiles");
+  const json data = tiles->Json();
+  ASSERT_TRUE(data["tiles"].is_array());
+  EXPECT_FALSE(data["tiles"].empty());
+  for (const auto& tile : data["tiles"]) {
+    EXPECT_GT(tile["version"].get<int64_t>(), first_id) << tile.dump();
+  }
+  EXPECT_LT(data["tiles"].size(), map["tiles"].size() - older + 8)
+      << "about the changed tiles only";
+}
+
+TEST_F(EventStreamSlamd, DisconnectIsNoticedWithinTwoSeconds) {
+  ASSERT_EQ(WaitForStreamClients(0, 5.0), 0.0) << "streams of earlier tests still counted";
+  EventStream stream;
+  ASSERT_EQ(stream.Open(port()), 200);
+  ASSERT_TRUE(stream.WaitFor("hello", 5.0).has_value());
+  EXPECT_EQ(WaitForStreamClients(1, 2.0), 1.0);
+  stream.Close();
+  const auto closed_at = Clock::now();
+  EXPECT_EQ(WaitForStreamClients(0, 3.0), 0.0);
+  EXPECT_LT(SecondsSince(closed_at), 2.5) << "disconnect noticed too late";
+}
+
+TEST_F(EventStreamSlamd, MoreStreamsThanTheCapAre503WithRetryAfter) {
+  ASSERT_EQ(WaitForStreamClients(0, 5.0), 0.0) << "streams of earlier tests still counted";
+  const double rejected_before =
+      Metric(GetMetrics(http()), "slamd_event_streams_rejected_total").value_or(-1.0);
+  ASSERT_GE(rejected_before, 0.0);
+  EventStream first, second, third;
+  ASSERT_EQ(first.Open(port()), 200);
+  ASSERT_TRUE(first.WaitFor("hello", 5.0).has_value());
+  ASSERT_EQ(second.Open(port()), 200);
+  ASSERT_TRUE(second.WaitFor("hello", 5.0).has_value());
+  EXPECT_EQ(third.Open(port()), 503);
+  EXPECT_EQ(third.Header("Retry-After"), "5");
+  EXPECT_TRUE(StartsWith(third.Header("Content-Type"), "application/problem+json"))
+      << third.Header("Content-Type");
+  third.Close();
+  // REST still answers while the streams are at the cap.
+  EXPECT_EQ(http().Get("/api/v1/status").status, 200);
+  EXPECT_EQ(Metric(GetMetrics(http()), "slamd_event_streams_rejected_total").value_or(-1.0),
+            rejected_before + 1.0);
+  // Once one stream goes away, a new one is accepted.
+  first.Close();
+  ASSERT_EQ(WaitForStreamClients(1, 3.0), 1.0);
+  EventStream fourth;
+  EXPECT_EQ(fourth.Open(port()), 200);
+  EXPECT_TRUE(fourth.WaitFor("hello", 5.0).has_value());
+}
+
+TEST_F(EventStreamSlamd, BudgetAndParamsChangesAreAnnounced) {
+  ASSERT_EQ(WaitForStreamClients(0, 5.0), 0.0);
+  EventStream stream;
+  ASSERT_EQ(stream.Open(port()), 200);
+  ASSERT_TRUE(stream.WaitFor("hello", 5.0).has_value());
+  const json budget = GetJson(http(), kBudgetPath);
+  const Reply patched = http().MergePatch(kBudgetPath, R"({"rays_per_scan": 7000})");
+  ASSERT_EQ(patched.status, 200) << patched;
+  const auto budget_event = stream.WaitFor("budget", 3.0);
+  ASSERT_TRUE(budget_event.has_value());
+  EXPECT_EQ(budget_event->Json(), patched.Json());
+
+  const Reply params = http().MergePatch(kParamsPath, R"({"particles": 2})");
+  ASSERT_EQ(params.status, 200) << params;
+  const auto params_event = stream.WaitFor("params", 3.0);
+  ASSERT_TRUE(params_event.has_value());
+  EXPECT_EQ(params_event->Json(), params.Json());
+
+  EXPECT_EQ(http().PutJson(kBudgetPath, budget.dump()).status, 200);
+  EXPECT_EQ(http().MergePatch(kParamsPath, R"({"particles": null})").status, 200);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reset
+
+TEST(SlamdResetTest, ResetDropsTilesAndVersionsKeepGrowing) {
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--budget", "8000"}, &error)) << error;
+  Http http(slamd.host(), slamd.port());
+  WaitForTiles(http, 2);
+  const json trajectory = WaitForTrajectory(http, 10);
+  const int64_t version_before = MapVersion(http);
+  ASSERT_GT(version_before, 0);
+
+  EventStream stream;
+  ASSERT_EQ(stream.Open(slamd.port()), 200);
+  ASSERT_TRUE(stream.WaitFor("tiles", 5.0).has_value());
+
+  const Reply reset = http.PostJson("/api/v1/reset", "{}");
+  ASSERT_EQ(reset.status, 200) << reset;
+  const json reset_body = reset.Json();
+  ASSERT_TRUE(reset_body["version"].is_number_integer()) << reset;
+  EXPECT_GE(reset_body["version"].get<int64_t>(), version_before);
+
+  // Every tile listed now was written after the reset: the old ones were dropped.
+  const json after = GetJson(http, "/api/v1/map");
+  for (const auto& tile : after["tiles"]) {
+    EXPECT_GT(tile["version"].get<int64_t>(), version_before) << tile.dump();
+  }
+  EXPECT_GE(after.value("version", int64_t{0}), version_before);
+  const json restarted = GetJson(http, "/api/v1/trajectory");
+  EXPECT_LT(restarted["slam"].size(), trajectory["slam"].size());
+
+  // The stream tells viewers to drop their tiles.
+  const auto reset_event = stream.WaitFor("reset", 3.0);
+  ASSERT_TRUE(reset_event.has_value());
+  EXPECT_EQ(reset_event->Json().value("version", int64_t{-1}),
+            reset_body["version"].get<int64_t>());
+
+  // Mapping goes on with ever larger versions.
+  const json again = WaitForTiles(http, 1);
+  for (const auto& tile : again["tiles"]) {
+    EXPECT_GT(tile["version"].get<int64_t>(), version_before);
+  }
+  const auto tiles_event = stream.WaitFor("tiles", 5.0);
+  ASSERT_TRUE(tiles_event.has_value());
+  for (const auto& tile : tiles_event->Json()["tiles"]) {
+    EXPECT_GT(tile["version"].get<int64_t>(), version_before);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Save and resume
+
+TEST(SlamdStateDirTest, SaveWritesTheFilesAndARestartResumes) {
+  ScratchDir state("state");
+  size_t saved_tiles = 0;
+  int64_t saved_version = 0;
+  std::vector<std::vector<double>> saved_trajectory;
+  {
+    SlamdProcess slamd;
+    std::string error;
+    ASSERT_TRUE(slamd.Start({"--state-dir", state.path().string(), "--budget", "8000"}, &error))
+        << error;
+    Http http(slamd.host(), slamd.port());
+    WaitForTiles(http, 2);
+    WaitForTrajectory(http, 5);
+    const Reply save = http.PostJson("/api/v1/map/save", "{}");
+    ASSERT_EQ(save.status, 200) << save;
+    const json body = save.Json();
+    ASSERT_TRUE(body["path"].is_string()) << save;
+    EXPECT_TRUE(fs::equivalent(fs::path(body["path"].get<std::string>()), state.path()))
+        << body.dump();
+    ASSERT_TRUE(body["version"].is_number_integer() && body["tiles"].is_number_integer());
+    saved_version = body["version"].get<int64_t>();
+    saved_tiles = body["tiles"].get<size_t>();
+    EXPECT_GT(saved_version, 0);
+    EXPECT_GT(saved_tiles, 0u);
+    for (const char* name : {"map.pgm", "map.yaml", "map.png", "trajectory.tum", "state.json"}) {
+      EXPECT_TRUE(fs::exists(state.path() / name)) << name;
+      EXPECT_GT(fs::file_size(state.path() / name), 0u) << name;
+    }
+    EXPECT_EQ(ReadFile(state.path() / "map.pgm").substr(0, 2), "P5");
+    EXPECT_NE(ReadFile(state.path() / "map.yaml").find("map.pgm"), std::string::npos);
+    EXPECT_EQ(ReadFile(state.path() / "map.png").substr(0, 8), kPngSignature);
+    EXPECT_FALSE(json::parse(ReadFile(state.path() / "state.json"), nullptr, false).is_discarded());
+    saved_trajectory = ParseTum(ReadFile(state.path() / "trajectory.tum"));
+    EXPECT_GE(saved_trajectory.size(), 5u);
+    // No temporaries left behind.
+    const auto file_names = [&] {
+      std::set<std::string> names;
+      for (const auto& entry : fs::directory_iterator(state.path())) {
+        names.insert(entry.path().filename().string());
+      }
+      return names;
+    };
+    const std::set<std::string> first_files = file_names();
+    for (const auto& name : first_files) {
+      EXPECT_TRUE(name.find("tmp") == std::string::npos && name.front() != '.' &&
+                  name.back() != '~')
+          << "temporary file left: " << name;
+    }
+    // Saving again is fine (files replaced, none piling up).
+    EXPECT_EQ(http.PostJson("/api/v1/map/save", "{}").status, 200);
+    EXPECT_EQ(file_names().size(), first_files.size());
+    const auto code = slamd.Stop();
+    ASSERT_TRUE(code.has_value());
+    EXPECT_EQ(*code, 0);
+    // Keep the numbers of the last save (the second one).
+    saved_trajectory = ParseTum(ReadFile(state.path() / "trajectory.tum"));
+  }
+  SlamdProcess resumed;
+  std::string error;
+  ASSERT_TRUE(resumed.Start({"--state-dir", state.path().string(), "--budget", "8000"}, &error))
+      << error;
+  Http http(resumed.host(), resumed.port());
+  // Right after the start: the saved map is there.
+  const json map = GetJson(http, "/api/v1/map");
+  EXPECT_GE(map["tiles"].size(), saved_tiles);
+  EXPECT_GE(map.value("version", int64_t{0}), saved_version);
+  // The trajectory starts with the saved one and goes on.
+  const json trajectory = GetJson(http, "/api/v1/trajectory");
+  ASSERT_TRUE(trajectory["slam"].is_array());
+  ASSERT_GE(trajectory["slam"].size(), saved_trajectory.size());
+  ASSERT_FALSE(saved_trajectory.empty());
+  for (size_t i = 0; i < saved_trajectory.size();
+       i += std::max<size_t>(1, saved_trajectory.size() / 5)) {
+    EXPECT_NEAR(trajectory["slam"][i][0].get<double>(), saved_trajectory[i][0], 1e-3) << i;
+    EXPECT_NEAR(trajectory["slam"][i][1].get<double>(), saved_trajectory[i][1], 1e-3) << i;
+    EXPECT_NEAR(trajectory["slam"][i][2].get<double>(), saved_trajectory[i][2], 1e-3) << i;
+  }
+  const json later = WaitForTrajectory(http, saved_trajectory.size() + 3, 10.0);
+  EXPECT_GT(later["slam"].size(), saved_trajectory.size());
+  const auto& last = later["slam"].back();
+  EXPECT_GT(last[0].get<double>(), saved_trajectory.back()[0]) << "time goes on after resuming";
+  // New tiles get versions above the saved ones.
+  const auto deadline = After(10.0);
+  int64_t version = 0;
+  while ((version = MapVersion(http)) <= saved_version && Clock::now() < deadline) Nap();
+  EXPECT_GT(version, saved_version);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Tuning jobs on two small generated experiments
+
+class JobsSlamd : public SlamdSuite {
+ protected:
+  static void SetUpTestSuite() {
+    experiments_ = std::make_unique<ScratchDir>("experiments");
+    for (const auto& [name, seed] : {std::pair<std::string, int>{"box-1", 1}, {"box-2", 2}}) {
+      const std::string command = SlamSimBinary() + " --world box --duration 10 --seed " +
+                                  std::to_string(seed) + " --out " +
+                                  (experiments_->path() / name).string() + " > /dev/null";
+      if (std::system(command.c_str()) != 0) {
+        start_error_ = "failed: " + command;
+        slamd_ = std::make_unique<SlamdProcess>();
+        return;
+      }
+    }
+    StartShared({"--experiments", experiments_->path().string(), "--budget", "8000"});
+  }
+  static void TearDownTestSuite() {
+    StopShared();
+    experiments_.reset();
+  }
+
+  /// Polls GET /api/v1/jobs/{id} until `done` holds; the last job object.
+  template <typename Predicate>
+  json PollJob(const std::string& id, double timeout_s, Predicate done) {
+    const auto deadline = After(timeout_s);
+    json job;
+    while (true) {
+      job = GetJson(http(), "/api/v1/jobs/" + id);
+      if (done(job) || Clock::now() >= deadline) return job;
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+  }
+
+  static inline std::unique_ptr<ScratchDir> experiments_;
+};
+
+void ExpectJobShape(const json& job) {
+  for (const char* key : {"id", "state", "policy", "error"}) {
+    EXPECT_TRUE(job[key].is_string()) << key << " in " << job.dump();
+  }
+  for (const char* key : {"budget", "population", "generations", "generation", "evaluations_done",
+                          "evaluations_total"}) {
+    EXPECT_TRUE(job[key].is_number_integer()) << key << " in " << job.dump();
+  }
+  EXPECT_TRUE(job["progress"].is_number()) << job.dump();
+  EXPECT_GE(job.value("progress", -1.0), 0.0);
+  EXPECT_LE(job.value("progress", 2.0), 1.0);
+  EXPECT_TRUE(job["experiments"].is_array()) << job.dump();
+  EXPECT_TRUE(job["history"].is_array()) << job.dump();
+  EXPECT_TRUE(job.contains("best")) << job.dump();
+}
+
+TEST_F(JobsSlamd, BadTuneBodiesAre422Or400Or415) {
+  Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"population": 0})"), {"/population"});
+  Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"generations": "x"})"), {"/generations"});
+  Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"policy": "lazy"})"), {"/policy"});
+  Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"budget": -5})"), {"/budget"});
+  Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"bogus": 1})"), {"/bogus"});
+  Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"experiments": ["no-such-experiment"]})"),
+              {"/experiments/0"});
+  Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"experiments": "box-1"})"),
+              {"/experiments"});
+  Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"population": 0, "seed": "s"})"),
+              {"/population", "/seed"});
+  Expect422At(http().PostJson("/api/v1/jobs/tune", "[]"), {""});
+  ExpectProblem(http().PostJson("/api/v1/jobs/tune", "{"), 400);
+  ExpectProblem(http().Send("POST", "/api/v1/jobs/tune", "{}", "text/plain"), 415);
+  // None of them started a job.
+  const json jobs = GetJson(http(), "/api/v1/jobs");
+  ASSERT_TRUE(jobs["jobs"].is_array());
+  for (const auto& job : jobs["jobs"]) EXPECT_NE(job.value("state", ""), "running") << job.dump();
+}
+
+TEST_F(JobsSlamd, SecondJobIs409AndDeleteCancelsThenForgets) {
+  const Reply started = http().PostJson(
+      "/api/v1/jobs/tune", R"({"population": 12, "generations": 8, "budget": 2000, "seed": 3})");
+  ASSERT_EQ(started.status, 202) << started;
+  const json job = started.Json();
+  ExpectJobShape(job);
+  const std::string id = job.value("id", "");
+  ASSERT_FALSE(id.empty());
+  EXPECT_EQ(job.value("state", ""), "running");
+  EXPECT_EQ(job.value("population", 0), 12);
+  EXPECT_EQ(job.value("generations", 0), 8);
+  EXPECT_EQ(job.value("budget", 0), 2000);
+  EXPECT_EQ(job["experiments"], json({"box-1", "box-2"}));
+
+  ExpectProblem(http().PostJson("/api/v1/jobs/tune", "{}"), 409);
+  const json status = GetJson(http(), "/api/v1/status");
+  ASSERT_TRUE(status["job"].is_object()) << status.dump();
+  EXPECT_EQ(status["job"].value("id", ""), id);
+  EXPECT_EQ(Metric(GetMetrics(http()), "slamd_jobs_running"), 1.0);
+  const json listed = GetJson(http(), "/api/v1/jobs");
+  ASSERT_TRUE(listed["jobs"].is_array());
+  bool found = false;
+  for (const auto& entry : listed["jobs"]) found = found || entry.value("id", "") == id;
+  EXPECT_TRUE(found) << listed.dump();
+
+  const Reply cancel = http().Send("DELETE", "/api/v1/jobs/" + id, "", "");
+  EXPECT_EQ(cancel.status, 202) << cancel;
+  const json cancelled =
+      PollJob(id, 15.0, [](const json& j) { return j.value("state", "") != "running"; });
+  EXPECT_EQ(cancelled.value("state", ""), "cancelled") << cancelled.dump();
+  EXPECT_LT(cancelled.value("evaluations_done", 1 << 30), cancelled.value("evaluations_total", 0));
+  EXPECT_EQ(PollMetric(http(), "slamd_jobs_running", 3.0, [](double v) { return v == 0.0; }), 0.0);
+
+  const Reply forget = http().Send("DELETE", "/api/v1/jobs/" + id, "", "");
+  EXPECT_EQ(forget.status, 200) << forget;
+  ExpectProblem(http().Get("/api/v1/jobs/" + id), 404);
+  ExpectProblem(http().Send("DELETE", "/api/v1/jobs/" + id, "", ""), 404);
+}
+
+TEST_F(JobsSlamd, SmallJobReportsProgressAndFinishes) {
+  // Make sure no job of another test is still running.
+  const json jobs = GetJson(http(), "/api/v1/jobs");
+  for (const auto& job : jobs["jobs"]) {
+    if (job.value("state", "") == "running") {
+      http().Send("DELETE", "/api/v1/jobs/" + job.value("id", ""), "", "");
+      PollJob(job.value("id", ""), 15.0,
+              [](const json& j) { return j.value("state", "") != "running"; });
+    }
+  }
+  EventStream stream;
+  ASSERT_EQ(stream.Open(port()), 200);
+  ASSERT_TRUE(stream.WaitFor("hello", 5.0).has_value());
+
+  const Reply started = http().PostJson(
+      "/api/v1/jobs/tune",
+      R"({"population": 2, "generations": 1, "budget": 2000, "seed": 1, "experiments": ["box-1"]})");
+  ASSERT_EQ(started.status, 202) << started;
+  const std::string id = started.Json().value("id", "");
+  ASSERT_FALSE(id.empty());
+  EXPECT_EQ(started.Json()["experiments"], json({"box-1"}));
+
+  int64_t last_done = 0;
+  double last_progress = 0.0;
+  const json finished = PollJob(id, 40.0, [&](const json& j) {
+    const int64_t done = j.value("evaluations_done", int64_t{0});
+    const double progress = j.value("progress", 0.0);
+    EXPECT_GE(done, last_done) << "evaluations_done went back";
+    EXPECT_GE(progress, last_progress) << "progress went back";
+    last_done = done;
+    last_progress = progress;
+    return j.value("state", "") != "running";
+  });
+  ExpectJobShape(finished);
+  ASSERT_EQ(finished.value("state", ""), "done") << finished.dump();
+  EXPECT_EQ(finished.value("error", "?"), "");
+  EXPECT_GT(finished.value("evaluations_total", 0), 0);
+  EXPECT_EQ(finished.value("evaluations_done", 0), finished.value("evaluations_total", -1));
+  EXPECT_DOUBLE_EQ(finished.value("progress", 0.0), 1.0);
+  ASSERT_FALSE(finished["history"].empty());
+  for (const auto& generation : finished["history"]) {
+    for (const char* key : {"min", "q1", "median", "q3", "max"}) {
+      EXPECT_TRUE(generation[key].is_number()) << key << " in " << generation.dump();
+    }
+    EXPECT_LE(generation.value("min", 1.0), generation.value("median", 0.0));
+    EXPECT_LE(generation.value("median", 1.0), generation.value("max", 0.0));
+  }
+  ASSERT_TRUE(finished["best"].is_object()) << finished.dump();
+  EXPECT_TRUE(finished["best"]["fitness"].is_number());
+  EXPECT_TRUE(finished["best"]["params"].is_object());
+
+  // The stream announced the job, finally as done.
+  bool saw_done = false;
+  const auto deadline = After(5.0);
+  while (!saw_done && Clock::now() < deadline) {
+    const auto event =
+        stream.WaitFor("job", std::chrono::duration<double>(deadline - Clock::now()).count());
+    if (!event) break;
+    EXPECT_EQ(event->Json().value("id", ""), id);
+    saw_done = event->Json().value("state", "") == "done";
+  }
+  EXPECT_TRUE(saw_done);
+
+  // A finished job can be forgotten.
+  EXPECT_EQ(http().Send("DELETE", "/api/v1/jobs/" + id, "", "").status, 200);
+  ExpectProblem(http().Get("/api/v1/jobs/" + id), 404);
+}
+
+}  // namespace
+}  // namespace slamd_test
