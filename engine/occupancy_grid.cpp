@@ -39,6 +39,7 @@ Tile& OccupancyGrid::MutableTile(TileIndex t) {
     slot = std::make_shared<Tile>(*slot);  // copy on write
   }
   slot->version = write_version_;
+  slot->occupied_blocks.store(kUnknownSummary, std::memory_order_relaxed);  // being written
   return *slot;
 }
 
@@ -69,6 +70,27 @@ void OccupancyGrid::EnsureCovers(TileIndex t) {
   origin_ = {static_cast<int32_t>(x0), static_cast<int32_t>(y0)};
   width_ = w;
   height_ = h;
+}
+
+uint64_t ComputeOccupiedBlocks(const Tile& tile) {
+  uint64_t mask = 0;
+  for (int y = 0; y < kTileSize; ++y) {
+    const LogOdds* row = tile.cells.data() + y * kTileSize;
+    for (int bx = 0; bx < kBlocksPerSide; ++bx) {
+      bool any = false;
+      for (int i = 0; i < kBlockSize; ++i) any |= row[bx * kBlockSize + i] > kSummaryThreshold;
+      if (any) mask |= uint64_t{1} << ((y >> kBlockSizeLog2) * kBlocksPerSide + bx);
+    }
+  }
+  return mask;
+}
+
+void OccupancyGrid::RefreshSummaries() {
+  for (const auto& slot : slots_) {
+    if (slot && slot->occupied_blocks.load(std::memory_order_relaxed) == kUnknownSummary) {
+      slot->occupied_blocks.store(ComputeOccupiedBlocks(*slot), std::memory_order_relaxed);
+    }
+  }
 }
 
 std::vector<TileRef> OccupancyGrid::Tiles() const {

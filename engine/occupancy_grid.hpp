@@ -12,11 +12,43 @@
 
 namespace slam {
 
+/// Blocks of a tile for the empty-space summary: kTileSize / kBlockSize squared = 64 blocks.
+inline constexpr int kBlockSizeLog2 = 3;
+inline constexpr int kBlockSize = 1 << kBlockSizeLog2;  // 8 cells
+inline constexpr int kBlocksPerSide = kTileSize / kBlockSize;
+static_assert(kBlocksPerSide * kBlocksPerSide == 64, "one bit per block in a uint64_t");
+/// A summary that says nothing: every block may hold an occupied cell.
+inline constexpr uint64_t kUnknownSummary = ~uint64_t{0};
+/// The summary marks cells above this (log odds 0: more likely occupied than free).
+inline constexpr LogOdds kSummaryThreshold = 0;
+
 /// One square block of cells; `version` identifies its contents (never reused, only grows).
 struct Tile {
   std::array<LogOdds, kTileCells> cells{};
   uint64_t version = 0;
+  /// Empty-space summary for matching rays (OccupancyGrid::RefreshSummaries): bit
+  /// (by * kBlocksPerSide + bx) is clear when no cell of block (bx, by) is above
+  /// kSummaryThreshold. kUnknownSummary while the tile is being written: a stale summary only
+  /// costs time (blocks are then examined cell by cell), never a wrong answer. Atomic because
+  /// grids sharing a tile may refresh it from several threads (with the same value).
+  std::atomic<uint64_t> occupied_blocks{kUnknownSummary};
+
+  Tile() = default;
+  Tile(const Tile& other)
+      : cells(other.cells),
+        version(other.version),
+        occupied_blocks(other.occupied_blocks.load(std::memory_order_relaxed)) {}
+  Tile& operator=(const Tile& other) {
+    cells = other.cells;
+    version = other.version;
+    occupied_blocks.store(other.occupied_blocks.load(std::memory_order_relaxed),
+                          std::memory_order_relaxed);
+    return *this;
+  }
 };
+
+/// The summary of a tile's cells (bit per block, see Tile::occupied_blocks).
+uint64_t ComputeOccupiedBlocks(const Tile& tile);
 
 /// A tile of a grid as handed to readers (exporters, the server): immutable and shared.
 struct TileRef {
@@ -68,6 +100,11 @@ class OccupancyGrid {
     LogOdds& cell = MutableTile(GridGeometry::TileOf(c)).cells[static_cast<size_t>(GridGeometry::OffsetInTile(c))];
     cell = AddLogOdds(cell, delta, limit_);
   }
+
+  /// Recomputes the empty-space summary of every tile written since its last refresh (the
+  /// engine calls it after each update phase). Tiles shared with other grids may be refreshed
+  /// concurrently by them: they compute the same value from the same immutable cells.
+  void RefreshSummaries();
 
   /// Every tile written so far, as shared immutable references (row-major tile order).
   std::vector<TileRef> Tiles() const;

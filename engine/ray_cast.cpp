@@ -16,8 +16,8 @@ std::vector<CellIndex> CellsOnRay(const GridGeometry& geometry, const Vec2& from
   return cells;
 }
 
-RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,
-                      double max_range_m, LogOdds occupied_above) {
+RayHit CastToObstaclePlain(const OccupancyGrid& grid, const Vec2& origin, double angle,
+                           double max_range_m, LogOdds occupied_above) {
   RayHit result{max_range_m, max_range_m, false, 0};
   const Vec2 direction(std::cos(angle), std::sin(angle));
   // Cache the current tile: consecutive cells of a ray almost always share it.
@@ -41,6 +41,108 @@ RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angl
                                  return true;
                                });
   return result;
+}
+
+RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,
+                      double max_range_m, LogOdds occupied_above) {
+  if (occupied_above < kSummaryThreshold) {
+    return CastToObstaclePlain(grid, origin, angle, max_range_m, occupied_above);
+  }
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  constexpr double kCornerEpsilon = 1e-9;  // as TraverseCells
+  RayHit result{max_range_m, max_range_m, false, 0};
+  const double res = grid.geometry().resolution();
+  const double dx = std::cos(angle), dy = std::sin(angle);
+  const Vec2 p = grid.geometry().ToGrid(origin);
+  const double length = max_range_m / res;
+  const int step_x = dx > 0 ? 1 : (dx < 0 ? -1 : 0);
+  const int step_y = dy > 0 ? 1 : (dy < 0 ? -1 : 0);
+  const double delta_x = step_x != 0 ? 1.0 / std::abs(dx) : kInf;
+  const double delta_y = step_y != 0 ? 1.0 / std::abs(dy) : kInf;
+  // Closed-form time (in cells along the ray) of the next x / y boundary beyond cell (cx, cy).
+  const auto next_x_of = [&](int32_t cx) {
+    return step_x > 0 ? (cx + 1 - p.x()) * delta_x : step_x < 0 ? (p.x() - cx) * delta_x : kInf;
+  };
+  const auto next_y_of = [&](int32_t cy) {
+    return step_y > 0 ? (cy + 1 - p.y()) * delta_y : step_y < 0 ? (p.y() - cy) * delta_y : kInf;
+  };
+  int32_t cx = static_cast<int32_t>(std::floor(p.x()));
+  int32_t cy = static_cast<int32_t>(std::floor(p.y()));
+  double next_x = next_x_of(cx), next_y = next_y_of(cy);
+  double t = 0.0;
+  bool first = true;
+  TileIndex cached_index{std::numeric_limits<int32_t>::min(), 0};
+  const Tile* tile = nullptr;
+  uint64_t mask = 0;
+  while (true) {
+    const TileIndex ti = GridGeometry::TileOf({cx, cy});
+    if (!(ti == cached_index)) {
+      cached_index = ti;
+      tile = grid.FindTile(ti);
+      // A missing tile holds nothing: all of it can be jumped over.
+      mask = tile != nullptr ? tile->occupied_blocks.load(std::memory_order_relaxed) : 0;
+    }
+    const int lx = cx & (kTileSize - 1), ly = cy & (kTileSize - 1);
+    const int block = (ly >> kBlockSizeLog2) * kBlocksPerSide + (lx >> kBlockSizeLog2);
+    if (((mask >> block) & 1) == 0) {
+      // Nothing above the threshold in this block (or the whole tile): jump to where the ray
+      // leaves it, and enter the cell beyond.
+      const int size = mask == 0 ? kTileSize : kBlockSize;
+      const int32_t x_lo = cx & ~(size - 1), y_lo = cy & ~(size - 1);
+      const double exit_x = step_x > 0 ? (x_lo + size - p.x()) * delta_x
+                             : step_x < 0 ? (p.x() - x_lo) * delta_x
+                                          : kInf;
+      const double exit_y = step_y > 0 ? (y_lo + size - p.y()) * delta_y
+                             : step_y < 0 ? (p.y() - y_lo) * delta_y
+                                          : kInf;
+      const double t_exit = std::min(exit_x, exit_y);
+      if (t_exit >= length) return result;
+      const bool corner = std::abs(exit_x - exit_y) <= kCornerEpsilon * (1.0 + t_exit);
+      if (corner || exit_x < exit_y) {
+        cx = step_x > 0 ? x_lo + size : x_lo - 1;
+      } else {
+        cx = std::clamp(static_cast<int32_t>(std::floor(p.x() + dx * t_exit)), x_lo, x_lo + size - 1);
+      }
+      if (corner || exit_y < exit_x) {
+        cy = step_y > 0 ? y_lo + size : y_lo - 1;
+      } else {
+        cy = std::clamp(static_cast<int32_t>(std::floor(p.y() + dy * t_exit)), y_lo, y_lo + size - 1);
+      }
+      t = std::max(t, t_exit);
+      next_x = next_x_of(cx);
+      next_y = next_y_of(cy);
+      first = false;
+      continue;
+    }
+    const double t_next = std::min(next_x, next_y);
+    const double t_leave = std::min(t_next, length);
+    if (t_leave > t || (length == 0.0 && first)) {
+      ++result.cells;
+      if (tile->cells[static_cast<size_t>((ly << kTileSizeLog2) | lx)] > occupied_above) {
+        result.distance_m = t * res;
+        result.exit_m = t_leave * res;
+        result.hit = true;
+        return result;
+      }
+    }
+    first = false;
+    if (t_next >= length) return result;
+    if (std::abs(next_x - next_y) <= kCornerEpsilon * (1.0 + t_next)) {
+      cx += step_x;
+      cy += step_y;
+      t = t_next;
+      next_x += delta_x;
+      next_y += delta_y;
+    } else if (next_x < next_y) {
+      cx += step_x;
+      t = next_x;
+      next_x += delta_x;
+    } else {
+      cy += step_y;
+      t = next_y;
+      next_y += delta_y;
+    }
+  }
 }
 
 int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle, const UpdateProfile& profile) {

@@ -81,8 +81,17 @@ struct RayHit {
 
 /// Matching ray: from `origin` along `angle` to the first cell whose log odds exceed
 /// `occupied_above`, up to `max_range_m`. Reads only; safe to call concurrently on one grid.
+/// Skips missing tiles, and tiles and 8 x 8 blocks that the grid's empty-space summaries show
+/// free of cells above kSummaryThreshold (so for occupied_above >= kSummaryThreshold; below it,
+/// this is CastToObstaclePlain). It finds the same first occupied cell as the plain traversal;
+/// distances agree to rounding (the traversal restarts from closed-form crossing times after
+/// each jump).
 RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,
                       double max_range_m, LogOdds occupied_above);
+
+/// The same, cell by cell through every cell the ray crosses (the oracle of the tests).
+RayHit CastToObstaclePlain(const OccupancyGrid& grid, const Vec2& origin, double angle,
+                           double max_range_m, LogOdds occupied_above);
 
 /// The log-odds change along an update ray, by distance from the sensor, in bins of step_m.
 /// `delta` must be non-decreasing (free, then occupied). A crossed cell takes the value at the far

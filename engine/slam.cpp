@@ -178,6 +178,7 @@ Slam::Slam(const RobotDescription& robot, const SlamParams& params, const SlamCo
 void Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
   for (Particle& p : particles_) {
     p.map = map;
+    p.map.RefreshSummaries();
     p.pose = pose;
     p.log_weight = 0.0;
     p.history = nullptr;
@@ -419,6 +420,7 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
       const UpdateProfile* profile = sensor_models_[static_cast<size_t>(m.sensor)].Update(m.raw);
       ApplyUpdateRay(particle.map, robot.Transform(m.local_origin), robot.theta + m.local_angle, *profile);
     }
+    particle.map.RefreshSummaries();  // lets the next scan's matching rays skip empty space
     auto chunk = std::make_shared<TrajectoryChunk>();
     chunk->poses.reserve(scan.samples.size() + 1);
     for (size_t i = 0; i < scan.samples.size(); ++i) {

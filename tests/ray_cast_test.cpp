@@ -105,7 +105,7 @@ TEST(CastToObstacle, StopsAtTheFirstOccupiedCell) {
   const RayHit hit = CastToObstacle(grid, {0.005, 0.005}, 0.0, 1.0, 0);
   EXPECT_TRUE(hit.hit);
   EXPECT_NEAR(hit.distance_m, 0.295, 1e-9);
-  EXPECT_EQ(hit.cells, 31);
+  EXPECT_EQ(CastToObstaclePlain(grid, {0.005, 0.005}, 0.0, 1.0, 0).cells, 31);
   // At 60 degrees the wall is reached at 0.295 / cos(60) = 0.59 m.
   const RayHit slanted = CastToObstacle(grid, {0.005, 0.005}, DegToRad(60), 1.0, 0);
   EXPECT_TRUE(slanted.hit);
@@ -114,13 +114,127 @@ TEST(CastToObstacle, StopsAtTheFirstOccupiedCell) {
   const RayHit away = CastToObstacle(grid, {0.005, 0.005}, kPi, 0.5, 0);
   EXPECT_FALSE(away.hit);
   EXPECT_DOUBLE_EQ(away.distance_m, 0.5);
-  EXPECT_EQ(away.cells, 51);  // from x = 0.5 cells to x = -49.5: cells 0 to -50
+  // from x = 0.5 cells to x = -49.5: cells 0 to -50 (the fast path jumps over the empty ones)
+  EXPECT_EQ(CastToObstaclePlain(grid, {0.005, 0.005}, kPi, 0.5, 0).cells, 51);
+  EXPECT_LT(away.cells, 51);
   // Short of the wall: the range limits the ray.
   EXPECT_FALSE(CastToObstacle(grid, {0.005, 0.005}, 0.0, 0.2, 0).hit);
   // Starting inside an obstacle.
   EXPECT_DOUBLE_EQ(CastToObstacle(grid, {0.305, 0.0}, 0.0, 1.0, 0).distance_m, 0.0);
   // A higher threshold sees through weak evidence.
   EXPECT_FALSE(CastToObstacle(grid, {0.005, 0.005}, 0.0, 1.0, 1000).hit);
+}
+
+// A map for the fast path: walls, scattered obstacles, free space, unknown holes, missing tiles
+// and negative coordinates, at resolution `res`.
+OccupancyGrid RandomMap(uint64_t seed, double res) {
+  Rng rng(seed);
+  OccupancyGrid grid(GridGeometry(res), 2000);
+  grid.BeginWrite();
+  // Free space over most of [-200, 200)^2 cells, with holes left unknown.
+  for (int y = -200; y < 200; ++y) {
+    for (int x = -200; x < 200; ++x) {
+      if (((x * 7 + y * 13) & 31) != 0 && rng.Uniform() < 0.9) grid.Add({x, y}, -300);
+    }
+  }
+  // Wall segments of random length and direction, and isolated occupied cells.
+  for (int w = 0; w < 12; ++w) {
+    double x = rng.Uniform() * 400 - 200, y = rng.Uniform() * 400 - 200;
+    const double a = rng.Uniform() * 2 * kPi;
+    const int n = 10 + static_cast<int>(rng.Uniform() * 120);
+    for (int i = 0; i < n; ++i, x += std::cos(a), y += std::sin(a)) {
+      grid.Add({static_cast<int32_t>(std::floor(x)), static_cast<int32_t>(std::floor(y))}, 900);
+    }
+  }
+  for (int k = 0; k < 200; ++k) {
+    grid.Add({static_cast<int32_t>(rng.Uniform() * 500 - 250), static_cast<int32_t>(rng.Uniform() * 500 - 250)},
+             static_cast<int>(rng.Uniform() * 600));  // some exactly at or just above 0
+  }
+  // A far tile alone, so that rays cross missing tiles between.
+  grid.Add({700, -650}, 1000);
+  return grid;
+}
+
+void ExpectSameHits(const OccupancyGrid& grid, uint64_t seed, int rays, LogOdds occupied_above) {
+  Rng rng(seed);
+  const double res = grid.geometry().resolution();
+  int hits = 0;
+  for (int i = 0; i < rays; ++i) {
+    // Origins anywhere (also on cell and block boundaries), lengths up to 10 m of 1 cm cells.
+    Vec2 origin(rng.Uniform() * 6 - 3, rng.Uniform() * 6 - 3);
+    if (i % 5 == 0) origin = Vec2(std::round(origin.x() / res / 8) * 8 * res, origin.y());
+    if (i % 7 == 0) origin = Vec2(origin.x(), std::round(origin.y() / res) * res);
+    double angle = rng.Uniform() * 2 * kPi;
+    if (i % 11 == 0) angle = std::round(angle / (kPi / 4)) * (kPi / 4);  // axes and diagonals
+    const double range = (i % 13 == 0 ? 0.0 : rng.Uniform()) * (i % 3 == 0 ? 10.0 : 1.5) * res / 0.01;
+    const RayHit plain = CastToObstaclePlain(grid, origin, angle, range, occupied_above);
+    const RayHit fast = CastToObstacle(grid, origin, angle, range, occupied_above);
+    ASSERT_EQ(fast.hit, plain.hit) << "ray " << i << " from (" << origin.x() << ", " << origin.y()
+                                   << ") at " << angle << " over " << range;
+    ASSERT_NEAR(fast.distance_m, plain.distance_m, 1e-9 * (1 + range)) << "ray " << i;
+    ASSERT_NEAR(fast.exit_m, plain.exit_m, 1e-9 * (1 + range)) << "ray " << i;
+    EXPECT_LE(fast.cells, plain.cells) << "ray " << i;
+    hits += plain.hit ? 1 : 0;
+  }
+  // The rays meet walls often enough for the comparison to mean something, but not always.
+  EXPECT_GT(hits, rays / 10);
+  EXPECT_LT(hits, rays * 9 / 10);
+}
+
+TEST(CastToObstacleFast, FindsWhatThePlainTraversalFinds) {
+  OccupancyGrid grid = RandomMap(7, 0.01);
+  grid.RefreshSummaries();
+  ExpectSameHits(grid, 1, 100000, 0);
+  ExpectSameHits(grid, 2, 20000, 400);  // a higher threshold: the summary still bounds it
+}
+
+TEST(CastToObstacleFast, StaleAndMissingSummariesOnlyCostTime) {
+  OccupancyGrid grid = RandomMap(8, 0.01);
+  ExpectSameHits(grid, 3, 20000, 0);  // never refreshed: every block examined
+  grid.RefreshSummaries();
+  // Writes after the refresh: new obstacles in blocks the summary showed empty.
+  grid.BeginWrite();
+  Rng rng(9);
+  for (int k = 0; k < 300; ++k) {
+    grid.Add({static_cast<int32_t>(rng.Uniform() * 400 - 200), static_cast<int32_t>(rng.Uniform() * 400 - 200)}, 800);
+  }
+  ExpectSameHits(grid, 4, 20000, 0);
+  ExpectSameHits(grid, 5, 5000, -100);  // below the summary's threshold: the plain path
+}
+
+TEST(CastToObstacleFast, OtherResolutionsAndSharedTiles) {
+  OccupancyGrid grid = RandomMap(10, 0.05);
+  const OccupancyGrid copy = grid;  // shares every tile
+  grid.RefreshSummaries();
+  ExpectSameHits(copy, 6, 20000, 0);
+  EXPECT_TRUE(copy.SharesTileWith(grid, {0, 0}));
+}
+
+TEST(CastToObstacleFast, SkipsEmptySpace) {
+  OccupancyGrid grid = RandomMap(11, 0.01);
+  grid.RefreshSummaries();
+  // Through the big free area and the missing tiles beyond: far fewer cells examined.
+  const RayHit plain = CastToObstaclePlain(grid, {0.004, 0.003}, 0.3, 10.0, 0);
+  const RayHit fast = CastToObstacle(grid, {0.004, 0.003}, 0.3, 10.0, 0);
+  EXPECT_EQ(fast.hit, plain.hit);
+  EXPECT_LT(fast.cells * 3, plain.cells) << fast.cells << " vs " << plain.cells;
+}
+
+TEST(OccupancyGrid, SummariesMarkBlocksAboveTheThreshold) {
+  OccupancyGrid grid(GridGeometry(0.01), 2000);
+  grid.Add({3, 5}, 10);      // block (0, 0)
+  grid.Add({63, 63}, 1);     // block (7, 7)
+  grid.Add({20, 40}, -500);  // free: no bit
+  grid.Add({9, 0}, 0);       // exactly 0: not above
+  const Tile* tile = grid.FindTile({0, 0});
+  EXPECT_EQ(tile->occupied_blocks.load(), kUnknownSummary);  // written, not refreshed
+  grid.RefreshSummaries();
+  EXPECT_EQ(tile->occupied_blocks.load(), (uint64_t{1} << 0) | (uint64_t{1} << 63));
+  grid.Add({-1, -1}, 5);  // tile (-1, -1), cell (63, 63) of it
+  grid.Add({3, 5}, 0);    // rewritten: the summary is unknown again
+  EXPECT_EQ(grid.FindTile({0, 0})->occupied_blocks.load(), kUnknownSummary);
+  grid.RefreshSummaries();
+  EXPECT_EQ(grid.FindTile({-1, -1})->occupied_blocks.load(), uint64_t{1} << 63);
 }
 
 TEST(ApplyUpdateRay, AddsTheProfileByDistance) {
