@@ -1,62 +1,388 @@
-// Engine benchmarks: ray casting, the unit of cost of the ray budget.
+// Engine benchmarks: ray casting (the unit of cost of the ray budget), grid updates, matching one
+// scan, whole scans at the paper's budgets, copy-on-write resampling, and a whole replay.
+// Items are rays unless the label says otherwise; parallel benchmarks take the oneTBB thread
+// count as their last argument and report wall time.
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <utility>
 #include <vector>
 
+#include "bench/bench_support.hpp"
+#include "engine/cell_encoding.hpp"
+#include "engine/occupancy_grid.hpp"
 #include "engine/random.hpp"
 #include "engine/ray_cast.hpp"
+#include "engine/sensor_model.hpp"
+#include "engine/slam.hpp"
+#include "scheduler/fixed_plan.hpp"
+#include "scheduler/replay.hpp"
 
-namespace slam {
+namespace slam::bench {
 namespace {
 
-// A 3 m x 3 m room at 1 cm, walls occupied, inside free (as after mapping).
+constexpr int64_t kPaperBudgets[] = {8125, 16250, 32500, 65000};
+
+// ---------------------------------------------------------------------------------------------
+// Maps and rays.
+
+/// What the rays run through: nothing written (unknown), a drawn room, or the engine's own map.
+enum Fill : int64_t { kUnknown = 0, kRoom = 1, kMapped = 2 };
+
+const char* FillName(int64_t fill) {
+  switch (fill) {
+    case kUnknown:
+      return "unknown";
+    case kRoom:
+      return "room";
+    default:
+      return "mapped";
+  }
+}
+
+/// A 3 m x 3 m room at 1 cm, walls occupied, inside free (as after mapping it well).
 OccupancyGrid MakeRoom() {
   OccupancyGrid grid(GridGeometry(0.01), 5000);
+  grid.BeginWrite();
   for (int i = -150; i < 150; ++i) {
     for (int j = -150; j < 150; ++j) {
       const bool wall = i == -150 || i == 149 || j == -150 || j == 149;
       grid.Add({i, j}, wall ? 3000 : -2000);
     }
   }
+  grid.RefreshSummaries();  // as the engine does after each update phase
   return grid;
 }
 
-// Matching rays of at most range(0) cm from random poses inside the room.
-void BM_CastToObstacle(benchmark::State& state) {
-  const OccupancyGrid grid = MakeRoom();
-  const double max_range = static_cast<double>(state.range(0)) / 100.0;
-  Rng rng(1);
-  std::vector<std::pair<Vec2, double>> rays(4096);
-  for (auto& r : rays) r = {Vec2(rng.Uniform() * 2.8 - 1.4, rng.Uniform() * 2.8 - 1.4), rng.Uniform() * 2 * kPi};
+/// The engine's map after 120 s of the rooms run at 16250 rays/scan (walls, free space,
+/// unexplored parts), with the poses of its trajectory as ray origins.
+struct MappedWorld {
+  OccupancyGrid map;
+  std::vector<TimedPose> trajectory;
+};
+
+const MappedWorld& Mapped() {
+  static const MappedWorld world = [] {
+    const Slam engine = MappedEngine(RoomsRun(120.0), 1'000'000, 16250, 1);
+    return MappedWorld{engine.Best().map, engine.Trajectory()};
+  }();
+  return world;
+}
+
+/// A fresh copy of the grid of `fill` (shares tiles with the cached one until written).
+OccupancyGrid GridOf(int64_t fill) {
+  static const OccupancyGrid room = MakeRoom();
+  switch (fill) {
+    case kUnknown:
+      return OccupancyGrid(GridGeometry(0.01), 5000);
+    case kRoom:
+      return room;
+    default:
+      return Mapped().map;
+  }
+}
+
+struct Ray {
+  Vec2 origin;
+  double angle = 0.0;
+};
+
+/// 4096 seeded rays: from random points of the room, or from the mapped run's own poses (inside
+/// the explored space, as the engine casts them).
+std::vector<Ray> RaysFor(int64_t fill, uint64_t seed) {
+  Rng rng(seed);
+  std::vector<Ray> rays(4096);
+  const auto& trajectory = Mapped().trajectory;
+  for (Ray& ray : rays) {
+    if (fill == kMapped) {
+      const Pose2& p =
+          trajectory[static_cast<size_t>(rng.Uniform() * static_cast<double>(trajectory.size()))]
+              .pose;
+      ray.origin = Vec2(p.x, p.y);
+    } else {
+      ray.origin = Vec2(rng.Uniform() * 2.8 - 1.4, rng.Uniform() * 2.8 - 1.4);
+    }
+    ray.angle = rng.Uniform() * 2 * kPi;
+  }
+  return rays;
+}
+
+/// The engine's update profile of the long-range sensor for a reading at `distance_m` (its
+/// use window widened to its datasheet range so that every benchmarked length has one).
+UpdateProfile LongSensorProfile(double distance_m) {
+  SensorTypeDescription type = ShippedRobot().sensor_types.at("long");
+  type.use_min_m = type.range_min_m;
+  type.use_max_m = type.range_max_m;
+  const SensorModel model(type, UpdateModelConfig{}, 0.01);
+  const auto raw = static_cast<uint16_t>(CalibratedRaw(type.calibration, distance_m));
+  const UpdateProfile* profile = model.Update(raw);
+  return profile ? *profile
+                 : UpdateProfile{
+                       0.005, std::vector<int16_t>(static_cast<size_t>(distance_m / 0.005), -850)};
+}
+
+// ---------------------------------------------------------------------------------------------
+// Ray casting.
+
+// Matching rays of at most range(1) cm through a map of fill range(0) (default threshold).
+void BM_MatchingRay(benchmark::State& state) {
+  const int64_t fill = state.range(0);
+  const OccupancyGrid grid = GridOf(fill);
+  const double max_range = static_cast<double>(state.range(1)) / 100.0;
+  const std::vector<Ray> rays = RaysFor(fill, 1);
+  const LogOdds threshold = EncodeLogOdds(SlamConfig{}.occupied_above_logodds);
+  size_t i = 0;
+  int64_t cells = 0;
+  for (auto _ : state) {
+    const Ray& r = rays[i++ & 4095];
+    const RayHit hit = CastToObstacle(grid, r.origin, r.angle, max_range, threshold);
+    cells += hit.cells;
+    benchmark::DoNotOptimize(hit);
+  }
+  Items(state, state.iterations(), FillName(fill));
+  state.counters["cells_per_ray"] =
+      static_cast<double>(cells) / static_cast<double>(std::max<int64_t>(1, state.iterations()));
+}
+BENCHMARK(BM_MatchingRay)
+    ->ArgNames({"fill", "length_cm"})
+    ->ArgsProduct({{kUnknown, kRoom, kMapped}, {30, 75, 150}});
+
+// The same rays through the cell-by-cell traversal (the fast path's oracle): the before/after
+// ratio of the empty-space skipping, measured in one run.
+void BM_MatchingRayPlain(benchmark::State& state) {
+  const int64_t fill = state.range(0);
+  const OccupancyGrid grid = GridOf(fill);
+  const double max_range = static_cast<double>(state.range(1)) / 100.0;
+  const std::vector<Ray> rays = RaysFor(fill, 1);
+  const LogOdds threshold = EncodeLogOdds(SlamConfig{}.occupied_above_logodds);
   size_t i = 0;
   for (auto _ : state) {
-    const auto& r = rays[i++ & 4095];
-    benchmark::DoNotOptimize(CastToObstacle(grid, r.first, r.second, max_range, 0));
+    const Ray& r = rays[i++ & 4095];
+    benchmark::DoNotOptimize(CastToObstaclePlain(grid, r.origin, r.angle, max_range, threshold));
   }
-  state.SetItemsProcessed(state.iterations());
-  state.SetLabel("rays");
+  Items(state, state.iterations(), FillName(fill));
 }
-BENCHMARK(BM_CastToObstacle)->Arg(30)->Arg(100)->Arg(150);
+BENCHMARK(BM_MatchingRayPlain)
+    ->ArgNames({"fill", "length_cm"})
+    ->ArgsProduct({{kRoom, kMapped}, {30, 150}});
 
-// Update rays of range(0) cm.
-void BM_ApplyUpdateRay(benchmark::State& state) {
-  OccupancyGrid grid = MakeRoom();
-  UpdateProfile profile;
-  profile.step_m = 0.005;
-  profile.delta.assign(static_cast<size_t>(2 * state.range(0)), -400);
-  profile.delta.back() = 850;
-  Rng rng(2);
+// Update rays with the long sensor's profile for a reading at range(1) cm, on a map of fill
+// range(0) (the map keeps changing: cells saturate at the clamp, as in a long run).
+void BM_UpdateRay(benchmark::State& state) {
+  const int64_t fill = state.range(0);
+  OccupancyGrid grid = GridOf(fill);
+  const UpdateProfile profile = LongSensorProfile(static_cast<double>(state.range(1)) / 100.0);
+  const std::vector<Ray> rays = RaysFor(fill, 2);
+  grid.BeginWrite();
+  size_t i = 0;
   for (auto _ : state) {
-    const Vec2 origin(rng.Uniform() - 0.5, rng.Uniform() - 0.5);
-    benchmark::DoNotOptimize(ApplyUpdateRay(grid, origin, rng.Uniform() * 2 * kPi, profile));
+    const Ray& r = rays[i++ & 4095];
+    benchmark::DoNotOptimize(ApplyUpdateRay(grid, r.origin, r.angle, profile));
   }
-  state.SetItemsProcessed(state.iterations());
-  state.SetLabel("rays");
+  Items(state, state.iterations(), FillName(fill));
 }
-BENCHMARK(BM_ApplyUpdateRay)->Arg(30)->Arg(100);
+BENCHMARK(BM_UpdateRay)
+    ->ArgNames({"fill", "length_cm"})
+    ->ArgsProduct({{kUnknown, kRoom, kMapped}, {30, 75, 150}});
+
+// ---------------------------------------------------------------------------------------------
+// Grid.
+
+// Single-cell updates at random cells of the mapped area (the tiles exist and are owned).
+void BM_GridAdd(benchmark::State& state) {
+  OccupancyGrid grid = GridOf(kMapped);
+  grid.BeginWrite();
+  const std::vector<Ray> rays = RaysFor(kMapped, 3);
+  std::vector<CellIndex> cells;
+  for (const Ray& r : rays)
+    cells.push_back(
+        grid.geometry().CellOf(r.origin + Vec2(std::cos(r.angle), std::sin(r.angle)) * 0.3));
+  for (const CellIndex& c : cells) grid.Add(c, 0);  // own every tile before timing
+  size_t i = 0;
+  for (auto _ : state) {
+    grid.Add(cells[i & 4095], (i & 1) != 0 ? 850 : -850);
+    ++i;
+  }
+  benchmark::DoNotOptimize(grid.At(cells[0]));
+  Items(state, state.iterations(), "cells");
+}
+BENCHMARK(BM_GridAdd);
+
+// Copy-on-write: a copy of the mapped grid writes one cell in every tile, so every tile is
+// copied once (what a resampled particle pays on its first update of each tile).
+void BM_GridCopyOnWrite(benchmark::State& state) {
+  const OccupancyGrid source = GridOf(kMapped);
+  std::vector<TileIndex> tiles;
+  for (const TileRef& t : source.Tiles()) tiles.push_back(t.index);
+  for (auto _ : state) {
+    OccupancyGrid copy = source;
+    copy.BeginWrite();
+    for (const TileIndex& t : tiles) benchmark::DoNotOptimize(copy.MutableTile(t).cells[0]);
+  }
+  Items(state, state.iterations() * static_cast<int64_t>(tiles.size()), "tiles");
+  state.counters["tiles"] = static_cast<double>(tiles.size());
+}
+BENCHMARK(BM_GridCopyOnWrite);
+
+// ---------------------------------------------------------------------------------------------
+// Filter.
+
+constexpr size_t kWarmScans = 60;
+
+/// The engine warmed up on the first 60 scans of the 300 s rooms run at 16250 rays/scan with
+/// `particles` particles, parallel path on (cached; benchmarks work on copies, which share its
+/// tiles and keep its config: the thread count is set by the benchmark's ThreadLimit).
+const Slam& WarmEngine(int particles) {
+  static std::mutex mutex;
+  static std::map<int, std::unique_ptr<Slam>> cache;
+  const std::lock_guard lock(mutex);
+  auto& slot = cache[particles];
+  if (!slot) {
+    slot =
+        std::make_unique<Slam>(MappedEngine(RoomsRun(300.0), kWarmScans, 16250, particles, true));
+  }
+  return *slot;
+}
+
+// Copy-on-write resampling: range(0) particles drawn systematically from a weighted set of as
+// many (all sharing the mapped tiles), then each drawn copy's first update ray, which copies
+// the tile it writes. Items are particles.
+void BM_ResampleCopyOnWrite(benchmark::State& state) {
+  const auto n = static_cast<size_t>(state.range(0));
+  std::vector<Particle> particles(n, Particle{Pose2{}, 0.0, GridOf(kMapped), nullptr});
+  Rng rng(4);
+  for (Particle& p : particles) p.log_weight = rng.Gaussian();
+  const UpdateProfile profile = LongSensorProfile(0.75);
+  const std::vector<Ray> rays = RaysFor(kMapped, 5);
+  size_t ray = 0;
+  for (auto _ : state) {
+    // Systematic draw in proportion to exp(log_weight), as phase D does.
+    double max_log = particles[0].log_weight;
+    for (const Particle& p : particles) max_log = std::max(max_log, p.log_weight);
+    std::vector<double> cumulative(n);
+    double total = 0.0;
+    for (size_t i = 0; i < n; ++i)
+      cumulative[i] = total += std::exp(particles[i].log_weight - max_log);
+    const double step = total / static_cast<double>(n);
+    double u = rng.Uniform() * step;
+    std::vector<Particle> drawn;
+    drawn.reserve(n);
+    size_t j = 0;
+    for (size_t i = 0; i < n; ++i, u += step) {
+      while (j + 1 < n && cumulative[j] < u) ++j;
+      drawn.push_back(particles[j]);
+      drawn.back().log_weight = 0.0;
+    }
+    for (Particle& p : drawn) {
+      p.map.BeginWrite();
+      const Ray& r = rays[ray++ & 4095];
+      benchmark::DoNotOptimize(ApplyUpdateRay(p.map, r.origin, r.angle, profile));
+    }
+    benchmark::DoNotOptimize(drawn.data());
+  }
+  Items(state, state.iterations() * state.range(0), "particles");
+}
+BENCHMARK(BM_ResampleCopyOnWrite)->ArgName("particles")->Arg(1)->Arg(5)->Arg(16)->Arg(64);
+
+// Matching one scan (phase B, no update) with one particle and range(0) candidates, on
+// range(1) oneTBB threads. Items are matching rays.
+void BM_MatchScan(benchmark::State& state) {
+  const ThreadLimit limit(state.range(1));
+  const Slam& warm = WarmEngine(1);
+  const Scan& scan = RoomsRun(300.0).scans[kWarmScans];
+  ScanPlan plan;
+  plan.candidates = static_cast<int>(state.range(0));
+  plan.update_rays = 0;
+  int64_t rays = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    Slam engine = warm;
+    state.ResumeTiming();
+    rays += engine.ProcessScan(scan, plan).rays.matching;
+  }
+  Items(state, rays, "matching rays");
+}
+BENCHMARK(BM_MatchScan)
+    ->ArgNames({"candidates", "threads"})
+    ->ArgsProduct({{8, 64, 512}, {1, 2}})
+    ->UseRealTime()
+    ->Unit(benchmark::kMillisecond);
+
+// Whole scans (phases A-D) of the rooms run at the paper budget range(0) with range(1)
+// particles on range(2) threads, one scan per iteration in order from the warmed-up engine.
+// Items are rays (matching + update); the time per iteration is the time per scan.
+void BM_Scan(benchmark::State& state) {
+  const ThreadLimit limit(state.range(2));
+  const int particles = static_cast<int>(state.range(1));
+  const int64_t budget = state.range(0);
+  const std::vector<Scan>& scans = RoomsRun(300.0).scans;
+  std::optional<Slam> engine;
+  size_t next = scans.size();
+  int64_t rays = 0;
+  int64_t done = 0;
+  for (auto _ : state) {
+    if (next == scans.size()) {
+      state.PauseTiming();
+      engine.emplace(WarmEngine(particles));
+      next = kWarmScans;
+      state.ResumeTiming();
+    }
+    const Scan& scan = scans[next++];
+    rays += engine->ProcessScan(scan, FixedPlan(engine->Summarize(scan), budget, engine->params()))
+                .rays.total();
+    ++done;
+  }
+  Items(state, rays, "rays");
+  state.counters["rays_per_scan"] =
+      static_cast<double>(rays) / static_cast<double>(std::max<int64_t>(1, done));
+}
+BENCHMARK(BM_Scan)
+    ->ArgNames({"budget", "particles", "threads"})
+    ->ArgsProduct({{std::begin(kPaperBudgets), std::end(kPaperBudgets)}, {1, 5}, {1, 2}})
+    ->UseRealTime()
+    ->Unit(benchmark::kMillisecond);
+
+// A whole replay (Replay(): scheduler + engine, as slam-replay) of the rooms run of range(0)
+// seconds at 65000 rays/scan on range(1) threads, once. Counter realtime_factor = run
+// duration / wall time. Items are scans.
+void BM_Replay(benchmark::State& state) {
+  const ThreadLimit limit(state.range(1));
+  const SimulatedRun& run = RoomsRun(static_cast<double>(state.range(0)));
+  ReplayOptions options;
+  options.config = BenchConfig(true);
+  options.budget.rays_per_scan = 65000;
+  double wall_s = 0.0;
+  int64_t scans = 0;
+  int64_t rays = 0;
+  for (auto _ : state) {
+    const auto start = std::chrono::steady_clock::now();
+    const ReplayResult result = Replay(ShippedRobot(), run.scans, run.ground_truth, options);
+    wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    scans += result.scans;
+    rays += result.rays_total;
+  }
+  Items(state, scans, "scans");
+  const double iterations = static_cast<double>(state.iterations());
+  state.counters["realtime_factor"] = run.duration_s * iterations / wall_s;
+  state.counters["rays_per_scan"] =
+      static_cast<double>(rays) / static_cast<double>(std::max<int64_t>(1, scans));
+  state.counters["duration_s"] = run.duration_s;
+}
+BENCHMARK(BM_Replay)
+    ->ArgNames({"seconds", "threads"})
+    ->ArgsProduct({{30, 300}, {1, 2}})
+    ->Iterations(1)
+    ->UseRealTime()
+    ->Unit(benchmark::kMillisecond);
 
 }  // namespace
-}  // namespace slam
+}  // namespace slam::bench
 
 BENCHMARK_MAIN();
