@@ -48,78 +48,58 @@ RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angl
   if (occupied_above < kSummaryThreshold) {
     return CastToObstaclePlain(grid, origin, angle, max_range_m, occupied_above);
   }
-  constexpr double kInf = std::numeric_limits<double>::infinity();
-  constexpr double kCornerEpsilon = 1e-9;  // as TraverseCells
   RayHit result{max_range_m, max_range_m, false, 0};
   const double res = grid.geometry().resolution();
-  const double dx = std::cos(angle), dy = std::sin(angle);
-  const Vec2 p = grid.geometry().ToGrid(origin);
+  const Vec2 direction(std::cos(angle), std::sin(angle));
   const double length = max_range_m / res;
-  const int step_x = dx > 0 ? 1 : (dx < 0 ? -1 : 0);
-  const int step_y = dy > 0 ? 1 : (dy < 0 ? -1 : 0);
-  const double delta_x = step_x != 0 ? 1.0 / std::abs(dx) : kInf;
-  const double delta_y = step_y != 0 ? 1.0 / std::abs(dy) : kInf;
-  // Closed-form time (in cells along the ray) of the next x / y boundary beyond cell (cx, cy).
-  const auto next_x_of = [&](int32_t cx) {
-    return step_x > 0 ? (cx + 1 - p.x()) * delta_x : step_x < 0 ? (p.x() - cx) * delta_x : kInf;
-  };
-  const auto next_y_of = [&](int32_t cy) {
-    return step_y > 0 ? (cy + 1 - p.y()) * delta_y : step_y < 0 ? (p.y() - cy) * delta_y : kInf;
-  };
-  int32_t cx = static_cast<int32_t>(std::floor(p.x()));
-  int32_t cy = static_cast<int32_t>(std::floor(p.y()));
-  double next_x = next_x_of(cx), next_y = next_y_of(cy);
-  double t = 0.0;
+  GridWalk walk(grid.geometry().ToGrid(origin), direction);
+  const Vec2& p = walk.p;
   bool first = true;
   TileIndex cached_index{std::numeric_limits<int32_t>::min(), 0};
   const Tile* tile = nullptr;
   uint64_t mask = 0;
   while (true) {
-    const TileIndex ti = GridGeometry::TileOf({cx, cy});
+    const TileIndex ti = GridGeometry::TileOf({walk.cx, walk.cy});
     if (!(ti == cached_index)) {
       cached_index = ti;
       tile = grid.FindTile(ti);
       // A missing tile holds nothing: all of it can be jumped over.
       mask = tile != nullptr ? tile->occupied_blocks.load(std::memory_order_relaxed) : 0;
     }
-    const int lx = cx & (kTileSize - 1), ly = cy & (kTileSize - 1);
+    const int lx = walk.cx & (kTileSize - 1), ly = walk.cy & (kTileSize - 1);
     const int block = (ly >> kBlockSizeLog2) * kBlocksPerSide + (lx >> kBlockSizeLog2);
     if (((mask >> block) & 1) == 0) {
       // Nothing above the threshold in this block (or the whole tile): jump to where the ray
       // leaves it, and enter the cell beyond.
       const int size = mask == 0 ? kTileSize : kBlockSize;
-      const int32_t x_lo = cx & ~(size - 1), y_lo = cy & ~(size - 1);
-      const double exit_x = step_x > 0 ? (x_lo + size - p.x()) * delta_x
-                             : step_x < 0 ? (p.x() - x_lo) * delta_x
-                                          : kInf;
-      const double exit_y = step_y > 0 ? (y_lo + size - p.y()) * delta_y
-                             : step_y < 0 ? (p.y() - y_lo) * delta_y
-                                          : kInf;
+      const int32_t x_lo = walk.cx & ~(size - 1), y_lo = walk.cy & ~(size - 1);
+      const double exit_x = walk.step_x > 0   ? (x_lo + size - p.x()) * walk.delta_x
+                            : walk.step_x < 0 ? (p.x() - x_lo) * walk.delta_x
+                                              : GridWalk::kInf;
+      const double exit_y = walk.step_y > 0   ? (y_lo + size - p.y()) * walk.delta_y
+                            : walk.step_y < 0 ? (p.y() - y_lo) * walk.delta_y
+                                              : GridWalk::kInf;
       const double t_exit = std::min(exit_x, exit_y);
       if (t_exit >= length) return result;
-      const bool corner = std::abs(exit_x - exit_y) <= kCornerEpsilon * (1.0 + t_exit);
-      if (corner || exit_x < exit_y) {
-        cx = step_x > 0 ? x_lo + size : x_lo - 1;
-      } else {
-        cx = std::clamp(static_cast<int32_t>(std::floor(p.x() + dx * t_exit)), x_lo, x_lo + size - 1);
-      }
-      if (corner || exit_y < exit_x) {
-        cy = step_y > 0 ? y_lo + size : y_lo - 1;
-      } else {
-        cy = std::clamp(static_cast<int32_t>(std::floor(p.y() + dy * t_exit)), y_lo, y_lo + size - 1);
-      }
-      t = std::max(t, t_exit);
-      next_x = next_x_of(cx);
-      next_y = next_y_of(cy);
+      const bool corner = std::abs(exit_x - exit_y) <= GridWalk::kCornerEpsilon * (1.0 + t_exit);
+      const int32_t x = corner || exit_x < exit_y
+                            ? (walk.step_x > 0 ? x_lo + size : x_lo - 1)
+                            : std::clamp(static_cast<int32_t>(std::floor(p.x() + direction.x() * t_exit)),
+                                         x_lo, x_lo + size - 1);
+      const int32_t y = corner || exit_y < exit_x
+                            ? (walk.step_y > 0 ? y_lo + size : y_lo - 1)
+                            : std::clamp(static_cast<int32_t>(std::floor(p.y() + direction.y() * t_exit)),
+                                         y_lo, y_lo + size - 1);
+      walk.Enter(x, y, std::max(walk.t, t_exit));
       first = false;
       continue;
     }
-    const double t_next = std::min(next_x, next_y);
+    const double t_next = walk.NextCrossing();
     const double t_leave = std::min(t_next, length);
-    if (t_leave > t || (length == 0.0 && first)) {
+    if (t_leave > walk.t || (length == 0.0 && first)) {
       ++result.cells;
       if (tile->cells[static_cast<size_t>((ly << kTileSizeLog2) | lx)] > occupied_above) {
-        result.distance_m = t * res;
+        result.distance_m = walk.t * res;
         result.exit_m = t_leave * res;
         result.hit = true;
         return result;
@@ -127,21 +107,7 @@ RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angl
     }
     first = false;
     if (t_next >= length) return result;
-    if (std::abs(next_x - next_y) <= kCornerEpsilon * (1.0 + t_next)) {
-      cx += step_x;
-      cy += step_y;
-      t = t_next;
-      next_x += delta_x;
-      next_y += delta_y;
-    } else if (next_x < next_y) {
-      cx += step_x;
-      t = next_x;
-      next_x += delta_x;
-    } else {
-      cy += step_y;
-      t = next_y;
-      next_y += delta_y;
-    }
+    walk.Step();
   }
 }
 
