@@ -33,22 +33,6 @@
 namespace slam::bench {
 namespace {
 
-/// A tile's cells as the grey pixels slamd serves (as server/http_server.cpp's CellGray: 205
-/// unknown, else 254 * (1 - p); row 0 at the top).
-std::vector<uint8_t> TileGray(const Tile& tile) {
-  std::vector<uint8_t> gray(kTileCells);
-  for (int row = 0; row < kTileSize; ++row) {
-    const int cy = kTileSize - 1 - row;
-    for (int cx = 0; cx < kTileSize; ++cx) {
-      const LogOdds cell = tile.cells[static_cast<size_t>(cy * kTileSize + cx)];
-      gray[static_cast<size_t>(row * kTileSize + cx)] =
-          cell == 0 ? io::kUnknownGray
-                    : static_cast<uint8_t>(std::lround(254.0 * (1.0 - OccupancyProbability(cell))));
-    }
-  }
-  return gray;
-}
-
 // Every tile of the engine's map of 120 s of the rooms run, encoded as slamd's 64 x 64 grey PNG
 // (conversion included). Items are tiles.
 void BM_TilePng(benchmark::State& state) {
@@ -58,7 +42,7 @@ void BM_TilePng(benchmark::State& state) {
   int64_t bytes = 0;
   for (auto _ : state) {
     const io::PngBytes png =
-        io::EncodeGrayPng(kTileSize, kTileSize, TileGray(*tiles[i++ % tiles.size()].tile));
+        io::EncodeGrayPng(kTileSize, kTileSize, io::TileGray(*tiles[i++ % tiles.size()].tile));
     if (!png.ok()) state.SkipWithError(png.error.c_str());
     bytes += static_cast<int64_t>(png.bytes.size());
   }

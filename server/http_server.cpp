@@ -20,6 +20,7 @@
 #include "engine/io/map_image.hpp"
 #include "engine/io/params_json.hpp"
 #include "engine/io/tum.hpp"
+#include "hw_link/status_json.hpp"
 #include "server/state_store.hpp"
 
 #ifndef SLAMD_VERSION
@@ -151,37 +152,6 @@ ConfigErrors BudgetFromJson(const json& body, BudgetSettings& out) {
   return errors;
 }
 
-json LinkJson(const hw::LinkStatus& s) {
-  const auto& r = s.reassembly;
-  const auto& d = s.decoder;
-  json source = json::object();
-  for (const auto& [name, value] : s.source_counters) source[name] = value;
-  return {{"state", hw::ToString(s.state)},
-          {"source", s.source},
-          {"last_error", s.last_error},
-          {"source_errors", s.source_errors},
-          {"frames", s.frames},
-          {"events_queued", s.events_queued},
-          {"queue_drops", s.queue_drops},
-          {"queue_size", s.queue_size},
-          {"frames_rejected", r.Rejected() + d.Rejected()},
-          {"reassembly",
-           {{"messages", r.messages},
-            {"bad_length", r.bad_length},
-            {"middle_without_start", r.middle_without_start},
-            {"stop_without_start", r.stop_without_start},
-            {"oversize", r.oversize},
-            {"abandoned", r.abandoned}}},
-          {"decoder",
-           {{"messages", d.messages},
-            {"odometry", d.odometry},
-            {"scanner", d.scanner},
-            {"unknown_node", d.unknown_node},
-            {"unknown_type", d.unknown_type},
-            {"bad_size", d.bad_size}}},
-          {"source_counters", source}};
-}
-
 json MetricsEventJson(const SlamSnapshot& s) {
   const ScanMetrics& m = *s.last;
   return {{"scan", m.scan},
@@ -204,14 +174,6 @@ json PoseEventJson(const SlamSnapshot& s) {
   j["truth"] = s.truth ? json{{"x", s.truth->x}, {"y", s.truth->y}, {"theta", s.truth->theta}}
                        : json(nullptr);
   return j;
-}
-
-/// Grey level of a cell for the tile images: 205 unknown (exactly 0 log odds), else
-/// 254 * (1 - p), so that 0 is surely occupied and 254 surely free.
-uint8_t CellGray(LogOdds cell) {
-  if (cell == 0) return io::kUnknownGray;
-  const double p = 1.0 / (1.0 + std::exp(-DecodeLogOdds(cell)));
-  return static_cast<uint8_t>(std::lround(254.0 * (1.0 - p)));
 }
 
 std::string Event(const std::string& name, uint64_t id, const json& data) {
@@ -485,15 +447,7 @@ void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response
     if (cached != tile_cache.end() && cached->second.first == version) png = cached->second.second;
   }
   if (png.empty()) {
-    std::vector<uint8_t> gray(kTileCells);
-    for (int row = 0; row < kTileSize; ++row) {
-      const int cy = kTileSize - 1 - row;  // row 0 at the top: the largest y
-      for (int cx = 0; cx < kTileSize; ++cx) {
-        gray[static_cast<size_t>(row * kTileSize + cx)] =
-            CellGray(it->tile->cells[static_cast<size_t>(cy * kTileSize + cx)]);
-      }
-    }
-    const io::PngBytes bytes = io::EncodeGrayPng(kTileSize, kTileSize, gray);
+    const io::PngBytes bytes = io::EncodeGrayPng(kTileSize, kTileSize, io::TileGray(*it->tile));
     if (!bytes.ok()) {
       SendProblem(res, 500, "Internal Server Error", bytes.error);
       return;
@@ -697,18 +651,12 @@ json HttpServer::Impl::StatusJson() {
                {"cpu_share", c.robot_s > 0.0 ? c.cpu_s / c.robot_s : 0.0},
                {"realtime_ratio", c.busy_s > 0.0 ? c.robot_s / c.busy_s : 0.0},
                {"robot_time_s", c.robot_s},
-               {"assembler",
-                {{"scans", c.assembler.scans},
-                 {"samples", c.assembler.samples},
-                 {"samples_lost", c.assembler.samples_lost},
-                 {"odometry_lost", c.assembler.odometry_lost},
-                 {"scans_discarded", c.assembler.scans_discarded},
-                 {"out_of_order", c.assembler.out_of_order}}}};
+               {"assembler", hw::AssemblerCountersToJson(c.assembler)}};
   const auto job = jobs.Latest();
   return {{"version", SLAMD_VERSION},
           {"uptime_s", Seconds(Clock::now() - started)},
           {"source", SourceJson()},
-          {"link", LinkJson(link_status)},
+          {"link", hw::LinkStatusToJson(link_status)},
           {"slam", slam},
           {"pose", snapshot->has_pose ? PoseJson(snapshot->pose) : json(nullptr)},
           {"budget", BudgetJson(service.Budget())},

@@ -19,6 +19,7 @@
 #include "hw_link/frame_decoder.hpp"
 #include "hw_link/link.hpp"
 #include "hw_link/source_spec.hpp"
+#include "hw_link/status_json.hpp"
 
 namespace {
 
@@ -27,41 +28,8 @@ std::atomic<bool> g_interrupted{false};
 void OnSignal(int) { g_interrupted = true; }
 
 nlohmann::json StatusJson(const slam::hw::LinkStatus& s, const slam::ScanAssemblerCounters& a) {
-  nlohmann::json j;
-  j["state"] = slam::hw::ToString(s.state);
-  j["source"] = s.source;
-  j["last_error"] = s.last_error;
-  j["source_errors"] = s.source_errors;
-  j["frames"] = s.frames;
-  const auto& r = s.reassembly;
-  j["reassembly"] = {{"frames", r.frames},
-                     {"messages", r.messages},
-                     {"extended", r.extended},
-                     {"remote", r.remote},
-                     {"fd", r.fd},
-                     {"bad_length", r.bad_length},
-                     {"middle_without_start", r.middle_without_start},
-                     {"stop_without_start", r.stop_without_start},
-                     {"oversize", r.oversize},
-                     {"abandoned", r.abandoned}};
-  const auto& d = s.decoder;
-  j["decoder"] = {{"messages", d.messages},         {"odometry", d.odometry},
-                  {"scanner", d.scanner},           {"unknown_node", d.unknown_node},
-                  {"unknown_type", d.unknown_type}, {"bad_size", d.bad_size}};
-  j["queue"] = {{"queued", s.events_queued}, {"drops", s.queue_drops}, {"size", s.queue_size}};
-  nlohmann::json source = nlohmann::json::object();
-  for (const auto& [name, value] : s.source_counters) source[name] = value;
-  j["source_counters"] = source;
-  j["scans"] = {{"scans", a.scans},
-                {"samples", a.samples},
-                {"odometry", a.odometry},
-                {"out_of_order", a.out_of_order},
-                {"samples_lost", a.samples_lost},
-                {"odometry_lost", a.odometry_lost},
-                {"sample_gaps", a.sample_gaps},
-                {"odometry_gaps", a.odometry_gaps},
-                {"samples_unposed", a.samples_unposed},
-                {"scans_discarded", a.scans_discarded}};
+  nlohmann::json j = slam::hw::LinkStatusToJson(s);
+  j["scans"] = slam::hw::AssemblerCountersToJson(a);
   return j;
 }
 

@@ -174,6 +174,20 @@ GridImage MakeGridImage(const OccupancyGrid& grid) {
   return image;
 }
 
+std::vector<uint8_t> TileGray(const Tile& tile) {
+  std::vector<uint8_t> gray(kTileCells);
+  for (int row = 0; row < kTileSize; ++row) {
+    const int y = kTileSize - 1 - row;  // row 0 at the top: the largest y
+    for (int x = 0; x < kTileSize; ++x) {
+      const LogOdds cell = tile.cells[static_cast<size_t>(y * kTileSize + x)];
+      uint8_t& pixel = gray[static_cast<size_t>(row * kTileSize + x)];
+      pixel = cell == 0 ? kUnknownGray
+                        : static_cast<uint8_t>(std::lround(254.0 * (1.0 - OccupancyProbability(cell))));
+    }
+  }
+  return gray;
+}
+
 std::string EncodePgm(const GridImage& image) {
   std::string out = "P5\n# CREATOR: marxbot-slam " + FormatNumber(image.resolution_m) + " m/pix\n" +
                     std::to_string(image.width) + " " + std::to_string(image.height) + "\n255\n";

@@ -41,6 +41,11 @@ struct RgbImage {
   std::vector<uint8_t> rgb;  // width * height * 3, row-major from the top row
 };
 
+/// The cells of one tile as 8-bit grey pixels (kTileSize squared, row 0 at the top, i.e. the
+/// largest y), as slamd serves tiles: 205 where unknown (log odds exactly 0), else
+/// 254 * (1 - p), so that 0 is surely occupied and 254 surely free.
+std::vector<uint8_t> TileGray(const Tile& tile);
+
 /// The binary PGM (P5) file contents of a grid image.
 std::string EncodePgm(const GridImage& image);
 
