@@ -163,11 +163,16 @@ void BM_MatchingRayPlain(benchmark::State& state) {
   const std::vector<Ray> rays = RaysFor(fill, 1);
   const LogOdds threshold = EncodeLogOdds(SlamConfig{}.occupied_above_logodds);
   size_t i = 0;
+  int64_t cells = 0;
   for (auto _ : state) {
     const Ray& r = rays[i++ & 4095];
-    benchmark::DoNotOptimize(CastToObstaclePlain(grid, r.origin, r.angle, max_range, threshold));
+    const RayHit hit = CastToObstaclePlain(grid, r.origin, r.angle, max_range, threshold);
+    cells += hit.cells;
+    benchmark::DoNotOptimize(hit);
   }
   Items(state, state.iterations(), FillName(fill));
+  state.counters["cells_per_ray"] =
+      static_cast<double>(cells) / static_cast<double>(std::max<int64_t>(1, state.iterations()));
 }
 BENCHMARK(BM_MatchingRayPlain)
     ->ArgNames({"fill", "length_cm"})

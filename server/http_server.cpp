@@ -251,9 +251,9 @@ struct HttpServer::Impl {
   void HandleSave(httplib::Response& res);
   void HandleReset(httplib::Response& res);
   json StatusJson();
-  json SourceJson() {
+  json SourceJson(const std::string& description) {
     return {{"spec", options.source_spec},
-            {"description", link.Status().source},
+            {"description", description},
             {"simulated", service.simulated()}};
   }
   std::string MetricsText();
@@ -517,7 +517,7 @@ void HttpServer::Impl::HandleEvents(const httplib::Request& req, httplib::Respon
                        {{"version", SLAMD_VERSION},
                         {"epoch", snapshot->epoch},
                         {"instance", instance},
-                        {"source", SourceJson()},
+                        {"source", SourceJson(link.Status().source)},
                         {"simulated", service.simulated()},
                         {"map_version", snapshot->map_version}});
           // What the client already has (Last-Event-ID) is not resent.
@@ -655,7 +655,7 @@ json HttpServer::Impl::StatusJson() {
   const auto job = jobs.Latest();
   return {{"version", SLAMD_VERSION},
           {"uptime_s", Seconds(Clock::now() - started)},
-          {"source", SourceJson()},
+          {"source", SourceJson(link_status.source)},
           {"link", hw::LinkStatusToJson(link_status)},
           {"slam", slam},
           {"pose", snapshot->has_pose ? PoseJson(snapshot->pose) : json(nullptr)},

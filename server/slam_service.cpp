@@ -210,16 +210,17 @@ void SlamService::Run() {
   while (!stop_) {
     ApplyCommands();
     hw::LinkEvent event;
-    if (!link_.PopWait(event, std::chrono::milliseconds(100))) continue;
+    if (!link_.PopWait(event, std::chrono::milliseconds(100))) {
+      // Idle: publish the assembler's counters (ProcessScan does it after every scan).
+      const std::lock_guard lock(mutex_);
+      counters_.assembler = assembler_.counters();
+      continue;
+    }
     scans.clear();
     assembler_.Add(event.event, scans);
     for (const Scan& scan : scans) {
       ApplyCommands();
       ProcessScan(scan, event.receive_ns);
-    }
-    if (scans.empty()) {
-      const std::lock_guard lock(mutex_);
-      counters_.assembler = assembler_.counters();
     }
   }
   {
