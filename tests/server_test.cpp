@@ -16,6 +16,7 @@
 #include "server/slam_service.hpp"
 #include "server/state_store.hpp"
 #include "server/tune_jobs.hpp"
+#include "scheduler/replay.hpp"
 #include "tests/experiment_support.hpp"
 #include "tests/test_support.hpp"
 
@@ -278,9 +279,20 @@ TEST_F(SlamServiceTest, MapsTheLogAndPublishesSnapshots) {
   EXPECT_EQ(static_cast<int64_t>(trajectory.size()), scans + 1);
   for (size_t i = 1; i < trajectory.size(); ++i) EXPECT_GT(trajectory[i].t, trajectory[i - 1].t);
   EXPECT_EQ(trajectory.back().pose.x, last->pose.pose.x);
-  // The same map as the engine's own replay at the same budget and seed.
+  // The live path (log -> link -> assembler -> scheduler -> engine) builds exactly the map that
+  // Replay builds from the experiment read from disk, at the same budget and seed.
+  ReplayOptions replay;
+  replay.budget = Options().budget;
+  replay.config.parallel = false;
+  const ReplayResult expected =
+      Replay((*experiment_)->robot, (*experiment_)->scans, {}, replay);
   const OccupancyGrid grid = SnapshotGrid(*last, service.logodds_limit());
-  EXPECT_EQ(grid.TileCount(), static_cast<int>(last->tiles.size()));
+  ASSERT_EQ(grid.TileCount(), expected.map.TileCount());
+  for (const TileRef& t : expected.map.Tiles()) {
+    ASSERT_NE(grid.FindTile(t.index), nullptr);
+    EXPECT_EQ(grid.FindTile(t.index)->cells, t.tile->cells) << t.index.x << ", " << t.index.y;
+  }
+  EXPECT_EQ(last->pose.pose.x, expected.trajectory.back().pose.x);
 }
 
 TEST_F(SlamServiceTest, BudgetChangesApplyFromTheNextScanAndResetKeepsVersionsGrowing) {
