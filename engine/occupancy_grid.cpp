@@ -39,7 +39,7 @@ Tile& OccupancyGrid::MutableTile(TileIndex t) {
     slot = std::make_shared<Tile>(*slot);  // copy on write
   }
   slot->version = write_version_;
-  slot->occupied_blocks.store(kUnknownSummary, std::memory_order_relaxed);  // being written
+  slot->occupied_blocks.store(kUnknownSummary, std::memory_order_relaxed);  // being written (held alone)
   return *slot;
 }
 
@@ -85,11 +85,52 @@ uint64_t ComputeOccupiedBlocks(const Tile& tile) {
   return mask;
 }
 
-void OccupancyGrid::RefreshSummaries() {
-  for (const auto& slot : slots_) {
-    if (slot && slot->occupied_blocks.load(std::memory_order_relaxed) == kUnknownSummary) {
-      slot->occupied_blocks.store(ComputeOccupiedBlocks(*slot), std::memory_order_relaxed);
+void ComputeClearance(const Tile& tile, std::array<uint8_t, kTileCells>& clearance) {
+  // Two-pass chamfer transform with the 3 x 3 mask of unit weights, exact for the chessboard
+  // distance: forward (from the previous row and the left), then backward.
+  constexpr int n = kTileSize;
+  uint8_t* d = clearance.data();
+  for (int i = 0; i < kTileCells; ++i) d[i] = tile.cells[static_cast<size_t>(i)] > kSummaryThreshold ? 0 : kClearanceFar;
+  const auto relax = [](uint8_t& v, uint8_t neighbour) {
+    if (neighbour + 1 < v) v = static_cast<uint8_t>(neighbour + 1);
+  };
+  for (int y = 0; y < n; ++y) {
+    uint8_t* row = d + y * n;
+    if (y > 0) {
+      const uint8_t* above = row - n;
+      for (int x = 0; x < n; ++x) {
+        uint8_t m = above[x];
+        if (x > 0) m = std::min(m, above[x - 1]);
+        if (x + 1 < n) m = std::min(m, above[x + 1]);
+        relax(row[x], m);
+      }
     }
+    for (int x = 1; x < n; ++x) relax(row[x], row[x - 1]);
+  }
+  for (int y = n - 1; y >= 0; --y) {
+    uint8_t* row = d + y * n;
+    if (y + 1 < n) {
+      const uint8_t* below = row + n;
+      for (int x = 0; x < n; ++x) {
+        uint8_t m = below[x];
+        if (x > 0) m = std::min(m, below[x - 1]);
+        if (x + 1 < n) m = std::min(m, below[x + 1]);
+        relax(row[x], m);
+      }
+    }
+    for (int x = n - 2; x >= 0; --x) relax(row[x], row[x + 1]);
+  }
+}
+
+void OccupancyGrid::RefreshSummaries() {
+  for (auto& slot : slots_) {
+    if (!slot || slot->occupied_blocks.load(std::memory_order_acquire) != kUnknownSummary) continue;
+    // Only this grid may change a tile it holds alone (a count of 1 cannot grow meanwhile:
+    // only this grid could copy the reference).
+    if (slot.use_count() > 1) slot = std::make_shared<Tile>(*slot);
+    const uint64_t mask = ComputeOccupiedBlocks(*slot);
+    if (mask != 0) ComputeClearance(*slot, slot->clearance);
+    slot->occupied_blocks.store(mask, std::memory_order_release);
   }
 }
 

@@ -29,26 +29,31 @@ struct Tile {
   /// Empty-space summary for matching rays (OccupancyGrid::RefreshSummaries): bit
   /// (by * kBlocksPerSide + bx) is clear when no cell of block (bx, by) is above
   /// kSummaryThreshold. kUnknownSummary while the tile is being written: a stale summary only
-  /// costs time (blocks are then examined cell by cell), never a wrong answer. Atomic because
-  /// grids sharing a tile may refresh it from several threads (with the same value).
+  /// costs time (the tile is then examined cell by cell), never a wrong answer. Written only
+  /// by a grid that holds the tile alone; atomic (release / acquire) because it publishes
+  /// `clearance` to the threads that read the tile afterwards.
   std::atomic<uint64_t> occupied_blocks{kUnknownSummary};
+  /// Valid when occupied_blocks is neither kUnknownSummary nor 0: for each cell (row-major, as
+  /// `cells`), the chessboard distance in cells to the nearest cell of this tile above
+  /// kSummaryThreshold (0 on such a cell). A ray in a cell of clearance k crosses only cells
+  /// of clearance >= 1 while it moves less than k - 1 cells along both axes (or leaves the
+  /// tile, whose neighbours hold their own distances).
+  std::array<uint8_t, kTileCells> clearance;
 
   Tile() = default;
-  Tile(const Tile& other)
-      : cells(other.cells),
-        version(other.version),
-        occupied_blocks(other.occupied_blocks.load(std::memory_order_relaxed)) {}
-  Tile& operator=(const Tile& other) {
-    cells = other.cells;
-    version = other.version;
-    occupied_blocks.store(other.occupied_blocks.load(std::memory_order_relaxed),
-                          std::memory_order_relaxed);
-    return *this;
-  }
+  /// A copy of the cells; its summary starts unknown (copies are made to be written).
+  Tile(const Tile& other) : cells(other.cells), version(other.version) {}
+  Tile& operator=(const Tile&) = delete;
 };
+
+/// Far more than any distance inside a tile.
+inline constexpr uint8_t kClearanceFar = 127;
 
 /// The summary of a tile's cells (bit per block, see Tile::occupied_blocks).
 uint64_t ComputeOccupiedBlocks(const Tile& tile);
+/// The chessboard distance of every cell to the nearest cell above kSummaryThreshold
+/// (kClearanceFar when there is none), see Tile::clearance.
+void ComputeClearance(const Tile& tile, std::array<uint8_t, kTileCells>& clearance);
 
 /// A tile of a grid as handed to readers (exporters, the server): immutable and shared.
 struct TileRef {
@@ -81,6 +86,16 @@ class OccupancyGrid {
     return slots_[static_cast<size_t>(v * width_ + u)].get();
   }
 
+  /// The same, with `absent` where there is no tile, and without branches (for the ray
+  /// caster, where whether the next tile exists is a coin toss). Precondition: HasTiles().
+  const Tile* FindTileOr(TileIndex t, const Tile* absent) const {
+    const auto u = static_cast<uint64_t>(int64_t{t.x} - origin_.x);
+    const auto v = static_cast<uint64_t>(int64_t{t.y} - origin_.y);
+    const bool inside = (u < static_cast<uint64_t>(width_)) & (v < static_cast<uint64_t>(height_));
+    const Tile* tile = slots_[inside ? v * static_cast<uint64_t>(width_) + u : 0].get();
+    return (inside & (tile != nullptr)) ? tile : absent;
+  }
+
   /// Log odds of a cell; 0 (unknown) where nothing was written.
   LogOdds At(CellIndex c) const {
     const Tile* tile = FindTile(GridGeometry::TileOf(c));
@@ -101,13 +116,15 @@ class OccupancyGrid {
     cell = AddLogOdds(cell, delta, limit_);
   }
 
-  /// Recomputes the empty-space summary of every tile written since its last refresh (the
-  /// engine calls it after each update phase). Tiles shared with other grids may be refreshed
-  /// concurrently by them: they compute the same value from the same immutable cells.
+  /// Recomputes the empty-space summary and clearance of every tile written since its last
+  /// refresh (the engine calls it after each update phase). A stale tile shared with another
+  /// holder (a grid, a reader) is first copied, so that no reader ever sees it change.
   void RefreshSummaries();
 
   /// Every tile written so far, as shared immutable references (row-major tile order).
   std::vector<TileRef> Tiles() const;
+  /// Whether any tile was ever written (O(1)).
+  bool HasTiles() const { return !slots_.empty(); }
   /// Number of allocated tiles.
   int TileCount() const;
   /// The largest tile version (0 for an empty grid).

@@ -109,21 +109,47 @@ struct RayHit {
   double exit_m = 0.0;      // where the ray leaves that cell (equals distance_m when no hit)
   bool hit = false;         // false: nothing occupied within the maximum range
   int cells = 0;            // cells visited (work done)
+  int jumps = 0;            // jumps over empty space (work done by the fast path)
 };
 
-/// Matching ray: from `origin` along `angle` to the first cell whose log odds exceed
-/// `occupied_above`, up to `max_range_m`. Reads only; safe to call concurrently on one grid.
-/// Skips missing tiles, and tiles and 8 x 8 blocks that the grid's empty-space summaries show
-/// free of cells above kSummaryThreshold (so for occupied_above >= kSummaryThreshold; below it,
-/// this is CastToObstaclePlain). It finds the same first occupied cell as the plain traversal;
-/// distances agree to rounding (the traversal restarts from closed-form crossing times after
-/// each jump).
-RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,
+/// Matching ray: from `origin` along the unit vector `direction` to the first cell whose log
+/// odds exceed `occupied_above`, up to `max_range_m`. Reads only; safe to call concurrently on
+/// one grid. Jumps over missing tiles and tiles free of cells above kSummaryThreshold, and
+/// inside other tiles moves by their clearance (chessboard distance to the nearest such cell)
+/// whenever it exceeds one cell; so for occupied_above >= kSummaryThreshold (below it, and in
+/// tiles written since the grid's last RefreshSummaries, this is the cell-by-cell traversal).
+/// It finds the same first occupied cell as CastToObstaclePlain; distances agree to rounding
+/// (after each jump the traversal restarts from closed-form crossing times).
+RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, const Vec2& direction,
                       double max_range_m, LogOdds occupied_above);
 
+/// One matching ray of a batch.
+struct RayQuery {
+  Vec2 origin;
+  Vec2 direction;  // unit length
+  double max_range_m = 0.0;
+};
+
+/// CastToObstacle for every ray of `rays` (the same answers, into hits[i]), several rays in
+/// flight at once: the processor overlaps their independent chains of loads. `hits` is resized.
+void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& rays, LogOdds occupied_above,
+                     std::vector<RayHit>& hits);
+
+/// The same along `angle` (radians).
+inline RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,
+                             double max_range_m, LogOdds occupied_above) {
+  return CastToObstacle(grid, origin, Vec2(std::cos(angle), std::sin(angle)), max_range_m, occupied_above);
+}
+
 /// The same, cell by cell through every cell the ray crosses (the oracle of the tests).
-RayHit CastToObstaclePlain(const OccupancyGrid& grid, const Vec2& origin, double angle,
+RayHit CastToObstaclePlain(const OccupancyGrid& grid, const Vec2& origin, const Vec2& direction,
                            double max_range_m, LogOdds occupied_above);
+
+inline RayHit CastToObstaclePlain(const OccupancyGrid& grid, const Vec2& origin, double angle,
+                                  double max_range_m, LogOdds occupied_above) {
+  return CastToObstaclePlain(grid, origin, Vec2(std::cos(angle), std::sin(angle)), max_range_m,
+                             occupied_above);
+}
 
 /// The log-odds change along an update ray, by distance from the sensor, in bins of step_m.
 /// `delta` must be non-decreasing (free, then occupied). A crossed cell takes the value at the far

@@ -113,6 +113,21 @@ class Slam::ScanPath {
     return {n.x + s * correction.x, n.y + s * correction.y, NormalizeAngle(n.theta + s * correction.theta)};
   }
 
+  /// The same pose as a position and the cosine and sine of its heading (what rays need).
+  struct Frame {
+    double x, y, cos, sin;
+    /// Maps a point of the robot's frame to the map.
+    Vec2 Point(const Vec2& p) const { return {x + cos * p.x() - sin * p.y(), y + sin * p.x() + cos * p.y()}; }
+    /// Rotates a direction of the robot's frame into the map.
+    Vec2 Direction(const Vec2& d) const { return {cos * d.x() - sin * d.y(), sin * d.x() + cos * d.y()}; }
+  };
+  Frame SampleFrame(size_t i, const Pose2& correction) const {
+    const double s = fraction_[i];
+    const Pose2& n = nominal_[i];
+    const double theta = n.theta + s * correction.theta;
+    return {n.x + s * correction.x, n.y + s * correction.y, std::cos(theta), std::sin(theta)};
+  }
+
  private:
   std::vector<Pose2> nominal_;
   std::vector<double> fraction_;
@@ -128,6 +143,8 @@ struct Slam::Measurement {
   double sigma_m = 0.0;
   double local_angle = 0.0;  // sensor direction relative to the robot's heading
   Vec2 local_origin = Vec2::Zero();
+  Vec2 local_direction = Vec2::UnitX();  // (cos, sin) of local_angle
+  double match_range_m = 0.0;  // how far its matching ray looks
 };
 
 TrajectoryChunk::~TrajectoryChunk() {
@@ -223,7 +240,9 @@ std::vector<Slam::Measurement> Slam::CollectMeasurements(const Scan& scan) const
       // Reading noise plus the grid's quantisation of where a surface lies (uniform in a cell).
       m.sigma_m = std::sqrt(model.Sigma(*d) * model.Sigma(*d) + config_.resolution_m * config_.resolution_m / 12.0);
       m.local_angle = sample.platform_angle_rad + DegToRad(robot_.scanner.sensors[static_cast<size_t>(k)].angle_deg);
-      m.local_origin = Vec2(radius * std::cos(m.local_angle), radius * std::sin(m.local_angle));
+      m.local_direction = Vec2(std::cos(m.local_angle), std::sin(m.local_angle));
+      m.local_origin = radius * m.local_direction;
+      m.match_range_m = m.distance_m + config_.match_range_sigmas * m.sigma_m;
       measurements.push_back(m);
     }
   }
@@ -252,17 +271,29 @@ std::vector<size_t> Slam::ThinByAngle(const Scan& scan, const std::vector<Measur
 double Slam::LogLikelihood(const OccupancyGrid& map, const ScanPath& path, const Pose2& correction,
                            const std::vector<const Measurement*>& matching) const {
   const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
-  double ll = 0.0;
+  // The candidate's rays, cast as one batch (several in flight); buffers reused per thread.
+  thread_local std::vector<RayQuery> rays;
+  thread_local std::vector<RayHit> hits;
+  rays.clear();
+  size_t sample = SIZE_MAX;
+  ScanPath::Frame frame{};
   for (const Measurement* m : matching) {
-    const Pose2 robot = path.SamplePose(m->sample, correction);
-    const double range = m->distance_m + config_.match_range_sigmas * m->sigma_m;
-    const RayHit hit = CastToObstacle(map, robot.Transform(m->local_origin), robot.theta + m->local_angle,
-                                      range, occupied_above);
+    if (m->sample != sample) {  // the sensors of one sample share its pose
+      sample = m->sample;
+      frame = path.SampleFrame(sample, correction);
+    }
+    rays.push_back({frame.Point(m->local_origin), frame.Direction(m->local_direction), m->match_range_m});
+  }
+  CastToObstacles(map, rays, occupied_above, hits);
+  double ll = 0.0;
+  for (size_t i = 0; i < matching.size(); ++i) {
+    const Measurement& m = *matching[i];
+    const RayHit& hit = hits[i];
     double g = 0.0;
     if (hit.hit) {
       // The surface lies somewhere along the ray's crossing of the first occupied cell, which is
       // longer than a cell for oblique walls: expect it in the middle of the crossing.
-      const double r = (m->distance_m - 0.5 * (hit.distance_m + hit.exit_m)) / m->sigma_m;
+      const double r = (m.distance_m - 0.5 * (hit.distance_m + hit.exit_m)) / m.sigma_m;
       g = std::exp(-0.5 * r * r);
     }
     ll += std::log(g + config_.match_floor);  // eq. (2), robust to outliers

@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <set>
 #include <utility>
@@ -155,9 +157,12 @@ OccupancyGrid RandomMap(uint64_t seed, double res) {
   return grid;
 }
 
+// The fast paths (one ray, and a batch of rays in flight together) against the plain traversal.
 void ExpectSameHits(const OccupancyGrid& grid, uint64_t seed, int rays, LogOdds occupied_above) {
   Rng rng(seed);
   const double res = grid.geometry().resolution();
+  std::vector<RayQuery> queries;
+  std::vector<RayHit> plain_hits;
   int hits = 0;
   for (int i = 0; i < rays; ++i) {
     // Origins anywhere (also on cell and block boundaries), lengths up to 10 m of 1 cm cells.
@@ -175,10 +180,21 @@ void ExpectSameHits(const OccupancyGrid& grid, uint64_t seed, int rays, LogOdds 
     ASSERT_NEAR(fast.exit_m, plain.exit_m, 1e-9 * (1 + range)) << "ray " << i;
     EXPECT_LE(fast.cells, plain.cells) << "ray " << i;
     hits += plain.hit ? 1 : 0;
+    queries.push_back({origin, Vec2(std::cos(angle), std::sin(angle)), range});
+    plain_hits.push_back(plain);
   }
   // The rays meet walls often enough for the comparison to mean something, but not always.
   EXPECT_GT(hits, rays / 10);
   EXPECT_LT(hits, rays * 9 / 10);
+
+  std::vector<RayHit> batch(3, RayHit{});  // resized by the call
+  CastToObstacles(grid, queries, occupied_above, batch);
+  ASSERT_EQ(batch.size(), queries.size());
+  for (size_t i = 0; i < queries.size(); ++i) {
+    ASSERT_EQ(batch[i].hit, plain_hits[i].hit) << "batch ray " << i;
+    ASSERT_NEAR(batch[i].distance_m, plain_hits[i].distance_m, 1e-9 * (1 + queries[i].max_range_m)) << "batch ray " << i;
+    ASSERT_NEAR(batch[i].exit_m, plain_hits[i].exit_m, 1e-9 * (1 + queries[i].max_range_m)) << "batch ray " << i;
+  }
 }
 
 TEST(CastToObstacleFast, FindsWhatThePlainTraversalFinds) {
@@ -205,9 +221,19 @@ TEST(CastToObstacleFast, StaleAndMissingSummariesOnlyCostTime) {
 TEST(CastToObstacleFast, OtherResolutionsAndSharedTiles) {
   OccupancyGrid grid = RandomMap(10, 0.05);
   const OccupancyGrid copy = grid;  // shares every tile
+  // A stale tile held by another grid is copied before its summary is computed: the copy's
+  // stay stale (cell by cell), the refreshed grid's get summaries.
   grid.RefreshSummaries();
+  EXPECT_FALSE(copy.SharesTileWith(grid, {0, 0}));
+  EXPECT_EQ(copy.FindTile({0, 0})->occupied_blocks.load(), kUnknownSummary);
+  EXPECT_NE(grid.FindTile({0, 0})->occupied_blocks.load(), kUnknownSummary);
   ExpectSameHits(copy, 6, 20000, 0);
-  EXPECT_TRUE(copy.SharesTileWith(grid, {0, 0}));
+  ExpectSameHits(grid, 12, 20000, 0);
+  // Refreshed tiles are shared by later copies, summaries and all.
+  const OccupancyGrid later = grid;
+  OccupancyGrid again = grid;
+  again.RefreshSummaries();
+  EXPECT_TRUE(again.SharesTileWith(later, {0, 0}));
 }
 
 TEST(CastToObstacleFast, SkipsEmptySpace) {
@@ -235,6 +261,52 @@ TEST(OccupancyGrid, SummariesMarkBlocksAboveTheThreshold) {
   EXPECT_EQ(grid.FindTile({0, 0})->occupied_blocks.load(), kUnknownSummary);
   grid.RefreshSummaries();
   EXPECT_EQ(grid.FindTile({-1, -1})->occupied_blocks.load(), uint64_t{1} << 63);
+}
+
+TEST(OccupancyGrid, ClearanceIsTheChessboardDistanceToTheNearestCellAboveTheThreshold) {
+  Rng rng(21);
+  for (const double density : {0.0005, 0.01, 0.2}) {
+    Tile tile;
+    std::vector<std::pair<int, int>> occupied;
+    for (int y = 0; y < kTileSize; ++y) {
+      for (int x = 0; x < kTileSize; ++x) {
+        const double r = rng.Uniform();
+        // Above the threshold, exactly at it (not occupied), or free.
+        const LogOdds value = r < density ? LogOdds{1} : (r < 2 * density ? LogOdds{0} : LogOdds{-300});
+        tile.cells[static_cast<size_t>(y * kTileSize + x)] = value;
+        if (value > kSummaryThreshold) occupied.emplace_back(x, y);
+      }
+    }
+    ASSERT_FALSE(occupied.empty());
+    std::array<uint8_t, kTileCells> clearance{};
+    ComputeClearance(tile, clearance);
+    for (int y = 0; y < kTileSize; ++y) {
+      for (int x = 0; x < kTileSize; ++x) {
+        int nearest = kClearanceFar;
+        for (const auto& [ox, oy] : occupied) nearest = std::min(nearest, std::max(std::abs(ox - x), std::abs(oy - y)));
+        ASSERT_EQ(clearance[static_cast<size_t>(y * kTileSize + x)], nearest) << x << ", " << y << " at " << density;
+      }
+    }
+  }
+  Tile empty;
+  std::array<uint8_t, kTileCells> clearance{};
+  ComputeClearance(empty, clearance);
+  EXPECT_EQ(clearance[0], kClearanceFar);
+  EXPECT_EQ(clearance[kTileCells - 1], kClearanceFar);
+}
+
+TEST(OccupancyGrid, RefreshComputesTheClearanceOfWrittenTiles) {
+  OccupancyGrid grid(GridGeometry(0.01), 2000);
+  grid.Add({10, 20}, 500);
+  grid.RefreshSummaries();
+  const Tile* tile = grid.FindTile({0, 0});
+  EXPECT_EQ(tile->clearance[20 * kTileSize + 10], 0);
+  EXPECT_EQ(tile->clearance[20 * kTileSize + 13], 3);
+  EXPECT_EQ(tile->clearance[63 * kTileSize + 0], 43);
+  grid.Add({12, 20}, 500);  // written: stale until the next refresh
+  EXPECT_EQ(grid.FindTile({0, 0})->occupied_blocks.load(), kUnknownSummary);
+  grid.RefreshSummaries();
+  EXPECT_EQ(grid.FindTile({0, 0})->clearance[20 * kTileSize + 13], 1);
 }
 
 TEST(ApplyUpdateRay, AddsTheProfileByDistance) {
