@@ -72,14 +72,24 @@ void OccupancyGrid::EnsureCovers(TileIndex t) {
   height_ = h;
 }
 
-uint64_t ComputeOccupiedBlocks(const Tile& tile) {
-  uint64_t mask = 0;
+std::array<uint64_t, kTileSize> ComputeOccupiedRows(const Tile& tile) {
+  std::array<uint64_t, kTileSize> rows{};
   for (int y = 0; y < kTileSize; ++y) {
     const LogOdds* row = tile.cells.data() + y * kTileSize;
+    uint64_t bits = 0;
+    for (int x = 0; x < kTileSize; ++x) bits |= uint64_t{row[x] > kSummaryThreshold} << x;
+    rows[static_cast<size_t>(y)] = bits;
+  }
+  return rows;
+}
+
+uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows) {
+  uint64_t mask = 0;
+  for (int by = 0; by < kBlocksPerSide; ++by) {
+    uint64_t any = 0;
+    for (int i = 0; i < kBlockSize; ++i) any |= rows[static_cast<size_t>(by * kBlockSize + i)];
     for (int bx = 0; bx < kBlocksPerSide; ++bx) {
-      bool any = false;
-      for (int i = 0; i < kBlockSize; ++i) any |= row[bx * kBlockSize + i] > kSummaryThreshold;
-      if (any) mask |= uint64_t{1} << ((y >> kBlockSizeLog2) * kBlocksPerSide + bx);
+      if (((any >> (bx * kBlockSize)) & 0xFF) != 0) mask |= uint64_t{1} << (by * kBlocksPerSide + bx);
     }
   }
   return mask;
@@ -128,9 +138,15 @@ void OccupancyGrid::RefreshSummaries() {
     // Only this grid may change a tile it holds alone (a count of 1 cannot grow meanwhile:
     // only this grid could copy the reference).
     if (slot.use_count() > 1) slot = std::make_shared<Tile>(*slot);
-    const uint64_t mask = ComputeOccupiedBlocks(*slot);
-    if (mask != 0) ComputeClearance(*slot, slot->clearance);
-    slot->occupied_blocks.store(mask, std::memory_order_release);
+    Tile& tile = *slot;
+    const std::array<uint64_t, kTileSize> rows = ComputeOccupiedRows(tile);
+    const uint64_t mask = OccupiedBlocks(rows);
+    if (mask != 0 && !(tile.has_clearance && rows == tile.clearance_rows)) {
+      ComputeClearance(tile, tile.clearance);
+      tile.clearance_rows = rows;
+      tile.has_clearance = true;
+    }
+    tile.occupied_blocks.store(mask, std::memory_order_release);
   }
 }
 

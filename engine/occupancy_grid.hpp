@@ -39,18 +39,33 @@ struct Tile {
   /// of clearance >= 1 while it moves less than k - 1 cells along both axes (or leaves the
   /// tile, whose neighbours hold their own distances).
   std::array<uint8_t, kTileCells> clearance;
+  /// The cells above kSummaryThreshold (bit x of row y) that `clearance` was computed from,
+  /// when has_clearance: a refresh that finds the same cells keeps it (most writes only make
+  /// free cells freer and occupied ones more occupied).
+  std::array<uint64_t, kTileSize> clearance_rows;
+  bool has_clearance = false;
 
   Tile() = default;
-  /// A copy of the cells; its summary starts unknown (copies are made to be written).
-  Tile(const Tile& other) : cells(other.cells), version(other.version) {}
+  /// A copy of the cells and of the clearance with what it was computed from; its summary
+  /// starts unknown (copies are made to be written).
+  Tile(const Tile& other)
+      : cells(other.cells),
+        version(other.version),
+        clearance(other.clearance),
+        clearance_rows(other.clearance_rows),
+        has_clearance(other.has_clearance) {}
   Tile& operator=(const Tile&) = delete;
 };
 
 /// Far more than any distance inside a tile.
 inline constexpr uint8_t kClearanceFar = 127;
 
-/// The summary of a tile's cells (bit per block, see Tile::occupied_blocks).
-uint64_t ComputeOccupiedBlocks(const Tile& tile);
+/// The cells of a tile above kSummaryThreshold, bit x of row y.
+std::array<uint64_t, kTileSize> ComputeOccupiedRows(const Tile& tile);
+/// The summary of those cells (bit per block, see Tile::occupied_blocks).
+uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows);
+/// The summary of a tile's cells.
+inline uint64_t ComputeOccupiedBlocks(const Tile& tile) { return OccupiedBlocks(ComputeOccupiedRows(tile)); }
 /// The chessboard distance of every cell to the nearest cell above kSummaryThreshold
 /// (kClearanceFar when there is none), see Tile::clearance.
 void ComputeClearance(const Tile& tile, std::array<uint8_t, kTileCells>& clearance);

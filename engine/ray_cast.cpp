@@ -51,7 +51,6 @@ inline int32_t FloorToInt(double v) {
   return i - (v < static_cast<double>(i) ? 1 : 0);
 }
 
-
 // The fast traversal of one matching ray, as a state advanced one jump or one cell at a time,
 // so that CastToObstacles can interleave several independent rays (one ray is a chain of
 // dependent loads and conversions; the processor overlaps the chains of several).

@@ -451,7 +451,10 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
       const UpdateProfile* profile = sensor_models_[static_cast<size_t>(m.sensor)].Update(m.raw);
       ApplyUpdateRay(particle.map, robot.Transform(m.local_origin), robot.theta + m.local_angle, *profile);
     }
-    particle.map.RefreshSummaries();  // lets the next scan's matching rays skip empty space
+    // Lets the next scan's matching rays skip empty space (while the tiles just written are
+    // this particle's alone). Without refinement nothing is matched: tiles stay stale, and
+    // the first refresh after refinement resumes catches them all up.
+    if (plan.refine) particle.map.RefreshSummaries();
     auto chunk = std::make_shared<TrajectoryChunk>();
     chunk->poses.reserve(scan.samples.size() + 1);
     for (size_t i = 0; i < scan.samples.size(); ++i) {

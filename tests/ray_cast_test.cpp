@@ -307,6 +307,20 @@ TEST(OccupancyGrid, RefreshComputesTheClearanceOfWrittenTiles) {
   EXPECT_EQ(grid.FindTile({0, 0})->occupied_blocks.load(), kUnknownSummary);
   grid.RefreshSummaries();
   EXPECT_EQ(grid.FindTile({0, 0})->clearance[20 * kTileSize + 13], 1);
+  // Writes that leave the same cells above the threshold keep the clearance; a copy carries it.
+  const OccupancyGrid before = grid;
+  grid.Add({30, 30}, -400);
+  grid.Add({12, 20}, 300);
+  EXPECT_FALSE(grid.SharesTileWith(before, {0, 0}));
+  grid.RefreshSummaries();
+  const Tile* kept = grid.FindTile({0, 0});
+  EXPECT_EQ(kept->clearance, before.FindTile({0, 0})->clearance);
+  EXPECT_EQ(kept->clearance[20 * kTileSize + 13], 1);
+  // A cell falling to the threshold is not occupied any more: recomputed.
+  grid.Add({12, 20}, -800);
+  grid.RefreshSummaries();
+  EXPECT_EQ(grid.FindTile({0, 0})->clearance[20 * kTileSize + 13], 3);
+  EXPECT_EQ(grid.FindTile({0, 0})->clearance[20 * kTileSize + 10], 0);
 }
 
 TEST(ApplyUpdateRay, AddsTheProfileByDistance) {
