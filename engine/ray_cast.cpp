@@ -127,7 +127,7 @@ class FastRay {
     return far;
   }();
   static constexpr std::array<uint8_t, kTileCells> kUnknownNear{};
-  static const Tile kAbsentTile;  // what FindTileOr gives where there is no tile (summary 0)
+  static const Tile& kAbsentTile;  // what FindTileOr gives where there is no tile (summary 0)
 
   /// Leaves the box of mirrored cells [.., end_u) x [.., end_v), which holds the current cell
   /// and nothing the ray may stop at, into the first cell beyond it; false when the ray ends
@@ -160,11 +160,12 @@ class FastRay {
   RayHit result_;
 };
 
-const Tile FastRay::kAbsentTile = [] {
-  Tile tile;
-  tile.occupied_blocks.store(0);
-  return tile;
-}();
+// A tile with nothing above the threshold (its summary is 0, not unknown).
+struct AbsentTile : Tile {
+  AbsentTile() { occupied_blocks.store(0, std::memory_order_relaxed); }
+};
+const AbsentTile kAbsentTileStorage;
+const Tile& FastRay::kAbsentTile = kAbsentTileStorage;
 
 bool UsesFastPath(double max_range_m, LogOdds occupied_above) {
   return occupied_above >= kSummaryThreshold && max_range_m > 0;

@@ -246,6 +246,18 @@ TEST(CastToObstacleFast, SkipsEmptySpace) {
   EXPECT_LT(fast.cells * 3, plain.cells) << fast.cells << " vs " << plain.cells;
 }
 
+TEST(CastToObstacleFast, CrossesMissingTilesInOneJumpEach) {
+  OccupancyGrid grid(GridGeometry(0.01), 2000);
+  grid.Add({0, 0}, 500);
+  grid.Add({640, 0}, 500);  // tile (10, 0): tiles 1 to 9 of the window between are missing
+  grid.RefreshSummaries();
+  const RayHit hit = CastToObstacle(grid, {0.655, 0.003}, 0.0, 8.0, 0);
+  EXPECT_TRUE(hit.hit);
+  EXPECT_NEAR(hit.distance_m, 6.40 - 0.655, 1e-9);
+  EXPECT_EQ(hit.cells, 0);      // not one cell by cell
+  EXPECT_LE(hit.jumps, 12);  // one per missing tile, and a few in tile (10, 0)
+}
+
 TEST(OccupancyGrid, SummariesMarkBlocksAboveTheThreshold) {
   OccupancyGrid grid(GridGeometry(0.01), 2000);
   grid.Add({3, 5}, 10);      // block (0, 0)
