@@ -133,28 +133,43 @@ UpdateProfile LongSensorProfile(double distance_m) {
 // ---------------------------------------------------------------------------------------------
 // Ray casting.
 
-// Matching rays of at most range(1) cm through a map of fill range(0) (default threshold).
+// What the matching-ray benchmarks share: the map of fill range(0), rays of at most range(1)
+// cm with the default threshold, and the work they report per ray.
+struct MatchingRays {
+  explicit MatchingRays(const benchmark::State& state)
+      : fill(state.range(0)),
+        grid(GridOf(fill)),
+        max_range(static_cast<double>(state.range(1)) / 100.0),
+        rays(RaysFor(fill, 1)) {}
+
+  /// Items (rays) and cells and jumps per ray.
+  void Report(benchmark::State& state, int64_t cast, int64_t cells, int64_t jumps) const {
+    Items(state, cast, FillName(fill));
+    const double n = static_cast<double>(std::max<int64_t>(1, cast));
+    state.counters["cells_per_ray"] = static_cast<double>(cells) / n;
+    state.counters["jumps_per_ray"] = static_cast<double>(jumps) / n;
+  }
+
+  int64_t fill;
+  OccupancyGrid grid;
+  double max_range;
+  std::vector<Ray> rays;
+  LogOdds threshold = EncodeLogOdds(SlamConfig{}.occupied_above_logodds);
+};
+
+// Matching rays of at most range(1) cm through a map of fill range(0), one at a time.
 void BM_MatchingRay(benchmark::State& state) {
-  const int64_t fill = state.range(0);
-  const OccupancyGrid grid = GridOf(fill);
-  const double max_range = static_cast<double>(state.range(1)) / 100.0;
-  const std::vector<Ray> rays = RaysFor(fill, 1);
-  const LogOdds threshold = EncodeLogOdds(SlamConfig{}.occupied_above_logodds);
+  const MatchingRays m(state);
   size_t i = 0;
   int64_t cells = 0, jumps = 0;
   for (auto _ : state) {
-    const Ray& r = rays[i++ & 4095];
-    const RayHit hit = CastToObstacle(grid, r.origin, r.direction, max_range, threshold);
+    const Ray& r = m.rays[i++ & 4095];
+    const RayHit hit = CastToObstacle(m.grid, r.origin, r.direction, m.max_range, m.threshold);
     cells += hit.cells;
     jumps += hit.jumps;
     benchmark::DoNotOptimize(hit);
   }
-  Items(state, state.iterations(), FillName(fill));
-  const auto per_ray = [&](int64_t n) {
-    return static_cast<double>(n) / static_cast<double>(std::max<int64_t>(1, state.iterations()));
-  };
-  state.counters["cells_per_ray"] = per_ray(cells);
-  state.counters["jumps_per_ray"] = per_ray(jumps);
+  m.Report(state, state.iterations(), cells, jumps);
 }
 BENCHMARK(BM_MatchingRay)
     ->ArgNames({"fill", "length_cm"})
@@ -163,32 +178,25 @@ BENCHMARK(BM_MatchingRay)
 // The same rays cast 64 at a time with CastToObstacles (several rays in flight, as the engine
 // casts a candidate's measurements).
 void BM_MatchingRayBatch(benchmark::State& state) {
-  const int64_t fill = state.range(0);
-  const OccupancyGrid grid = GridOf(fill);
-  const double max_range = static_cast<double>(state.range(1)) / 100.0;
-  const std::vector<Ray> rays = RaysFor(fill, 1);
-  const LogOdds threshold = EncodeLogOdds(SlamConfig{}.occupied_above_logodds);
+  const MatchingRays m(state);
   constexpr size_t kBatch = 64;
   std::vector<std::vector<RayQuery>> batches;
-  for (size_t b = 0; b < rays.size(); b += kBatch) {
+  for (size_t b = 0; b < m.rays.size(); b += kBatch) {
     std::vector<RayQuery>& batch = batches.emplace_back();
-    for (size_t i = b; i < b + kBatch; ++i) batch.push_back({rays[i].origin, rays[i].direction, max_range});
+    for (size_t i = b; i < b + kBatch; ++i) batch.push_back({m.rays[i].origin, m.rays[i].direction, m.max_range});
   }
   std::vector<RayHit> hits;
   size_t i = 0;
   int64_t cells = 0, jumps = 0;
   for (auto _ : state) {
-    CastToObstacles(grid, batches[i++ % batches.size()], threshold, hits);
+    CastToObstacles(m.grid, batches[i++ % batches.size()], m.threshold, hits);
     for (const RayHit& hit : hits) {
       cells += hit.cells;
       jumps += hit.jumps;
     }
     benchmark::DoNotOptimize(hits.data());
   }
-  const int64_t n = state.iterations() * static_cast<int64_t>(kBatch);
-  Items(state, n, FillName(fill));
-  state.counters["cells_per_ray"] = static_cast<double>(cells) / static_cast<double>(std::max<int64_t>(1, n));
-  state.counters["jumps_per_ray"] = static_cast<double>(jumps) / static_cast<double>(std::max<int64_t>(1, n));
+  m.Report(state, state.iterations() * static_cast<int64_t>(kBatch), cells, jumps);
 }
 BENCHMARK(BM_MatchingRayBatch)
     ->ArgNames({"fill", "length_cm"})
@@ -197,22 +205,16 @@ BENCHMARK(BM_MatchingRayBatch)
 // The same rays through the cell-by-cell traversal (the fast path's oracle): the before/after
 // ratio of the empty-space skipping, measured in one run.
 void BM_MatchingRayPlain(benchmark::State& state) {
-  const int64_t fill = state.range(0);
-  const OccupancyGrid grid = GridOf(fill);
-  const double max_range = static_cast<double>(state.range(1)) / 100.0;
-  const std::vector<Ray> rays = RaysFor(fill, 1);
-  const LogOdds threshold = EncodeLogOdds(SlamConfig{}.occupied_above_logodds);
+  const MatchingRays m(state);
   size_t i = 0;
   int64_t cells = 0;
   for (auto _ : state) {
-    const Ray& r = rays[i++ & 4095];
-    const RayHit hit = CastToObstaclePlain(grid, r.origin, r.direction, max_range, threshold);
+    const Ray& r = m.rays[i++ & 4095];
+    const RayHit hit = CastToObstaclePlain(m.grid, r.origin, r.direction, m.max_range, m.threshold);
     cells += hit.cells;
     benchmark::DoNotOptimize(hit);
   }
-  Items(state, state.iterations(), FillName(fill));
-  state.counters["cells_per_ray"] =
-      static_cast<double>(cells) / static_cast<double>(std::max<int64_t>(1, state.iterations()));
+  m.Report(state, state.iterations(), cells, 0);
 }
 BENCHMARK(BM_MatchingRayPlain)
     ->ArgNames({"fill", "length_cm"})

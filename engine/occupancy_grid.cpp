@@ -95,41 +95,55 @@ uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows) {
   return mask;
 }
 
-void ComputeClearance(const Tile& tile, std::array<uint8_t, kTileCells>& clearance) {
+namespace {
+
+constexpr int kRow = kTileSize;
+using Row = std::array<uint8_t, kRow>;
+
+/// row[x] = min(row[x], near[x - 1] + 1, near[x] + 1, near[x + 1] + 1): the row next to it.
+void RelaxFromRow(Row& row, const Row& near) {
+  Row m = near;
+  for (int x = 1; x < kRow; ++x) m[static_cast<size_t>(x)] = std::min(m[static_cast<size_t>(x)], near[static_cast<size_t>(x - 1)]);
+  for (int x = 0; x + 1 < kRow; ++x) m[static_cast<size_t>(x)] = std::min(m[static_cast<size_t>(x)], near[static_cast<size_t>(x + 1)]);
+  for (int x = 0; x < kRow; ++x) row[static_cast<size_t>(x)] = std::min(row[static_cast<size_t>(x)], static_cast<uint8_t>(m[static_cast<size_t>(x)] + 1));
+}
+
+/// row[x] = min over j of row[j] + |x - j|, by doubling the offset (1, 2, ..., 32) instead of
+/// one sequential scan each way: the same minimum, in loops without a carried dependency.
+void RelaxAlongRow(Row& row) {
+  for (int s = 1; s < kRow; s <<= 1) {
+    const Row before = row;
+    const auto step = static_cast<uint8_t>(s);
+    for (int x = s; x < kRow; ++x) {
+      row[static_cast<size_t>(x)] = std::min(row[static_cast<size_t>(x)], static_cast<uint8_t>(before[static_cast<size_t>(x - s)] + step));
+    }
+    for (int x = 0; x + s < kRow; ++x) {
+      row[static_cast<size_t>(x)] = std::min(row[static_cast<size_t>(x)], static_cast<uint8_t>(before[static_cast<size_t>(x + s)] + step));
+    }
+  }
+}
+
+}  // namespace
+
+void ComputeClearance(const std::array<uint64_t, kTileSize>& rows, std::array<uint8_t, kTileCells>& clearance) {
   // Two-pass chamfer transform with the 3 x 3 mask of unit weights, exact for the chessboard
-  // distance: forward (from the previous row and the left), then backward.
-  constexpr int n = kTileSize;
-  uint8_t* d = clearance.data();
-  for (int i = 0; i < kTileCells; ++i) d[i] = tile.cells[static_cast<size_t>(i)] > kSummaryThreshold ? 0 : kClearanceFar;
-  const auto relax = [](uint8_t& v, uint8_t neighbour) {
-    if (neighbour + 1 < v) v = static_cast<uint8_t>(neighbour + 1);
-  };
-  for (int y = 0; y < n; ++y) {
-    uint8_t* row = d + y * n;
-    if (y > 0) {
-      const uint8_t* above = row - n;
-      for (int x = 0; x < n; ++x) {
-        uint8_t m = above[x];
-        if (x > 0) m = std::min(m, above[x - 1]);
-        if (x + 1 < n) m = std::min(m, above[x + 1]);
-        relax(row[x], m);
-      }
-    }
-    for (int x = 1; x < n; ++x) relax(row[x], row[x - 1]);
+  // distance (values stay below 127 + 32, so uint8_t never wraps): downwards from the row
+  // above and along the row, then upwards from the row below and along the row. Relaxing
+  // along a row both ways in each pass reaches the same fixed point as the classic one-way
+  // scans, since every path it adds is also a valid chessboard path.
+  std::array<Row, kTileSize> d;
+  for (size_t y = 0; y < kTileSize; ++y) {
+    for (size_t x = 0; x < kRow; ++x) d[y][x] = ((rows[y] >> x) & 1) != 0 ? 0 : kClearanceFar;
   }
-  for (int y = n - 1; y >= 0; --y) {
-    uint8_t* row = d + y * n;
-    if (y + 1 < n) {
-      const uint8_t* below = row + n;
-      for (int x = 0; x < n; ++x) {
-        uint8_t m = below[x];
-        if (x > 0) m = std::min(m, below[x - 1]);
-        if (x + 1 < n) m = std::min(m, below[x + 1]);
-        relax(row[x], m);
-      }
-    }
-    for (int x = n - 2; x >= 0; --x) relax(row[x], row[x + 1]);
+  for (size_t y = 0; y < kTileSize; ++y) {
+    if (y > 0) RelaxFromRow(d[y], d[y - 1]);
+    RelaxAlongRow(d[y]);
   }
+  for (size_t y = kTileSize - 1; y-- > 0;) {
+    RelaxFromRow(d[y], d[y + 1]);
+    RelaxAlongRow(d[y]);
+  }
+  for (size_t y = 0; y < kTileSize; ++y) std::copy(d[y].begin(), d[y].end(), clearance.begin() + static_cast<std::ptrdiff_t>(y * kRow));
 }
 
 void OccupancyGrid::RefreshSummaries() {
@@ -142,7 +156,7 @@ void OccupancyGrid::RefreshSummaries() {
     const std::array<uint64_t, kTileSize> rows = ComputeOccupiedRows(tile);
     const uint64_t mask = OccupiedBlocks(rows);
     if (mask != 0 && !(tile.has_clearance && rows == tile.clearance_rows)) {
-      ComputeClearance(tile, tile.clearance);
+      ComputeClearance(rows, tile.clearance);
       tile.clearance_rows = rows;
       tile.has_clearance = true;
     }

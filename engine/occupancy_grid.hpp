@@ -64,11 +64,9 @@ inline constexpr uint8_t kClearanceFar = 127;
 std::array<uint64_t, kTileSize> ComputeOccupiedRows(const Tile& tile);
 /// The summary of those cells (bit per block, see Tile::occupied_blocks).
 uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows);
-/// The summary of a tile's cells.
-inline uint64_t ComputeOccupiedBlocks(const Tile& tile) { return OccupiedBlocks(ComputeOccupiedRows(tile)); }
-/// The chessboard distance of every cell to the nearest cell above kSummaryThreshold
-/// (kClearanceFar when there is none), see Tile::clearance.
-void ComputeClearance(const Tile& tile, std::array<uint8_t, kTileCells>& clearance);
+/// The chessboard distance of every cell to the nearest of those cells (kClearanceFar when
+/// there is none), see Tile::clearance.
+void ComputeClearance(const std::array<uint64_t, kTileSize>& rows, std::array<uint8_t, kTileCells>& clearance);
 
 /// A tile of a grid as handed to readers (exporters, the server): immutable and shared.
 struct TileRef {

@@ -67,12 +67,11 @@ class FastRay {
       : res_(geometry.resolution()), length_(max_range_m / res_) {
     result_ = RayHit{max_range_m, max_range_m, false, 0, 0};
     const Vec2 g = geometry.ToGrid(origin);
-    back_x_ = direction.x() < 0;
-    back_y_ = direction.y() < 0;
-    flip_x_ = back_x_ ? -1 : 0;
-    flip_y_ = back_y_ ? -1 : 0;
-    ox_ = back_x_ ? -g.x() : g.x();
-    oy_ = back_y_ ? -g.y() : g.y();
+    const bool back_x = direction.x() < 0, back_y = direction.y() < 0;
+    flip_x_ = back_x ? -1 : 0;
+    flip_y_ = back_y ? -1 : 0;
+    ox_ = back_x ? -g.x() : g.x();
+    oy_ = back_y ? -g.y() : g.y();
     ax_ = std::abs(direction.x());
     ay_ = std::abs(direction.y());
     ix_ = 1.0 / ax_;  // infinite along an axis the ray does not move on
@@ -153,7 +152,6 @@ class FastRay {
 
   double res_, length_;
   double ox_ = 0, oy_ = 0, ax_ = 0, ay_ = 0, ix_ = 0, iy_ = 0;
-  bool back_x_ = false, back_y_ = false;
   int32_t flip_x_ = 0, flip_y_ = 0;  // x = u ^ flip_x
   int32_t u_ = 0, v_ = 0;
   double t_ = 0.0;  // when the ray entered cell (u, v)

@@ -19,8 +19,8 @@
 namespace slam {
 
 /// Amanatides & Woo traversal state, in cell units along the ray: the current cell and the
-/// times of the next x and y boundary crossings. Shared by TraverseCells and the matching rays'
-/// fast path so that both step by the very same rule and arithmetic.
+/// times of the next x and y boundary crossings. The matching rays' fast path (ray_cast.cpp)
+/// starts in the same cell and uses the same crossing expressions and corner tolerance.
 struct GridWalk {
   static constexpr double kInf = std::numeric_limits<double>::infinity();
   static constexpr double kCornerEpsilon = 1e-9;

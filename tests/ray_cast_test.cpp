@@ -291,7 +291,7 @@ TEST(OccupancyGrid, ClearanceIsTheChessboardDistanceToTheNearestCellAboveTheThre
     }
     ASSERT_FALSE(occupied.empty());
     std::array<uint8_t, kTileCells> clearance{};
-    ComputeClearance(tile, clearance);
+    ComputeClearance(ComputeOccupiedRows(tile), clearance);
     for (int y = 0; y < kTileSize; ++y) {
       for (int x = 0; x < kTileSize; ++x) {
         int nearest = kClearanceFar;
@@ -302,7 +302,7 @@ TEST(OccupancyGrid, ClearanceIsTheChessboardDistanceToTheNearestCellAboveTheThre
   }
   Tile empty;
   std::array<uint8_t, kTileCells> clearance{};
-  ComputeClearance(empty, clearance);
+  ComputeClearance(ComputeOccupiedRows(empty), clearance);
   EXPECT_EQ(clearance[0], kClearanceFar);
   EXPECT_EQ(clearance[kTileCells - 1], kClearanceFar);
 }
