@@ -21,8 +21,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-/// The experiment directories named by `paths`: an experiment itself (it holds can.log), or a
-/// dataset whose subdirectories are experiments (sorted by name).
 int Fail(const std::string& message) {
   std::cerr << "slam-evaluate: " << message << "\n";
   return 1;
