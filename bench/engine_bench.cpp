@@ -12,6 +12,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -219,6 +220,77 @@ void BM_MatchingRayPlain(benchmark::State& state) {
 BENCHMARK(BM_MatchingRayPlain)
     ->ArgNames({"fill", "length_cm"})
     ->ArgsProduct({{kRoom, kMapped}, {30, 150}});
+
+// What the engine's MatchWindow benchmarks share: 64 windows of 3.4 m x 3.4 m of the map of
+// fill range(0) (as the engine builds one per particle and scan), each around one ray origin of
+// RaysFor (a pose of the mapped run), and batches of 64 rays of at most range(1) cm from within
+// 5 cm of it (the candidates' rays).
+struct WindowRays {
+  static constexpr int32_t kHalf = 170;  // cells
+  static constexpr size_t kWindows = 64, kBatch = 64;
+
+  explicit WindowRays(const benchmark::State& state, bool build = true) : m(state) {
+    Rng rng(8);
+    for (size_t w = 0; w < kWindows; ++w) {
+      const Vec2 centre = m.rays[w].origin;
+      const CellIndex c = m.grid.geometry().CellOf(centre);
+      bounds.push_back({CellIndex{c.x - kHalf, c.y - kHalf}, CellIndex{c.x + kHalf - 1, c.y + kHalf - 1}});
+      if (build) windows.emplace_back(m.grid, m.threshold, bounds.back().first, bounds.back().second);
+      std::vector<RayQuery>& batch = batches.emplace_back();
+      for (size_t i = 0; i < kBatch; ++i) {
+        const Ray& r = m.rays[(w * kBatch + i) % m.rays.size()];
+        batch.push_back({centre + Vec2(rng.Gaussian(0.05), rng.Gaussian(0.05)), r.direction, m.max_range});
+      }
+    }
+  }
+
+  MatchingRays m;
+  std::vector<std::pair<CellIndex, CellIndex>> bounds;
+  std::vector<MatchWindow> windows;
+  std::vector<std::vector<RayQuery>> batches;
+};
+
+// Building a MatchWindow (reading the window's cells, its distance field). Items are cells.
+void BM_MatchWindowBuild(benchmark::State& state) {
+  const WindowRays w(state, false);
+  size_t i = 0;
+  int64_t cells = 0;
+  for (auto _ : state) {
+    const auto& [lo, hi] = w.bounds[i++ % w.bounds.size()];
+    const MatchWindow window(w.m.grid, w.m.threshold, lo, hi);
+    cells += window.cells();
+    benchmark::DoNotOptimize(window.ClearanceAt(lo));
+  }
+  Items(state, cells, (std::string("cells ") + FillName(w.m.fill)).c_str());
+}
+BENCHMARK(BM_MatchWindowBuild)->ArgNames({"fill", "length_cm"})->Args({kRoom, 150})->Args({kMapped, 150});
+
+// Matching rays cast 64 at a time through a built MatchWindow around their origins, and the
+// same batches through the grid's tiles (CastToObstacles on the grid): the ratio in one run.
+void BM_MatchingRayWindow(benchmark::State& state) {
+  const WindowRays w(state);
+  const bool through_window = state.range(2) != 0;
+  std::vector<RayHit> hits;
+  size_t i = 0;
+  int64_t cells = 0, jumps = 0;
+  for (auto _ : state) {
+    const size_t k = i++ % w.batches.size();
+    if (through_window) {
+      CastToObstacles(w.windows[k], w.batches[k], hits);
+    } else {
+      CastToObstacles(w.m.grid, w.batches[k], w.m.threshold, hits);
+    }
+    for (const RayHit& hit : hits) {
+      cells += hit.cells;
+      jumps += hit.jumps;
+    }
+    benchmark::DoNotOptimize(hits.data());
+  }
+  w.m.Report(state, state.iterations() * static_cast<int64_t>(WindowRays::kBatch), cells, jumps);
+}
+BENCHMARK(BM_MatchingRayWindow)
+    ->ArgNames({"fill", "length_cm", "window"})
+    ->ArgsProduct({{kRoom, kMapped}, {30, 75, 150}, {0, 1}});
 
 // Update rays with the long sensor's profile for a reading at range(1) cm, on a map of fill
 // range(0) (the map keeps changing: cells saturate at the clamp, as in a long run).

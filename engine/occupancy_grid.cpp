@@ -1,6 +1,7 @@
 #include "engine/occupancy_grid.hpp"
 
 #include <algorithm>
+#include <vector>
 
 namespace slam {
 
@@ -97,53 +98,56 @@ uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows) {
 
 namespace {
 
-constexpr int kRow = kTileSize;
-using Row = std::array<uint8_t, kRow>;
-
 /// row[x] = min(row[x], near[x - 1] + 1, near[x] + 1, near[x + 1] + 1): the row next to it.
-void RelaxFromRow(Row& row, const Row& near) {
-  Row m = near;
-  for (int x = 1; x < kRow; ++x) m[static_cast<size_t>(x)] = std::min(m[static_cast<size_t>(x)], near[static_cast<size_t>(x - 1)]);
-  for (int x = 0; x + 1 < kRow; ++x) m[static_cast<size_t>(x)] = std::min(m[static_cast<size_t>(x)], near[static_cast<size_t>(x + 1)]);
-  for (int x = 0; x < kRow; ++x) row[static_cast<size_t>(x)] = std::min(row[static_cast<size_t>(x)], static_cast<uint8_t>(m[static_cast<size_t>(x)] + 1));
+/// `scratch` holds `width` bytes.
+void RelaxFromRow(uint8_t* row, const uint8_t* near, uint8_t* scratch, size_t width) {
+  std::copy(near, near + width, scratch);
+  for (size_t x = 1; x < width; ++x) scratch[x] = std::min(scratch[x], near[x - 1]);
+  for (size_t x = 0; x + 1 < width; ++x) scratch[x] = std::min(scratch[x], near[x + 1]);
+  for (size_t x = 0; x < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x] + 1));
 }
 
-/// row[x] = min over j of row[j] + |x - j|, by doubling the offset (1, 2, ..., 32) instead of
-/// one sequential scan each way: the same minimum, in loops without a carried dependency.
-void RelaxAlongRow(Row& row) {
-  for (int s = 1; s < kRow; s <<= 1) {
-    const Row before = row;
+/// row[x] = min over j of row[j] + |x - j| (for |x - j| < 128: values never exceed
+/// kClearanceFar, so a farther j never lowers one), by doubling the offset (1, 2, ..., 64)
+/// instead of one sequential scan each way: the same minimum, in loops without a carried
+/// dependency. `scratch` holds `width` bytes.
+void RelaxAlongRow(uint8_t* row, uint8_t* scratch, size_t width) {
+  for (size_t s = 1; s < width && s <= 64; s <<= 1) {
+    std::copy(row, row + width, scratch);
     const auto step = static_cast<uint8_t>(s);
-    for (int x = s; x < kRow; ++x) {
-      row[static_cast<size_t>(x)] = std::min(row[static_cast<size_t>(x)], static_cast<uint8_t>(before[static_cast<size_t>(x - s)] + step));
-    }
-    for (int x = 0; x + s < kRow; ++x) {
-      row[static_cast<size_t>(x)] = std::min(row[static_cast<size_t>(x)], static_cast<uint8_t>(before[static_cast<size_t>(x + s)] + step));
-    }
+    for (size_t x = s; x < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x - s] + step));
+    for (size_t x = 0; x + s < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x + s] + step));
   }
 }
 
 }  // namespace
 
-void ComputeClearance(const std::array<uint64_t, kTileSize>& rows, std::array<uint8_t, kTileCells>& clearance) {
+void ChessboardDistance(uint8_t* d, int width, int height) {
   // Two-pass chamfer transform with the 3 x 3 mask of unit weights, exact for the chessboard
-  // distance (values stay below 127 + 32, so uint8_t never wraps): downwards from the row
+  // distance (values stay below 127 + 64, so uint8_t never wraps): downwards from the row
   // above and along the row, then upwards from the row below and along the row. Relaxing
   // along a row both ways in each pass reaches the same fixed point as the classic one-way
   // scans, since every path it adds is also a valid chessboard path.
-  std::array<Row, kTileSize> d;
+  if (width <= 0 || height <= 0) return;
+  const auto w = static_cast<size_t>(width), h = static_cast<size_t>(height);
+  std::vector<uint8_t> scratch(w);
+  for (size_t y = 0; y < h; ++y) {
+    if (y > 0) RelaxFromRow(d + y * w, d + (y - 1) * w, scratch.data(), w);
+    RelaxAlongRow(d + y * w, scratch.data(), w);
+  }
+  for (size_t y = h - 1; y-- > 0;) {
+    RelaxFromRow(d + y * w, d + (y + 1) * w, scratch.data(), w);
+    RelaxAlongRow(d + y * w, scratch.data(), w);
+  }
+}
+
+void ComputeClearance(const std::array<uint64_t, kTileSize>& rows, std::array<uint8_t, kTileCells>& clearance) {
   for (size_t y = 0; y < kTileSize; ++y) {
-    for (size_t x = 0; x < kRow; ++x) d[y][x] = ((rows[y] >> x) & 1) != 0 ? 0 : kClearanceFar;
+    for (size_t x = 0; x < kTileSize; ++x) {
+      clearance[y * kTileSize + x] = ((rows[y] >> x) & 1) != 0 ? 0 : kClearanceFar;
+    }
   }
-  for (size_t y = 0; y < kTileSize; ++y) {
-    if (y > 0) RelaxFromRow(d[y], d[y - 1]);
-    RelaxAlongRow(d[y]);
-  }
-  for (size_t y = kTileSize - 1; y-- > 0;) {
-    RelaxFromRow(d[y], d[y + 1]);
-    RelaxAlongRow(d[y]);
-  }
-  for (size_t y = 0; y < kTileSize; ++y) std::copy(d[y].begin(), d[y].end(), clearance.begin() + static_cast<std::ptrdiff_t>(y * kRow));
+  ChessboardDistance(clearance.data(), kTileSize, kTileSize);
 }
 
 void OccupancyGrid::RefreshSummaries() {

@@ -64,6 +64,10 @@ inline constexpr uint8_t kClearanceFar = 127;
 std::array<uint64_t, kTileSize> ComputeOccupiedRows(const Tile& tile);
 /// The summary of those cells (bit per block, see Tile::occupied_blocks).
 uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows);
+/// In place, on a row-major `width` x `height` array holding 0 on occupied cells and
+/// kClearanceFar elsewhere: the chessboard distance of every cell to the nearest occupied one,
+/// kClearanceFar where it is that far or more (or there is none).
+void ChessboardDistance(uint8_t* d, int width, int height);
 /// The chessboard distance of every cell to the nearest of those cells (kClearanceFar when
 /// there is none), see Tile::clearance.
 void ComputeClearance(const std::array<uint64_t, kTileSize>& rows, std::array<uint8_t, kTileCells>& clearance);

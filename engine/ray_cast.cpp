@@ -51,6 +51,65 @@ inline int32_t FloorToInt(double v) {
   return i - (v < static_cast<double>(i) ? 1 : 0);
 }
 
+/// What a matching ray learns of the cell (x, y) it is in (mirrored coordinates u, v: see
+/// FastRay): whether it stops there, and how far it may move without looking.
+struct Probe {
+  bool occupied;  // above the threshold
+  int clearance;  // every cell within clearance - 1 (chessboard) is free, up to the limits
+  int32_t end_u, end_v;  // mirrored limits of what `clearance` knows about (exclusive)
+};
+
+/// The grid's own tiles: clearance inside the ray's tile, which ends at the tile's edge.
+class TileField {
+ public:
+  TileField(const OccupancyGrid& grid, LogOdds occupied_above) : grid_(grid), occupied_above_(occupied_above) {}
+
+  Probe At(int32_t u, int32_t v, int32_t flip_x, int32_t flip_y) const {
+    // Tiles are aligned in mirrored coordinates too: ~ maps [64a, 64a + 64) onto
+    // [64(-a - 1), 64(-a - 1) + 64).
+    const int32_t tile_u = u >> kTileSizeLog2, tile_v = v >> kTileSizeLog2;
+    const Tile* tile = grid_.FindTileOr({tile_u ^ flip_x, tile_v ^ flip_y}, &kAbsentTile);
+    const uint64_t mask = tile->occupied_blocks.load(std::memory_order_acquire);
+    // A missing tile, or one without a cell above the threshold, is crossed in one jump; a
+    // tile whose summary is stale, cell by cell.
+    const uint8_t* clearance = mask == 0                  ? kNothingNear.data()
+                               : mask == kUnknownSummary ? kUnknownNear.data()
+                                                         : tile->clearance.data();
+    const int32_t x = u ^ flip_x, y = v ^ flip_y;
+    const int offset = ((y & (kTileSize - 1)) << kTileSizeLog2) | (x & (kTileSize - 1));
+    const int k = clearance[offset];
+    return {k == 0 && tile->cells[static_cast<size_t>(offset)] > occupied_above_, k, (tile_u + 1) * kTileSize,
+            (tile_v + 1) * kTileSize};
+  }
+
+ private:
+  // Cells "far from anything" (a missing or empty tile) and "maybe occupied" (a stale one).
+  static constexpr std::array<uint8_t, kTileCells> kNothingNear = [] {
+    std::array<uint8_t, kTileCells> far{};
+    far.fill(kClearanceFar);
+    return far;
+  }();
+  static constexpr std::array<uint8_t, kTileCells> kUnknownNear{};
+  static const Tile& kAbsentTile;  // what FindTileOr gives where there is no tile (summary 0)
+
+  const OccupancyGrid& grid_;
+  LogOdds occupied_above_;
+};
+
+/// A MatchWindow's distance field: clearance across tile edges, exact for its threshold.
+class WindowField {
+ public:
+  explicit WindowField(const MatchWindow& window) : window_(window) {}
+
+  Probe At(int32_t u, int32_t v, int32_t flip_x, int32_t flip_y) const {
+    const int k = window_.ClearanceAt({u ^ flip_x, v ^ flip_y});
+    return {k == 0, k, std::numeric_limits<int32_t>::max(), std::numeric_limits<int32_t>::max()};
+  }
+
+ private:
+  const MatchWindow& window_;
+};
+
 // The fast traversal of one matching ray, as a state advanced one jump or one cell at a time,
 // so that CastToObstacles can interleave several independent rays (one ray is a chain of
 // dependent loads and conversions; the processor overlaps the chains of several).
@@ -62,6 +121,7 @@ inline int32_t FloorToInt(double v) {
 // expressions (up to an exact negation), each from the origin in closed form.
 class FastRay {
  public:
+  FastRay() = default;
   /// Preconditions: direction has unit length; max_range_m > 0.
   FastRay(const GridGeometry& geometry, const Vec2& origin, const Vec2& direction, double max_range_m)
       : res_(geometry.resolution()), length_(max_range_m / res_) {
@@ -83,25 +143,14 @@ class FastRay {
 
   const RayHit& result() const { return result_; }
 
-  /// One jump or one cell; true once the ray has its answer. Precondition: grid.HasTiles().
-  /// No branches but at the end of the ray: which tile comes next, whether its clearance
-  /// allows a jump, which side of a box the ray leaves by are all coin tosses, and each
-  /// mispredicted branch would cost as much as a jump.
-  bool Advance(const OccupancyGrid& grid, LogOdds occupied_above) {
-    // Tiles are aligned in mirrored coordinates too: ~ maps [64a, 64a + 64) onto
-    // [64(-a - 1), 64(-a - 1) + 64).
-    const int32_t tile_u = u_ >> kTileSizeLog2, tile_v = v_ >> kTileSizeLog2;
-    const Tile* tile = grid.FindTileOr({tile_u ^ flip_x_, tile_v ^ flip_y_}, &kAbsentTile);
-    const uint64_t mask = tile->occupied_blocks.load(std::memory_order_acquire);
-    // A missing tile, or one without a cell above the threshold, is crossed in one jump; a
-    // tile whose summary is stale, cell by cell.
-    const uint8_t* clearance = mask == 0                  ? kNothingNear.data()
-                               : mask == kUnknownSummary ? kUnknownNear.data()
-                                                         : tile->clearance.data();
-    const int32_t x = u_ ^ flip_x_, y = v_ ^ flip_y_;
-    const int offset = ((y & (kTileSize - 1)) << kTileSizeLog2) | (x & (kTileSize - 1));
-    const int k = clearance[offset];
-    if (k == 0 && tile->cells[static_cast<size_t>(offset)] > occupied_above) {
+  /// One jump or one cell through `field` (TileField or WindowField); true once the ray has
+  /// its answer. No branches but at the end of the ray: which tile comes next, whether the
+  /// clearance allows a jump, which side of a box the ray leaves by are all coin tosses, and
+  /// each mispredicted branch would cost as much as a jump.
+  template <typename Field>
+  bool Advance(const Field& field) {
+    const Probe probe = field.At(u_, v_, flip_x_, flip_y_);
+    if (probe.occupied) {
       // A hit, unless the ray only touches the cell (crosses it over zero length).
       const double t_leave = std::min(std::min((u_ + 1 - ox_) * ix_, (v_ + 1 - oy_) * iy_), length_);
       if (t_leave > t_) {
@@ -111,23 +160,13 @@ class FastRay {
         return true;
       }
     }
-    // Every cell of the tile within k - 1 of this one is free: out of that square at once
-    // (out of this cell when k <= 1).
-    const int reach = std::max(k, 1);
-    return !LeaveBox(std::min(u_ + reach, (tile_u + 1) * kTileSize), std::min(v_ + reach, (tile_v + 1) * kTileSize),
-                     k >= 2);
+    // Every cell within k - 1 of this one (up to the field's limits) is free: out of that
+    // square at once (out of this cell when k <= 1).
+    const int reach = std::max(probe.clearance, 1);
+    return !LeaveBox(std::min(u_ + reach, probe.end_u), std::min(v_ + reach, probe.end_v), probe.clearance >= 2);
   }
 
  private:
-  // Cells "far from anything" (a missing or empty tile) and "maybe occupied" (a stale one).
-  static constexpr std::array<uint8_t, kTileCells> kNothingNear = [] {
-    std::array<uint8_t, kTileCells> far{};
-    far.fill(kClearanceFar);
-    return far;
-  }();
-  static constexpr std::array<uint8_t, kTileCells> kUnknownNear{};
-  static const Tile& kAbsentTile;  // what FindTileOr gives where there is no tile (summary 0)
-
   /// Leaves the box of mirrored cells [.., end_u) x [.., end_v), which holds the current cell
   /// and nothing the ray may stop at, into the first cell beyond it; false when the ray ends
   /// inside it. Without branches on the way out: which side comes first is a coin toss.
@@ -144,13 +183,17 @@ class FastRay {
     const bool corner = std::abs(exit_u - exit_v) <= slack;
     const int32_t along_u = std::clamp(FloorToInt(ox_ + ax_ * (t_exit + slack)), u_, end_u - 1);
     const int32_t along_v = std::clamp(FloorToInt(oy_ + ay_ * (t_exit + slack)), v_, end_v - 1);
-    u_ = corner || exit_u < exit_v ? end_u : along_u;
-    v_ = corner || exit_v < exit_u ? end_v : along_v;
+    // Selected with masks: written as conditionals, the compiler branches around the
+    // computation of along_u or along_v, and the branch is mispredicted half the time.
+    const int32_t across_u = -static_cast<int32_t>(corner | (exit_u < exit_v));  // all ones or 0
+    const int32_t across_v = -static_cast<int32_t>(corner | (exit_v < exit_u));
+    u_ = (end_u & across_u) | (along_u & ~across_u);
+    v_ = (end_v & across_v) | (along_v & ~across_v);
     t_ = std::max(t_, t_exit);
     return true;
   }
 
-  double res_, length_;
+  double res_ = 0, length_ = 0;
   double ox_ = 0, oy_ = 0, ax_ = 0, ay_ = 0, ix_ = 0, iy_ = 0;
   int32_t flip_x_ = 0, flip_y_ = 0;  // x = u ^ flip_x
   int32_t u_ = 0, v_ = 0;
@@ -163,10 +206,93 @@ struct AbsentTile : Tile {
   AbsentTile() { occupied_blocks.store(0, std::memory_order_relaxed); }
 };
 const AbsentTile kAbsentTileStorage;
-const Tile& FastRay::kAbsentTile = kAbsentTileStorage;
+const Tile& TileField::kAbsentTile = kAbsentTileStorage;
 
 bool UsesFastPath(double max_range_m, LogOdds occupied_above) {
   return occupied_above >= kSummaryThreshold && max_range_m > 0;
+}
+
+}  // namespace
+
+namespace {
+
+template <typename Field>
+RayHit CastOne(const Field& field, const GridGeometry& geometry, const RayQuery& q) {
+  FastRay ray(geometry, q.origin, q.direction, q.max_range_m);
+  while (!ray.Advance(field)) {
+  }
+  return ray.result();
+}
+
+/// hits[i] for every rays[i]: two at a time through `field` where fast(rays[i]) holds for
+/// both, else one at a time by single(rays[i]). Two rays in flight: the processor overlaps
+/// their independent chains (more lanes cost more in bookkeeping than they gain, measured
+/// with BM_MatchingRayBatch).
+template <typename Field, typename Fast, typename Single>
+void CastInPairs(const Field& field, const GridGeometry& geometry, const std::vector<RayQuery>& rays,
+                 std::vector<RayHit>& hits, const Fast& fast, const Single& single) {
+  hits.resize(rays.size());
+  size_t i = 0;
+  for (; i + 1 < rays.size(); i += 2) {
+    const RayQuery& qa = rays[i];
+    const RayQuery& qb = rays[i + 1];
+    if (!fast(qa) || !fast(qb)) {
+      hits[i] = single(qa);
+      hits[i + 1] = single(qb);
+      continue;
+    }
+    FastRay a(geometry, qa.origin, qa.direction, qa.max_range_m);
+    FastRay b(geometry, qb.origin, qb.direction, qb.max_range_m);
+    bool done_a = false, done_b = false;
+    while (!done_a && !done_b) {
+      done_a = a.Advance(field);
+      done_b = b.Advance(field);
+    }
+    while (!done_a) done_a = a.Advance(field);
+    while (!done_b) done_b = b.Advance(field);
+    hits[i] = a.result();
+    hits[i + 1] = b.result();
+  }
+  if (i < rays.size()) hits[i] = single(rays[i]);
+}
+
+/// The same with kLanes rays in flight, each lane taking the next ray when its own is done.
+template <size_t kLanes, typename Field, typename Fast, typename Single>
+void CastInLanes(const Field& field, const GridGeometry& geometry, const std::vector<RayQuery>& rays,
+                 std::vector<RayHit>& hits, const Fast& fast, const Single& single) {
+  hits.resize(rays.size());
+  std::array<FastRay, kLanes> lane;
+  std::array<size_t, kLanes> lane_ray{};
+  size_t next = 0;
+  const auto refill = [&](size_t k) {
+    while (next < rays.size()) {
+      const size_t i = next++;
+      if (fast(rays[i])) {
+        lane[k] = FastRay(geometry, rays[i].origin, rays[i].direction, rays[i].max_range_m);
+        lane_ray[k] = i;
+        return true;
+      }
+      hits[i] = single(rays[i]);
+    }
+    return false;
+  };
+  constexpr unsigned kAll = (1u << kLanes) - 1;
+  unsigned active = 0;
+  for (size_t k = 0; k < kLanes; ++k) active |= refill(k) ? 1u << k : 0u;
+  while (active == kAll) {
+    for (size_t k = 0; k < kLanes; ++k) {
+      if (lane[k].Advance(field)) {
+        hits[lane_ray[k]] = lane[k].result();
+        if (!refill(k)) active &= ~(1u << k);
+      }
+    }
+  }
+  for (size_t k = 0; k < kLanes; ++k) {
+    if ((active & (1u << k)) == 0) continue;
+    while (!lane[k].Advance(field)) {
+    }
+    hits[lane_ray[k]] = lane[k].result();
+  }
 }
 
 }  // namespace
@@ -177,43 +303,81 @@ RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, const Vec2&
     return CastToObstaclePlain(grid, origin, direction, max_range_m, occupied_above);
   }
   if (!grid.HasTiles()) return RayHit{max_range_m, max_range_m, false, 0, 0};  // nothing to hit
-  FastRay ray(grid.geometry(), origin, direction, max_range_m);
-  while (!ray.Advance(grid, occupied_above)) {
-  }
-  return ray.result();
+  return CastOne(TileField(grid, occupied_above), grid.geometry(), {origin, direction, max_range_m});
 }
 
 void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& rays, LogOdds occupied_above,
                      std::vector<RayHit>& hits) {
-  hits.resize(rays.size());
-  const auto fast = [&](const RayQuery& q) { return grid.HasTiles() && UsesFastPath(q.max_range_m, occupied_above); };
-  const auto single = [&](const RayQuery& q) {
-    return CastToObstacle(grid, q.origin, q.direction, q.max_range_m, occupied_above);
-  };
-  // Two rays in flight: the processor overlaps their independent chains (more lanes cost more
-  // in bookkeeping than they gain, measured with BM_MatchingRayBatch).
-  size_t i = 0;
-  for (; i + 1 < rays.size(); i += 2) {
-    const RayQuery& qa = rays[i];
-    const RayQuery& qb = rays[i + 1];
-    if (!fast(qa) || !fast(qb)) {
-      hits[i] = single(qa);
-      hits[i + 1] = single(qb);
-      continue;
+  CastInPairs(
+      TileField(grid, occupied_above), grid.geometry(), rays, hits,
+      [&](const RayQuery& q) { return grid.HasTiles() && UsesFastPath(q.max_range_m, occupied_above); },
+      [&](const RayQuery& q) { return CastToObstacle(grid, q.origin, q.direction, q.max_range_m, occupied_above); });
+}
+
+MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, CellIndex lo, CellIndex hi)
+    : grid_(&grid),
+      occupied_above_(occupied_above),
+      x0_(lo.x),
+      y0_(lo.y),
+      width_(std::max<int64_t>(0, int64_t{hi.x} - lo.x + 1)),
+      height_(std::max<int64_t>(0, int64_t{hi.y} - lo.y + 1)),
+      distance_(static_cast<size_t>(width_ * height_), kClearanceFar) {
+  if (distance_.empty()) return;
+  // Occupied cells (0) from the tiles the window overlaps; cells of missing tiles hold 0 (unknown).
+  const bool unknown_occupied = LogOdds{0} > occupied_above;
+  const TileIndex t_lo = GridGeometry::TileOf(lo), t_hi = GridGeometry::TileOf(hi);
+  for (int32_t ty = t_lo.y; ty <= t_hi.y; ++ty) {
+    for (int32_t tx = t_lo.x; tx <= t_hi.x; ++tx) {
+      const Tile* tile = grid.FindTile({tx, ty});
+      if (tile == nullptr && !unknown_occupied) continue;
+      // A tile whose (fresh) summary has no cell above kSummaryThreshold has none above a
+      // higher threshold either.
+      if (tile != nullptr && occupied_above >= kSummaryThreshold &&
+          tile->occupied_blocks.load(std::memory_order_acquire) == 0) {
+        continue;
+      }
+      const CellIndex origin = GridGeometry::TileOrigin({tx, ty});
+      const int32_t x_begin = std::max(origin.x, lo.x), x_end = std::min(origin.x + kTileSize - 1, hi.x);
+      const int32_t y_begin = std::max(origin.y, lo.y), y_end = std::min(origin.y + kTileSize - 1, hi.y);
+      for (int32_t y = y_begin; y <= y_end; ++y) {
+        uint8_t* out = distance_.data() + (int64_t{y} - y0_) * width_ + (int64_t{x_begin} - x0_);
+        if (tile == nullptr) {
+          std::fill(out, out + (x_end - x_begin + 1), uint8_t{0});
+          continue;
+        }
+        const LogOdds* cells = tile->cells.data() + GridGeometry::OffsetInTile({x_begin, y});
+        for (int32_t i = 0; i <= x_end - x_begin; ++i) {
+          out[i] = cells[i] > occupied_above ? uint8_t{0} : kClearanceFar;
+        }
+      }
     }
-    FastRay a(grid.geometry(), qa.origin, qa.direction, qa.max_range_m);
-    FastRay b(grid.geometry(), qb.origin, qb.direction, qb.max_range_m);
-    bool done_a = false, done_b = false;
-    while (!done_a && !done_b) {
-      done_a = a.Advance(grid, occupied_above);
-      done_b = b.Advance(grid, occupied_above);
-    }
-    while (!done_a) done_a = a.Advance(grid, occupied_above);
-    while (!done_b) done_b = b.Advance(grid, occupied_above);
-    hits[i] = a.result();
-    hits[i + 1] = b.result();
   }
-  if (i < rays.size()) hits[i] = single(rays[i]);
+  ChessboardDistance(distance_.data(), static_cast<int>(width_), static_cast<int>(height_));
+}
+
+bool MatchWindow::Covers(const RayQuery& q) const {
+  if (!(q.max_range_m > 0) || !std::isfinite(q.max_range_m)) return false;
+  // The cells a ray crosses lie between the cells of its ends; FastRay may step one cell
+  // beyond (a crossing within its corner tolerance of the end), hence the margin.
+  const GridGeometry& geometry = grid_->geometry();
+  const Vec2 a = geometry.ToGrid(q.origin), b = geometry.ToGrid(q.origin + q.direction * q.max_range_m);
+  const double margin = 2.0;
+  const auto inside = [&](const Vec2& p) {
+    return p.x() >= static_cast<double>(x0_) + margin && p.y() >= static_cast<double>(y0_) + margin &&
+           p.x() <= static_cast<double>(x0_ + width_) - margin && p.y() <= static_cast<double>(y0_ + height_) - margin;
+  };
+  return inside(a) && inside(b);
+}
+
+void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits) {
+  const OccupancyGrid& grid = window.grid();
+  const WindowField field(window);
+  CastInLanes<4>(
+      field, grid.geometry(), rays, hits, [&](const RayQuery& q) { return window.Covers(q); },
+      [&](const RayQuery& q) {
+        return window.Covers(q) ? CastOne(field, grid.geometry(), q)
+                                : CastToObstacle(grid, q.origin, q.direction, q.max_range_m, window.occupied_above());
+      });
 }
 
 int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle, const UpdateProfile& profile) {

@@ -135,6 +135,43 @@ struct RayQuery {
 void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& rays, LogOdds occupied_above,
                      std::vector<RayHit>& hits);
 
+/// The cells around one pose that a particle's matching rays run through, with the chessboard
+/// distance of every cell to the nearest cell above a threshold across tile edges (where a
+/// tile's own clearance ends at its edge): rays cast through it jump straight across tiles and
+/// read one byte per step. Building it reads every cell of the window once, so it pays where
+/// many rays share it (the engine builds one per particle and scan when they are enough).
+/// Reads the grid when built and for rays it does not cover: the grid must outlive it,
+/// unchanged.
+class MatchWindow {
+ public:
+  /// The window of cells [lo, hi] (inclusive) of `grid`, for rays stopping at cells above
+  /// `occupied_above` (any threshold: unknown cells, 0, count as occupied below 0).
+  MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, CellIndex lo, CellIndex hi);
+
+  /// Whether a ray runs inside the window from start to end (else it is cast through the grid).
+  bool Covers(const RayQuery& ray) const;
+  /// Chessboard distance of cell c to the nearest cell above the threshold inside the window
+  /// (kClearanceFar when that far or farther). Precondition: c is inside the window.
+  int ClearanceAt(CellIndex c) const {
+    return distance_[static_cast<size_t>((int64_t{c.y} - y0_) * width_ + (int64_t{c.x} - x0_))];
+  }
+
+  const OccupancyGrid& grid() const { return *grid_; }
+  LogOdds occupied_above() const { return occupied_above_; }
+  int64_t cells() const { return width_ * height_; }
+
+ private:
+  const OccupancyGrid* grid_;
+  LogOdds occupied_above_;
+  int32_t x0_, y0_;
+  int64_t width_, height_;
+  std::vector<uint8_t> distance_;
+};
+
+/// CastToObstacles(window.grid(), rays, window.occupied_above(), hits), the same answers, with
+/// the rays the window covers cast through its distance field.
+void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits);
+
 /// The same along `angle` (radians).
 inline RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,
                              double max_range_m, LogOdds occupied_above) {

@@ -1,8 +1,11 @@
 #include "engine/slam.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <limits>
 #include <numeric>
+#include <optional>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -19,6 +22,9 @@ namespace {
 constexpr uint64_t kStreamMotion = 0;
 constexpr uint64_t kStreamResampling = 1;
 constexpr uint64_t kStreamCandidate = 2;  // + candidate index
+// The largest MatchWindow a particle gets (16 MiB of distances): more means rays far longer
+// than the scanner's, cast through the map instead.
+constexpr int64_t kMaxMatchWindowCells = int64_t{1} << 24;
 
 /// Particle weights normalised to sum to 1 (from log weights, without overflow).
 std::vector<double> NormalizedWeights(const std::vector<Particle>& particles) {
@@ -121,6 +127,17 @@ class Slam::ScanPath {
     /// Rotates a direction of the robot's frame into the map.
     Vec2 Direction(const Vec2& d) const { return {cos * d.x() - sin * d.y(), sin * d.x() + cos * d.y()}; }
   };
+  /// The bounding box of the sample positions under a correction (min x, min y, max x, max y).
+  std::array<double, 4> Extent(const Pose2& correction) const {
+    std::array<double, 4> box{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+                              -std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity()};
+    for (size_t i = 0; i < nominal_.size(); ++i) {
+      const double x = nominal_[i].x + fraction_[i] * correction.x, y = nominal_[i].y + fraction_[i] * correction.y;
+      box = {std::min(box[0], x), std::min(box[1], y), std::max(box[2], x), std::max(box[3], y)};
+    }
+    return box;
+  }
+
   Frame SampleFrame(size_t i, const Pose2& correction) const {
     const double s = fraction_[i];
     const Pose2& n = nominal_[i];
@@ -268,8 +285,8 @@ std::vector<size_t> Slam::ThinByAngle(const Scan& scan, const std::vector<Measur
   return kept;
 }
 
-double Slam::LogLikelihood(const OccupancyGrid& map, const ScanPath& path, const Pose2& correction,
-                           const std::vector<const Measurement*>& matching) const {
+double Slam::LogLikelihood(const OccupancyGrid& map, const MatchWindow* window, const ScanPath& path,
+                           const Pose2& correction, const std::vector<const Measurement*>& matching) const {
   const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
   // The candidate's rays, cast as one batch (several in flight); buffers reused per thread.
   thread_local std::vector<RayQuery> rays;
@@ -284,7 +301,11 @@ double Slam::LogLikelihood(const OccupancyGrid& map, const ScanPath& path, const
     }
     rays.push_back({frame.Point(m->local_origin), frame.Direction(m->local_direction), m->match_range_m});
   }
-  CastToObstacles(map, rays, occupied_above, hits);
+  if (window != nullptr) {
+    CastToObstacles(*window, rays, hits);
+  } else {
+    CastToObstacles(map, rays, occupied_above, hits);
+  }
   double ll = 0.0;
   for (size_t i = 0; i < matching.size(); ++i) {
     const Measurement& m = *matching[i];
@@ -307,7 +328,7 @@ double Slam::ScoreScan(const Scan& scan, const Pose2& end) const {
   const std::vector<Measurement> usable = CollectMeasurements(scan);
   std::vector<const Measurement*> matching;
   for (size_t i : ThinByAngle(scan, usable)) matching.push_back(&usable[i]);
-  return LogLikelihood(best.map, path, path.CorrectionTo(end), matching);
+  return LogLikelihood(best.map, nullptr, path, path.CorrectionTo(end), matching);
 }
 
 ScanSummary Slam::Summarize(const Scan& scan) const {
@@ -395,6 +416,27 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   if (match) {
     const double sigma_pos = std::max(params_.min_pos_uncertainty_m, sigma_trans);
     const double sigma_angle = std::max(DegToRad(params_.min_angle_uncertainty_deg), std::hypot(sigma_rot1, sigma_rot2));
+    // A particle whose candidates cast enough rays gets a MatchWindow over the cells they can
+    // reach: every sample position under the predicted correction, moved by up to 4 sigma_pos,
+    // plus the longest reach of a matching ray (candidates drawn farther cast through the map).
+    // Same answers either way; what pays is measured by BM_MatchWindowBuild (about 2 ns per
+    // cell) and BM_MatchingRayWindow (30 to 45 ns saved per ray) on this machine.
+    constexpr int64_t kCellsPerRayPaid = 16;
+    double reach = 0.0;
+    for (const Measurement* m : matching) reach = std::max(reach, m->local_origin.norm() + m->match_range_m);
+    const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
+    std::vector<std::optional<MatchWindow>> windows(n_particles);
+    ForEach(config_.parallel, n_particles, [&](size_t p) {
+      const std::array<double, 4> box = paths[p].Extent(paths[p].CorrectionTo(predicted[p]));
+      const double pad = reach + 4.0 * sigma_pos + 3.0 * config_.resolution_m;
+      const CellIndex lo = geometry_.CellOf({box[0] - pad, box[1] - pad});
+      const CellIndex hi = geometry_.CellOf({box[2] + pad, box[3] + pad});
+      const int64_t cells = (int64_t{hi.x} - lo.x + 1) * (int64_t{hi.y} - lo.y + 1);
+      const auto rays = static_cast<int64_t>(n_candidates * matching.size());
+      if (cells <= kMaxMatchWindowCells && rays * kCellsPerRayPaid >= cells) {
+        windows[p].emplace(particles_[p].map, occupied_above, lo, hi);
+      }
+    });
     std::vector<Pose2> candidate_pose(n_particles * n_candidates);
     std::vector<double> candidate_ll(n_particles * n_candidates);
     ForEach(config_.parallel, candidate_pose.size(), [&](size_t index) {
@@ -406,7 +448,8 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
         end.y += rng.Gaussian(sigma_pos);
         end.theta = NormalizeAngle(end.theta + rng.Gaussian(sigma_angle));
       }
-      const double ll = LogLikelihood(particles_[p].map, paths[p], paths[p].CorrectionTo(end), matching);
+      const MatchWindow* window = windows[p] ? &*windows[p] : nullptr;
+      const double ll = LogLikelihood(particles_[p].map, window, paths[p], paths[p].CorrectionTo(end), matching);
       candidate_pose[index] = end;
       candidate_ll[index] = ll;
     });

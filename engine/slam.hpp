@@ -18,6 +18,8 @@
 namespace slam {
 
 /// Engine settings that are not tuned by the evolution strategy.
+class MatchWindow;
+
 struct SlamConfig {
   double resolution_m = 0.01;
   double logodds_limit = 5.0;  // cells are clamped to [-limit, +limit]
@@ -125,8 +127,9 @@ class Slam {
  private:
   struct Measurement;
   class ScanPath;
-  double LogLikelihood(const OccupancyGrid& map, const ScanPath& path, const Pose2& correction,
-                       const std::vector<const Measurement*>& matching) const;
+  /// Eq. (2) of a candidate: its rays cast through `window` when there is one, else `map`.
+  double LogLikelihood(const OccupancyGrid& map, const MatchWindow* window, const ScanPath& path,
+                       const Pose2& correction, const std::vector<const Measurement*>& matching) const;
   std::vector<Measurement> CollectMeasurements(const Scan& scan) const;
   std::vector<size_t> ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable) const;
   /// Phase D: draws `wanted` particles in proportion to their weights (random stream `stream`

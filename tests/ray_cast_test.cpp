@@ -157,44 +157,55 @@ OccupancyGrid RandomMap(uint64_t seed, double res) {
   return grid;
 }
 
-// The fast paths (one ray, and a batch of rays in flight together) against the plain traversal.
-void ExpectSameHits(const OccupancyGrid& grid, uint64_t seed, int rays, LogOdds occupied_above) {
+// Seeded rays anywhere in [-3, 3)^2 m (also from cell and block boundaries, along the axes and
+// diagonals, of zero length), up to 1.5 m, or 10 m for one in three, of 1 cm cells.
+std::vector<RayQuery> RandomRays(uint64_t seed, int rays, double res) {
   Rng rng(seed);
-  const double res = grid.geometry().resolution();
   std::vector<RayQuery> queries;
-  std::vector<RayHit> plain_hits;
-  int hits = 0;
   for (int i = 0; i < rays; ++i) {
-    // Origins anywhere (also on cell and block boundaries), lengths up to 10 m of 1 cm cells.
     Vec2 origin(rng.Uniform() * 6 - 3, rng.Uniform() * 6 - 3);
     if (i % 5 == 0) origin = Vec2(std::round(origin.x() / res / 8) * 8 * res, origin.y());
     if (i % 7 == 0) origin = Vec2(origin.x(), std::round(origin.y() / res) * res);
     double angle = rng.Uniform() * 2 * kPi;
     if (i % 11 == 0) angle = std::round(angle / (kPi / 4)) * (kPi / 4);  // axes and diagonals
     const double range = (i % 13 == 0 ? 0.0 : rng.Uniform()) * (i % 3 == 0 ? 10.0 : 1.5) * res / 0.01;
-    const RayHit plain = CastToObstaclePlain(grid, origin, angle, range, occupied_above);
-    const RayHit fast = CastToObstacle(grid, origin, angle, range, occupied_above);
-    ASSERT_EQ(fast.hit, plain.hit) << "ray " << i << " from (" << origin.x() << ", " << origin.y()
-                                   << ") at " << angle << " over " << range;
-    ASSERT_NEAR(fast.distance_m, plain.distance_m, 1e-9 * (1 + range)) << "ray " << i;
-    ASSERT_NEAR(fast.exit_m, plain.exit_m, 1e-9 * (1 + range)) << "ray " << i;
-    EXPECT_LE(fast.cells, plain.cells) << "ray " << i;
-    hits += plain.hit ? 1 : 0;
     queries.push_back({origin, Vec2(std::cos(angle), std::sin(angle)), range});
-    plain_hits.push_back(plain);
+  }
+  return queries;
+}
+
+void ExpectSameAs(const std::vector<RayHit>& plain, const std::vector<RayHit>& fast, const std::vector<RayQuery>& rays,
+                  const char* what) {
+  ASSERT_EQ(fast.size(), plain.size());
+  for (size_t i = 0; i < plain.size(); ++i) {
+    const RayQuery& q = rays[i];
+    ASSERT_EQ(fast[i].hit, plain[i].hit) << what << " ray " << i << " from (" << q.origin.x() << ", " << q.origin.y()
+                                         << ") along (" << q.direction.x() << ", " << q.direction.y() << ") over "
+                                         << q.max_range_m;
+    ASSERT_NEAR(fast[i].distance_m, plain[i].distance_m, 1e-9 * (1 + q.max_range_m)) << what << " ray " << i;
+    ASSERT_NEAR(fast[i].exit_m, plain[i].exit_m, 1e-9 * (1 + q.max_range_m)) << what << " ray " << i;
+    EXPECT_LE(fast[i].cells, plain[i].cells) << what << " ray " << i;
+  }
+}
+
+// The fast paths (one ray, and a batch of rays in flight together) against the plain traversal.
+void ExpectSameHits(const OccupancyGrid& grid, uint64_t seed, int rays, LogOdds occupied_above) {
+  const std::vector<RayQuery> queries = RandomRays(seed, rays, grid.geometry().resolution());
+  std::vector<RayHit> plain, single;
+  int hits = 0;
+  for (const RayQuery& q : queries) {
+    plain.push_back(CastToObstaclePlain(grid, q.origin, q.direction, q.max_range_m, occupied_above));
+    single.push_back(CastToObstacle(grid, q.origin, q.direction, q.max_range_m, occupied_above));
+    hits += plain.back().hit ? 1 : 0;
   }
   // The rays meet walls often enough for the comparison to mean something, but not always.
   EXPECT_GT(hits, rays / 10);
   EXPECT_LT(hits, rays * 9 / 10);
+  ExpectSameAs(plain, single, queries, "single");
 
   std::vector<RayHit> batch(3, RayHit{});  // resized by the call
   CastToObstacles(grid, queries, occupied_above, batch);
-  ASSERT_EQ(batch.size(), queries.size());
-  for (size_t i = 0; i < queries.size(); ++i) {
-    ASSERT_EQ(batch[i].hit, plain_hits[i].hit) << "batch ray " << i;
-    ASSERT_NEAR(batch[i].distance_m, plain_hits[i].distance_m, 1e-9 * (1 + queries[i].max_range_m)) << "batch ray " << i;
-    ASSERT_NEAR(batch[i].exit_m, plain_hits[i].exit_m, 1e-9 * (1 + queries[i].max_range_m)) << "batch ray " << i;
-  }
+  ExpectSameAs(plain, batch, queries, "batch");
 }
 
 TEST(CastToObstacleFast, FindsWhatThePlainTraversalFinds) {
@@ -333,6 +344,81 @@ TEST(OccupancyGrid, RefreshComputesTheClearanceOfWrittenTiles) {
   grid.RefreshSummaries();
   EXPECT_EQ(grid.FindTile({0, 0})->clearance[20 * kTileSize + 13], 3);
   EXPECT_EQ(grid.FindTile({0, 0})->clearance[20 * kTileSize + 10], 0);
+}
+
+// The chessboard distance to the nearest cell above `threshold` inside [lo, hi], capped at
+// kClearanceFar, by searching growing squares.
+int NearestInWindow(const OccupancyGrid& grid, LogOdds threshold, CellIndex lo, CellIndex hi, CellIndex c) {
+  for (int r = 0; r < kClearanceFar; ++r) {
+    for (int y = std::max(c.y - r, lo.y); y <= std::min(c.y + r, hi.y); ++y) {
+      for (int x = std::max(c.x - r, lo.x); x <= std::min(c.x + r, hi.x); ++x) {
+        const bool ring = std::abs(x - c.x) == r || std::abs(y - c.y) == r;
+        if (ring && grid.At({x, y}) > threshold) return r;
+      }
+    }
+  }
+  return kClearanceFar;
+}
+
+TEST(MatchWindow, ClearanceIsTheChessboardDistanceAcrossTileEdges) {
+  OccupancyGrid grid = RandomMap(31, 0.01);
+  grid.RefreshSummaries();
+  // Across tile edges and negative coordinates, wider than 128 (the row relaxation's reach),
+  // at the summary's threshold, above it, and below it (unknown cells then count).
+  const CellIndex lo{-170, -90}, hi{29, 60};
+  for (const LogOdds threshold : {LogOdds{0}, LogOdds{400}, LogOdds{-100}}) {
+    const MatchWindow window(grid, threshold, lo, hi);
+    EXPECT_EQ(window.cells(), 200 * 151);
+    for (int y = lo.y; y <= hi.y; y += 3) {
+      for (int x = lo.x; x <= hi.x; ++x) {
+        ASSERT_EQ(window.ClearanceAt({x, y}), NearestInWindow(grid, threshold, lo, hi, {x, y}))
+            << x << ", " << y << " above " << threshold;
+      }
+    }
+  }
+  // Far from anything: capped.
+  const OccupancyGrid empty(GridGeometry(0.01), 2000);
+  const MatchWindow nothing(empty, 0, {0, 0}, {299, 9});
+  EXPECT_EQ(nothing.ClearanceAt({150, 5}), kClearanceFar);
+}
+
+// Rays through a window around the origin: those it covers through its field, the others
+// through the grid; all as the plain traversal finds them.
+void ExpectWindowFindsWhatThePlainTraversalFinds(const OccupancyGrid& grid, uint64_t seed, LogOdds threshold) {
+  const MatchWindow window(grid, threshold, {-250, -250}, {249, 249});
+  const std::vector<RayQuery> queries = RandomRays(seed, 30000, grid.geometry().resolution());
+  std::vector<RayHit> plain;
+  int covered = 0, hits = 0;
+  for (const RayQuery& q : queries) {
+    plain.push_back(CastToObstaclePlain(grid, q.origin, q.direction, q.max_range_m, threshold));
+    covered += window.Covers(q) ? 1 : 0;
+    hits += plain.back().hit ? 1 : 0;
+  }
+  EXPECT_GT(covered, 30000 / 4);
+  EXPECT_LT(covered, 30000 * 3 / 4);
+  EXPECT_GT(hits, 30000 / 10);
+  std::vector<RayHit> fast;
+  CastToObstacles(window, queries, fast);
+  ExpectSameAs(plain, fast, queries, "window");
+}
+
+TEST(MatchWindow, FindsWhatThePlainTraversalFinds) {
+  OccupancyGrid grid = RandomMap(32, 0.01);
+  ExpectWindowFindsWhatThePlainTraversalFinds(grid, 33, 0);  // never refreshed
+  grid.RefreshSummaries();
+  ExpectWindowFindsWhatThePlainTraversalFinds(grid, 34, 0);
+  ExpectWindowFindsWhatThePlainTraversalFinds(grid, 35, 400);
+  ExpectWindowFindsWhatThePlainTraversalFinds(grid, 36, -100);  // unknown cells stop rays
+  // Rays in a window of empty space jump across it.
+  const RayQuery q{{0.004, 0.003}, Vec2(std::cos(0.3), std::sin(0.3)), 1.2};
+  const OccupancyGrid empty(GridGeometry(0.01), 2000);
+  const MatchWindow window(empty, 0, {-200, -200}, {199, 199});
+  ASSERT_TRUE(window.Covers(q));
+  std::vector<RayHit> hits;
+  CastToObstacles(window, {q}, hits);
+  EXPECT_FALSE(hits[0].hit);
+  EXPECT_EQ(hits[0].cells, 0);
+  EXPECT_LE(hits[0].jumps, 1);
 }
 
 TEST(ApplyUpdateRay, AddsTheProfileByDistance) {
