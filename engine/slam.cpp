@@ -306,7 +306,10 @@ double Slam::LogLikelihood(const OccupancyGrid& map, const MatchWindow* window, 
   } else {
     CastToObstacles(map, rays, occupied_above, hits);
   }
-  double ll = 0.0;
+  // Eq. (2), robust to outliers: the sum of log(g + floor), as the log of products of its terms
+  // (each in [floor, 1 + floor)), taken whenever a product nears the ends of the double range:
+  // one log for many rays instead of one each.
+  double ll = 0.0, product = 1.0;
   for (size_t i = 0; i < matching.size(); ++i) {
     const Measurement& m = *matching[i];
     const RayHit& hit = hits[i];
@@ -317,9 +320,13 @@ double Slam::LogLikelihood(const OccupancyGrid& map, const MatchWindow* window, 
       const double r = (m.distance_m - 0.5 * (hit.distance_m + hit.exit_m)) / m.sigma_m;
       g = std::exp(-0.5 * r * r);
     }
-    ll += std::log(g + config_.match_floor);  // eq. (2), robust to outliers
+    product *= g + config_.match_floor;
+    if (!(product > 1e-150 && product < 1e150)) {
+      ll += std::log(product);
+      product = 1.0;
+    }
   }
-  return ll;
+  return ll + std::log(product);
 }
 
 double Slam::ScoreScan(const Scan& scan, const Pose2& end) const {
