@@ -51,35 +51,47 @@ inline int32_t FloorToInt(double v) {
   return i - (v < static_cast<double>(i) ? 1 : 0);
 }
 
-/// What a matching ray learns of the cell (x, y) it is in (mirrored coordinates u, v: see
-/// FastRay): whether it stops there, and how far it may move without looking.
+/// What a matching ray learns of the cell it is in: whether it stops there, and how far it may
+/// move without looking.
 struct Probe {
   bool occupied;  // above the threshold
   int clearance;  // every cell within clearance - 1 (chessboard) is free, up to the limits
-  int32_t end_u, end_v;  // mirrored limits of what `clearance` knows about (exclusive)
+  int32_t end_u, end_v;  // the ray's limits (exclusive) of what `clearance` knows about
+};
+
+// Rays address cells relative to their first cell, in mirrored coordinates (see FastRay):
+// cell (u, v) of a ray is (x, y) = ((u0 + u) ^ flip_x, (v0 + v) ^ flip_y), where (u0, v0) is
+// the mirrored first cell. A field gives each ray a cursor with what it needs of that.
+struct RayStart {
+  int32_t u0, v0, flip_x, flip_y;
 };
 
 /// The grid's own tiles: clearance inside the ray's tile, which ends at the tile's edge.
 class TileField {
  public:
+  using Cursor = RayStart;
+
   TileField(const OccupancyGrid& grid, LogOdds occupied_above) : grid_(grid), occupied_above_(occupied_above) {}
 
-  Probe At(int32_t u, int32_t v, int32_t flip_x, int32_t flip_y) const {
+  static Cursor CursorFor(const RayStart& start) { return start; }
+
+  Probe At(const Cursor& c, int32_t u_rel, int32_t v_rel) const {
     // Tiles are aligned in mirrored coordinates too: ~ maps [64a, 64a + 64) onto
     // [64(-a - 1), 64(-a - 1) + 64).
+    const int32_t u = c.u0 + u_rel, v = c.v0 + v_rel;
     const int32_t tile_u = u >> kTileSizeLog2, tile_v = v >> kTileSizeLog2;
-    const Tile* tile = grid_.FindTileOr({tile_u ^ flip_x, tile_v ^ flip_y}, &kAbsentTile);
+    const Tile* tile = grid_.FindTileOr({tile_u ^ c.flip_x, tile_v ^ c.flip_y}, &kAbsentTile);
     const uint64_t mask = tile->occupied_blocks.load(std::memory_order_acquire);
     // A missing tile, or one without a cell above the threshold, is crossed in one jump; a
     // tile whose summary is stale, cell by cell.
     const uint8_t* clearance = mask == 0                  ? kNothingNear.data()
                                : mask == kUnknownSummary ? kUnknownNear.data()
                                                          : tile->clearance.data();
-    const int32_t x = u ^ flip_x, y = v ^ flip_y;
+    const int32_t x = u ^ c.flip_x, y = v ^ c.flip_y;
     const int offset = ((y & (kTileSize - 1)) << kTileSizeLog2) | (x & (kTileSize - 1));
     const int k = clearance[offset];
-    return {k == 0 && tile->cells[static_cast<size_t>(offset)] > occupied_above_, k, (tile_u + 1) * kTileSize,
-            (tile_v + 1) * kTileSize};
+    return {k == 0 && tile->cells[static_cast<size_t>(offset)] > occupied_above_, k,
+            (tile_u + 1) * kTileSize - c.u0, (tile_v + 1) * kTileSize - c.v0};
   }
 
  private:
@@ -96,17 +108,29 @@ class TileField {
   LogOdds occupied_above_;
 };
 
-/// A MatchWindow's distance field: clearance across tile edges, exact for its threshold.
+/// A MatchWindow's distance field: clearance across tile edges, exact for its threshold, one
+/// byte read per step. Only for rays the window covers.
 class WindowField {
  public:
-  explicit WindowField(const MatchWindow& window) : window_(window) {}
+  /// Where the ray's first cell is in the window's array, and how far its steps move there.
+  struct Cursor {
+    int64_t base, step_u, step_v;
+  };
 
-  Probe At(int32_t u, int32_t v, int32_t flip_x, int32_t flip_y) const {
-    const int k = window_.ClearanceAt({u ^ flip_x, v ^ flip_y});
+  explicit WindowField(const MatchWindow& window) : distances_(window.distances()), window_(window) {}
+
+  Cursor CursorFor(const RayStart& start) const {
+    return {window_.IndexOf({start.u0 ^ start.flip_x, start.v0 ^ start.flip_y}), start.flip_x != 0 ? -1 : 1,
+            start.flip_y != 0 ? -window_.width() : window_.width()};
+  }
+
+  Probe At(const Cursor& c, int32_t u_rel, int32_t v_rel) const {
+    const int k = distances_[c.base + c.step_u * u_rel + c.step_v * v_rel];
     return {k == 0, k, std::numeric_limits<int32_t>::max(), std::numeric_limits<int32_t>::max()};
   }
 
  private:
+  const uint8_t* distances_;
   const MatchWindow& window_;
 };
 
@@ -118,38 +142,42 @@ class WindowField {
 // the ray goes towards +x (or along the axis), u = ~x = -x - 1 where it goes towards -x. Cell x
 // covers [x, x + 1), so its mirror covers [u, u + 1) of the coordinate -x, and a ray leaving a
 // grid line backwards is in the cell below it, as in GridWalk. Crossing times are GridWalk's
-// expressions (up to an exact negation), each from the origin in closed form.
+// expressions (up to an exact negation), each from the origin in closed form. Coordinates are
+// relative to the ray's first cell: they never go negative, so floor is a truncation, and the
+// crossing times are the very same doubles (origin and cell boundary differ by the same
+// integer, exactly).
+template <typename Field>
 class FastRay {
  public:
   FastRay() = default;
   /// Preconditions: direction has unit length; max_range_m > 0.
-  FastRay(const GridGeometry& geometry, const Vec2& origin, const Vec2& direction, double max_range_m)
+  FastRay(const Field& field, const GridGeometry& geometry, const Vec2& origin, const Vec2& direction,
+          double max_range_m)
       : res_(geometry.resolution()), length_(max_range_m / res_) {
     result_ = RayHit{max_range_m, max_range_m, false, 0, 0};
     const Vec2 g = geometry.ToGrid(origin);
     const bool back_x = direction.x() < 0, back_y = direction.y() < 0;
-    flip_x_ = back_x ? -1 : 0;
-    flip_y_ = back_y ? -1 : 0;
-    ox_ = back_x ? -g.x() : g.x();
-    oy_ = back_y ? -g.y() : g.y();
+    const int32_t flip_x = back_x ? -1 : 0, flip_y = back_y ? -1 : 0;
+    // GridWalk's first cell (it may be left at once, over zero length, as GridWalk does).
+    const int32_t u0 = FloorToInt(g.x()) ^ flip_x, v0 = FloorToInt(g.y()) ^ flip_y;
+    cursor_ = field.CursorFor({u0, v0, flip_x, flip_y});
+    // The origin within the first cell, in [0, 1] (exact: an integer apart from the origin).
+    ox_ = (back_x ? -g.x() : g.x()) - u0;
+    oy_ = (back_y ? -g.y() : g.y()) - v0;
     ax_ = std::abs(direction.x());
     ay_ = std::abs(direction.y());
     ix_ = 1.0 / ax_;  // infinite along an axis the ray does not move on
     iy_ = 1.0 / ay_;
-    // GridWalk's first cell (it may be left at once, over zero length, as GridWalk does).
-    u_ = FloorToInt(g.x()) ^ flip_x_;
-    v_ = FloorToInt(g.y()) ^ flip_y_;
   }
 
   const RayHit& result() const { return result_; }
 
-  /// One jump or one cell through `field` (TileField or WindowField); true once the ray has
-  /// its answer. No branches but at the end of the ray: which tile comes next, whether the
+  /// One jump or one cell through `field` (the one the ray was made for); true once the ray
+  /// has its answer. No branches but at the end of the ray: which tile comes next, whether the
   /// clearance allows a jump, which side of a box the ray leaves by are all coin tosses, and
   /// each mispredicted branch would cost as much as a jump.
-  template <typename Field>
   bool Advance(const Field& field) {
-    const Probe probe = field.At(u_, v_, flip_x_, flip_y_);
+    const Probe probe = field.At(cursor_, u_, v_);
     if (probe.occupied) {
       // A hit, unless the ray only touches the cell (crosses it over zero length).
       const double t_leave = std::min(std::min((u_ + 1 - ox_) * ix_, (v_ + 1 - oy_) * iy_), length_);
@@ -167,8 +195,8 @@ class FastRay {
   }
 
  private:
-  /// Leaves the box of mirrored cells [.., end_u) x [.., end_v), which holds the current cell
-  /// and nothing the ray may stop at, into the first cell beyond it; false when the ray ends
+  /// Leaves the box of cells [.., end_u) x [.., end_v), which holds the current cell and
+  /// nothing the ray may stop at, into the first cell beyond it; false when the ray ends
   /// inside it. Without branches on the way out: which side comes first is a coin toss.
   /// Counts a jump, or a cell crossed over a positive length (as the plain traversal counts).
   bool LeaveBox(int32_t end_u, int32_t end_v, bool jump) {
@@ -178,11 +206,12 @@ class FastRay {
     result_.cells += !jump && std::min(t_exit, length_) > t_ ? 1 : 0;
     if (t_exit >= length_) return false;
     // Across the nearer side, or both at a corner (GridWalk's tolerance). Along the other
-    // axis, the boundaries crossed by then, those within the same tolerance after included.
+    // axis, the boundaries crossed by then, those within the same tolerance after included
+    // (positions are >= 0: truncation is floor).
     const double slack = GridWalk::kCornerEpsilon * (1.0 + t_exit);
     const bool corner = std::abs(exit_u - exit_v) <= slack;
-    const int32_t along_u = std::clamp(FloorToInt(ox_ + ax_ * (t_exit + slack)), u_, end_u - 1);
-    const int32_t along_v = std::clamp(FloorToInt(oy_ + ay_ * (t_exit + slack)), v_, end_v - 1);
+    const int32_t along_u = std::clamp(static_cast<int32_t>(ox_ + ax_ * (t_exit + slack)), u_, end_u - 1);
+    const int32_t along_v = std::clamp(static_cast<int32_t>(oy_ + ay_ * (t_exit + slack)), v_, end_v - 1);
     // Selected with masks: written as conditionals, the compiler branches around the
     // computation of along_u or along_v, and the branch is mispredicted half the time.
     const int32_t across_u = -static_cast<int32_t>(corner | (exit_u < exit_v));  // all ones or 0
@@ -195,9 +224,9 @@ class FastRay {
 
   double res_ = 0, length_ = 0;
   double ox_ = 0, oy_ = 0, ax_ = 0, ay_ = 0, ix_ = 0, iy_ = 0;
-  int32_t flip_x_ = 0, flip_y_ = 0;  // x = u ^ flip_x
-  int32_t u_ = 0, v_ = 0;
-  double t_ = 0.0;  // when the ray entered cell (u, v)
+  typename Field::Cursor cursor_{};
+  int32_t u_ = 0, v_ = 0;  // relative to the first cell
+  double t_ = 0.0;         // when the ray entered cell (u, v)
   RayHit result_;
 };
 
@@ -218,7 +247,7 @@ namespace {
 
 template <typename Field>
 RayHit CastOne(const Field& field, const GridGeometry& geometry, const RayQuery& q) {
-  FastRay ray(geometry, q.origin, q.direction, q.max_range_m);
+  FastRay<Field> ray(field, geometry, q.origin, q.direction, q.max_range_m);
   while (!ray.Advance(field)) {
   }
   return ray.result();
@@ -241,8 +270,8 @@ void CastInPairs(const Field& field, const GridGeometry& geometry, const std::ve
       hits[i + 1] = single(qb);
       continue;
     }
-    FastRay a(geometry, qa.origin, qa.direction, qa.max_range_m);
-    FastRay b(geometry, qb.origin, qb.direction, qb.max_range_m);
+    FastRay<Field> a(field, geometry, qa.origin, qa.direction, qa.max_range_m);
+    FastRay<Field> b(field, geometry, qb.origin, qb.direction, qb.max_range_m);
     bool done_a = false, done_b = false;
     while (!done_a && !done_b) {
       done_a = a.Advance(field);
@@ -261,14 +290,14 @@ template <size_t kLanes, typename Field, typename Fast, typename Single>
 void CastInLanes(const Field& field, const GridGeometry& geometry, const std::vector<RayQuery>& rays,
                  std::vector<RayHit>& hits, const Fast& fast, const Single& single) {
   hits.resize(rays.size());
-  std::array<FastRay, kLanes> lane;
+  std::array<FastRay<Field>, kLanes> lane;
   std::array<size_t, kLanes> lane_ray{};
   size_t next = 0;
   const auto refill = [&](size_t k) {
     while (next < rays.size()) {
       const size_t i = next++;
       if (fast(rays[i])) {
-        lane[k] = FastRay(geometry, rays[i].origin, rays[i].direction, rays[i].max_range_m);
+        lane[k] = FastRay<Field>(field, geometry, rays[i].origin, rays[i].direction, rays[i].max_range_m);
         lane_ray[k] = i;
         return true;
       }

@@ -152,9 +152,11 @@ class MatchWindow {
   bool Covers(const RayQuery& ray) const;
   /// Chessboard distance of cell c to the nearest cell above the threshold inside the window
   /// (kClearanceFar when that far or farther). Precondition: c is inside the window.
-  int ClearanceAt(CellIndex c) const {
-    return distance_[static_cast<size_t>((int64_t{c.y} - y0_) * width_ + (int64_t{c.x} - x0_))];
-  }
+  int ClearanceAt(CellIndex c) const { return distance_[static_cast<size_t>(IndexOf(c))]; }
+  /// The distances, row-major from the window's lower-left cell; cell c at IndexOf(c).
+  const uint8_t* distances() const { return distance_.data(); }
+  int64_t IndexOf(CellIndex c) const { return (int64_t{c.y} - y0_) * width_ + (int64_t{c.x} - x0_); }
+  int64_t width() const { return width_; }
 
   const OccupancyGrid& grid() const { return *grid_; }
   LogOdds occupied_above() const { return occupied_above_; }
