@@ -250,7 +250,7 @@ struct WindowRays {
   std::vector<std::vector<RayQuery>> batches;
 };
 
-// Building a MatchWindow (reading the window's cells, its distance field). Items are cells.
+// Building a MatchWindow (reading the window's cells, its free squares). Items are cells.
 void BM_MatchWindowBuild(benchmark::State& state) {
   const WindowRays w(state, false);
   size_t i = 0;
@@ -259,7 +259,7 @@ void BM_MatchWindowBuild(benchmark::State& state) {
     const auto& [lo, hi] = w.bounds[i++ % w.bounds.size()];
     const MatchWindow window(w.m.grid, w.m.threshold, lo, hi);
     cells += window.cells();
-    benchmark::DoNotOptimize(window.ClearanceAt(lo));
+    benchmark::DoNotOptimize(window.FreeSquareAt(lo, false, false));
   }
   Items(state, cells, (std::string("cells ") + FillName(w.m.fill)).c_str());
 }

@@ -108,8 +108,8 @@ class TileField {
   LogOdds occupied_above_;
 };
 
-/// A MatchWindow's distance field: clearance across tile edges, exact for its threshold, one
-/// byte read per step. Only for rays the window covers.
+/// A MatchWindow's free squares in the ray's quadrant: across tile edges, exact for its
+/// threshold, one byte read per step. Only for rays the window covers.
 class WindowField {
  public:
   /// Where the ray's first cell is in the window's array, and how far its steps move there.
@@ -117,20 +117,21 @@ class WindowField {
     int64_t base, step_u, step_v;
   };
 
-  explicit WindowField(const MatchWindow& window) : distances_(window.distances()), window_(window) {}
+  explicit WindowField(const MatchWindow& window) : squares_(window.free_squares()), window_(window) {}
 
   Cursor CursorFor(const RayStart& start) const {
-    return {window_.IndexOf({start.u0 ^ start.flip_x, start.v0 ^ start.flip_y}), start.flip_x != 0 ? -1 : 1,
-            start.flip_y != 0 ? -window_.width() : window_.width()};
+    const int quadrant = (start.flip_x != 0 ? 1 : 0) | (start.flip_y != 0 ? 2 : 0);
+    return {quadrant * window_.cells() + window_.IndexOf({start.u0 ^ start.flip_x, start.v0 ^ start.flip_y}),
+            start.flip_x != 0 ? -1 : 1, start.flip_y != 0 ? -window_.width() : window_.width()};
   }
 
   Probe At(const Cursor& c, int32_t u_rel, int32_t v_rel) const {
-    const int k = distances_[c.base + c.step_u * u_rel + c.step_v * v_rel];
+    const int k = squares_[c.base + c.step_u * u_rel + c.step_v * v_rel];
     return {k == 0, k, std::numeric_limits<int32_t>::max(), std::numeric_limits<int32_t>::max()};
   }
 
  private:
-  const uint8_t* distances_;
+  const uint8_t* squares_;
   const MatchWindow& window_;
 };
 
@@ -343,16 +344,38 @@ void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& ray
       [&](const RayQuery& q) { return CastToObstacle(grid, q.origin, q.direction, q.max_range_m, occupied_above); });
 }
 
+namespace {
+
+/// In place on one row of a quadrant's free squares: row[x] = min over j >= 0 of
+/// row[x + j * dir] + j (for j < 128: values never exceed kClearanceFar, so a farther j never
+/// lowers one), by doubling the offset (1, 2, ..., 64) instead of one sequential scan: loops
+/// without a carried dependency. `scratch` holds `width` bytes.
+void RelaxTowards(uint8_t* row, uint8_t* scratch, size_t width, bool backwards) {
+  for (size_t s = 1; s < width && s <= 64; s <<= 1) {
+    std::copy(row, row + width, scratch);
+    const auto step = static_cast<uint8_t>(s);
+    if (backwards) {
+      for (size_t x = s; x < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x - s] + step));
+    } else {
+      for (size_t x = 0; x + s < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x + s] + step));
+    }
+  }
+}
+
+}  // namespace
+
 MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, CellIndex lo, CellIndex hi)
     : grid_(&grid),
       occupied_above_(occupied_above),
       x0_(lo.x),
       y0_(lo.y),
       width_(std::max<int64_t>(0, int64_t{hi.x} - lo.x + 1)),
-      height_(std::max<int64_t>(0, int64_t{hi.y} - lo.y + 1)),
-      distance_(static_cast<size_t>(width_ * height_), kClearanceFar) {
-  if (distance_.empty()) return;
-  // Occupied cells (0) from the tiles the window overlaps; cells of missing tiles hold 0 (unknown).
+      height_(std::max<int64_t>(0, int64_t{hi.y} - lo.y + 1)) {
+  const auto w = static_cast<size_t>(width_), h = static_cast<size_t>(height_);
+  if (w == 0 || h == 0) return;
+  // Free cells (kClearanceFar) and occupied ones (0) from the tiles the window overlaps;
+  // cells of missing tiles hold 0 (unknown).
+  std::vector<uint8_t> free(w * h, kClearanceFar);
   const bool unknown_occupied = LogOdds{0} > occupied_above;
   const TileIndex t_lo = GridGeometry::TileOf(lo), t_hi = GridGeometry::TileOf(hi);
   for (int32_t ty = t_lo.y; ty <= t_hi.y; ++ty) {
@@ -369,7 +392,7 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
       const int32_t x_begin = std::max(origin.x, lo.x), x_end = std::min(origin.x + kTileSize - 1, hi.x);
       const int32_t y_begin = std::max(origin.y, lo.y), y_end = std::min(origin.y + kTileSize - 1, hi.y);
       for (int32_t y = y_begin; y <= y_end; ++y) {
-        uint8_t* out = distance_.data() + (int64_t{y} - y0_) * width_ + (int64_t{x_begin} - x0_);
+        uint8_t* out = free.data() + IndexOf({x_begin, y});
         if (tile == nullptr) {
           std::fill(out, out + (x_end - x_begin + 1), uint8_t{0});
           continue;
@@ -381,7 +404,37 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
       }
     }
   }
-  ChessboardDistance(distance_.data(), static_cast<int>(width_), static_cast<int>(height_));
+  // Each quadrant's free squares, rows from the far side: q = 0 on an occupied cell, else
+  // 1 + min(q of the next cell along the row, of the next row's cell and of its next), capped
+  // at kClearanceFar (cells beyond the window count as free: no ray the window covers gets
+  // there). Along the row, as the minimum of a + j over the cells j further (a the value
+  // from the next row alone, 0 where occupied).
+  squares_.assign(4 * w * h, kClearanceFar);
+  std::vector<uint8_t> scratch(w);
+  for (size_t quadrant = 0; quadrant < 4; ++quadrant) {
+    const bool back_x = (quadrant & 1) != 0, back_y = (quadrant & 2) != 0;
+    uint8_t* q = squares_.data() + quadrant * w * h;
+    for (size_t i = 0; i < h; ++i) {
+      const size_t y = back_y ? i : h - 1 - i;
+      uint8_t* row = q + y * w;
+      const uint8_t* occupancy = free.data() + y * w;
+      if (i == 0) {
+        for (size_t x = 0; x < w; ++x) row[x] = occupancy[x] == 0 ? uint8_t{0} : kClearanceFar;
+      } else {
+        const uint8_t* next = q + (back_y ? y - 1 : y + 1) * w;
+        // a = min(next[x], next[x +- 1], 126) + 1 on free cells (the edge's beyond is free).
+        if (back_x) {
+          row[0] = std::min(next[0], static_cast<uint8_t>(kClearanceFar - 1));
+          for (size_t x = 1; x < w; ++x) row[x] = std::min(std::min(next[x], next[x - 1]), static_cast<uint8_t>(kClearanceFar - 1));
+        } else {
+          for (size_t x = 0; x + 1 < w; ++x) row[x] = std::min(std::min(next[x], next[x + 1]), static_cast<uint8_t>(kClearanceFar - 1));
+          row[w - 1] = std::min(next[w - 1], static_cast<uint8_t>(kClearanceFar - 1));
+        }
+        for (size_t x = 0; x < w; ++x) row[x] = occupancy[x] == 0 ? uint8_t{0} : static_cast<uint8_t>(row[x] + 1);
+      }
+      RelaxTowards(row, scratch.data(), w, back_x);
+    }
+  }
 }
 
 bool MatchWindow::Covers(const RayQuery& q) const {

@@ -135,13 +135,14 @@ struct RayQuery {
 void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& rays, LogOdds occupied_above,
                      std::vector<RayHit>& hits);
 
-/// The cells around one pose that a particle's matching rays run through, with the chessboard
-/// distance of every cell to the nearest cell above a threshold across tile edges (where a
-/// tile's own clearance ends at its edge): rays cast through it jump straight across tiles and
-/// read one byte per step. Building it reads every cell of the window once, so it pays where
-/// many rays share it (the engine builds one per particle and scan when they are enough).
-/// Reads the grid when built and for rays it does not cover: the grid must outlive it,
-/// unchanged.
+/// The cells around one pose that a particle's matching rays run through, with, for each cell
+/// and each quadrant a ray can move towards, the side of the largest square of free cells
+/// (none above a threshold) with that cell as its corner: a ray in the cell crosses free cells
+/// only until it leaves that square, which spans tile edges (a tile's own clearance ends at
+/// its edge) and ignores what lies behind the ray. Rays cast through it read one byte per
+/// jump. Building it reads every cell of the window once, so it pays where many rays share it
+/// (the engine builds one per particle and scan when they are enough). Reads the grid when
+/// built and for rays it does not cover: the grid must outlive it, unchanged.
 class MatchWindow {
  public:
   /// The window of cells [lo, hi] (inclusive) of `grid`, for rays stopping at cells above
@@ -150,11 +151,17 @@ class MatchWindow {
 
   /// Whether a ray runs inside the window from start to end (else it is cast through the grid).
   bool Covers(const RayQuery& ray) const;
-  /// Chessboard distance of cell c to the nearest cell above the threshold inside the window
-  /// (kClearanceFar when that far or farther). Precondition: c is inside the window.
-  int ClearanceAt(CellIndex c) const { return distance_[static_cast<size_t>(IndexOf(c))]; }
-  /// The distances, row-major from the window's lower-left cell; cell c at IndexOf(c).
-  const uint8_t* distances() const { return distance_.data(); }
+  /// The side of the largest square of free cells [x, x + k) x [y, y + k), with x growing
+  /// towards -x when back_x (cells x - k + 1 .. x) and y likewise, capped at kClearanceFar;
+  /// cells beyond the window count as free. 0 on a cell above the threshold. Precondition:
+  /// c is inside the window.
+  int FreeSquareAt(CellIndex c, bool back_x, bool back_y) const {
+    return squares_[static_cast<size_t>((back_x ? 1 : 0) + (back_y ? 2 : 0)) * static_cast<size_t>(cells()) +
+                    static_cast<size_t>(IndexOf(c))];
+  }
+  /// The four quadrants' squares (forward, back in x, back in y, back in both), each
+  /// row-major from the window's lower-left cell; cell c at IndexOf(c) of each.
+  const uint8_t* free_squares() const { return squares_.data(); }
   int64_t IndexOf(CellIndex c) const { return (int64_t{c.y} - y0_) * width_ + (int64_t{c.x} - x0_); }
   int64_t width() const { return width_; }
 
@@ -167,11 +174,11 @@ class MatchWindow {
   LogOdds occupied_above_;
   int32_t x0_, y0_;
   int64_t width_, height_;
-  std::vector<uint8_t> distance_;
+  std::vector<uint8_t> squares_;
 };
 
 /// CastToObstacles(window.grid(), rays, window.occupied_above(), hits), the same answers, with
-/// the rays the window covers cast through its distance field.
+/// the rays the window covers cast through its free squares.
 void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits);
 
 /// The same along `angle` (radians).

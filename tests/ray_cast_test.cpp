@@ -346,21 +346,24 @@ TEST(OccupancyGrid, RefreshComputesTheClearanceOfWrittenTiles) {
   EXPECT_EQ(grid.FindTile({0, 0})->clearance[20 * kTileSize + 10], 0);
 }
 
-// The chessboard distance to the nearest cell above `threshold` inside [lo, hi], capped at
-// kClearanceFar, by searching growing squares.
-int NearestInWindow(const OccupancyGrid& grid, LogOdds threshold, CellIndex lo, CellIndex hi, CellIndex c) {
-  for (int r = 0; r < kClearanceFar; ++r) {
-    for (int y = std::max(c.y - r, lo.y); y <= std::min(c.y + r, hi.y); ++y) {
-      for (int x = std::max(c.x - r, lo.x); x <= std::min(c.x + r, hi.x); ++x) {
-        const bool ring = std::abs(x - c.x) == r || std::abs(y - c.y) == r;
-        if (ring && grid.At({x, y}) > threshold) return r;
-      }
+// The side of the largest square of cells not above `threshold` with corner c, growing towards
+// -x when back_x and -y when back_y, capped at kClearanceFar; cells outside [lo, hi] count as
+// free. Grown one ring (the square's far row and column) at a time.
+int FreeSquare(const OccupancyGrid& grid, LogOdds threshold, CellIndex lo, CellIndex hi, CellIndex c, bool back_x,
+               bool back_y) {
+  const int sx = back_x ? -1 : 1, sy = back_y ? -1 : 1;
+  const auto occupied = [&](int x, int y) {
+    return x >= lo.x && x <= hi.x && y >= lo.y && y <= hi.y && grid.At({x, y}) > threshold;
+  };
+  for (int k = 0; k < kClearanceFar; ++k) {
+    for (int j = 0; j <= k; ++j) {
+      if (occupied(c.x + sx * k, c.y + sy * j) || occupied(c.x + sx * j, c.y + sy * k)) return k;
     }
   }
   return kClearanceFar;
 }
 
-TEST(MatchWindow, ClearanceIsTheChessboardDistanceAcrossTileEdges) {
+TEST(MatchWindow, FreeSquaresAreTheLargestInEachQuadrant) {
   OccupancyGrid grid = RandomMap(31, 0.01);
   grid.RefreshSummaries();
   // Across tile edges and negative coordinates, wider than 128 (the row relaxation's reach),
@@ -369,17 +372,20 @@ TEST(MatchWindow, ClearanceIsTheChessboardDistanceAcrossTileEdges) {
   for (const LogOdds threshold : {LogOdds{0}, LogOdds{400}, LogOdds{-100}}) {
     const MatchWindow window(grid, threshold, lo, hi);
     EXPECT_EQ(window.cells(), 200 * 151);
-    for (int y = lo.y; y <= hi.y; y += 3) {
-      for (int x = lo.x; x <= hi.x; ++x) {
-        ASSERT_EQ(window.ClearanceAt({x, y}), NearestInWindow(grid, threshold, lo, hi, {x, y}))
-            << x << ", " << y << " above " << threshold;
+    for (int quadrant = 0; quadrant < 4; ++quadrant) {
+      const bool back_x = (quadrant & 1) != 0, back_y = (quadrant & 2) != 0;
+      for (int y = lo.y; y <= hi.y; y += 5) {
+        for (int x = lo.x; x <= hi.x; x += 2) {
+          ASSERT_EQ(window.FreeSquareAt({x, y}, back_x, back_y), FreeSquare(grid, threshold, lo, hi, {x, y}, back_x, back_y))
+              << x << ", " << y << " quadrant " << quadrant << " above " << threshold;
+        }
       }
     }
   }
   // Far from anything: capped.
   const OccupancyGrid empty(GridGeometry(0.01), 2000);
   const MatchWindow nothing(empty, 0, {0, 0}, {299, 9});
-  EXPECT_EQ(nothing.ClearanceAt({150, 5}), kClearanceFar);
+  EXPECT_EQ(nothing.FreeSquareAt({150, 5}, false, true), kClearanceFar);
 }
 
 // Rays through a window around the origin: those it covers through its field, the others
