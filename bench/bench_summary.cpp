@@ -175,19 +175,30 @@ int main(int argc, char** argv) {
                       const std::string& met) {
     std::cout << "| " << what << " | " << value << " | " << target << " | " << met << " |\n";
   };
-  // The engine casts a candidate's rays as a batch (CastToObstacles): that is the headline.
-  const auto matching = items("BM_MatchingRayBatch/fill:2/length_cm:150");
-  row("matching rays/s per core, <= 1.5 m at 1 cm, engine's map (batches, as the engine)", Rate(matching),
-      ">= 20 M", Verdict(matching, 20e6, true));
-  row("same rays one at a time (CastToObstacle)", Rate(items("BM_MatchingRay/fill:2/length_cm:150")), "", "");
+  // The engine casts a particle's candidate rays through its MatchWindow when they are many
+  // (as at 65000 rays/scan), else as batches through the grid's tiles: the window is the
+  // headline, the tiles next to it.
+  const auto matching = items("BM_MatchingRayWindow/fill:2/length_cm:150/window:1");
+  row("matching rays/s per core, <= 1.5 m at 1 cm, engine's map, through a MatchWindow (as the engine)",
+      Rate(matching), ">= 20 M", Verdict(matching, 20e6, true));
+  const auto window_build = r.RealMs("BM_MatchWindowBuild/fill:2/length_cm:150");
+  row("building that MatchWindow (3.4 m x 3.4 m, once per particle and scan), ms", Ms(window_build), "", "");
+  const auto tiles = items("BM_MatchingRayBatch/fill:2/length_cm:150");
+  row("same map, batches through the grid's tiles (particles with few rays)", Rate(tiles), "", "");
+  row("same map, one at a time through the tiles (CastToObstacle)",
+      Rate(items("BM_MatchingRay/fill:2/length_cm:150")), "", "");
   const auto plain = items("BM_MatchingRayPlain/fill:2/length_cm:150");
-  row("same rays, cell-by-cell traversal (the oracle; the engine before issue 7)", Rate(plain), "", "");
-  row("speed-up over the cell-by-cell traversal, same run",
-      matching && plain && *plain > 0 ? Fixed(*matching / *plain, 2) + "x" : "-", "", "");
-  const auto room = items("BM_MatchingRayBatch/fill:1/length_cm:150");
-  row("matching rays/s per core, <= 1.5 m at 1 cm, drawn 3 m room (batches)", Rate(room), "", "");
+  row("same map, cell-by-cell traversal (the oracle; the engine before issue 7)", Rate(plain), "", "");
+  row("speed-up of the window / of the tiles over the cell-by-cell traversal, same run",
+      (matching && plain && *plain > 0 ? Fixed(*matching / *plain, 2) + "x" : "-") + " / " +
+          (tiles && plain && *plain > 0 ? Fixed(*tiles / *plain, 2) + "x" : "-"),
+      "", "");
+  const auto room = items("BM_MatchingRayWindow/fill:1/length_cm:150/window:1");
+  const auto room_tiles = items("BM_MatchingRayBatch/fill:1/length_cm:150");
+  row("matching rays/s per core, <= 1.5 m at 1 cm, drawn 3 m room, window / tiles",
+      Rate(room) + " / " + Rate(room_tiles), "", "");
   const auto room_plain = items("BM_MatchingRayPlain/fill:1/length_cm:150");
-  row("speed-up over the cell-by-cell traversal there, same run",
+  row("speed-up of the window over the cell-by-cell traversal there, same run",
       room && room_plain && *room_plain > 0 ? Fixed(*room / *room_plain, 2) + "x" : "-", "", "");
   row("matching rays/s per core, one scan, 512 candidates",
       Rate(items("BM_MatchScan/candidates:512/threads:1/real_time")), "", "");
