@@ -22,9 +22,10 @@ namespace {
 constexpr uint64_t kStreamMotion = 0;
 constexpr uint64_t kStreamResampling = 1;
 constexpr uint64_t kStreamCandidate = 2;  // + candidate index
-// The largest MatchWindow a particle gets (16 MiB of distances): more means rays far longer
-// than the scanner's, cast through the map instead.
-constexpr int64_t kMaxMatchWindowCells = int64_t{1} << 24;
+// The largest MatchWindow a particle gets (4 bytes a cell: 16 MiB), whatever its rays: more
+// means rays far longer than the scanner's, or very fine cells, cast through the map instead.
+// Below it a window holds at most 4 x 16 bytes per ray its particle casts.
+constexpr int64_t kMaxMatchWindowCells = int64_t{1} << 22;
 
 /// Particle weights normalised to sum to 1 (from log weights, without overflow).
 std::vector<double> NormalizedWeights(const std::vector<Particle>& particles) {
