@@ -150,7 +150,6 @@ class WindowField {
 template <typename Field>
 class FastRay {
  public:
-  FastRay() = default;
   /// Preconditions: direction has unit length; max_range_m > 0.
   FastRay(const Field& field, const GridGeometry& geometry, const Vec2& origin, const Vec2& direction,
           double max_range_m)
@@ -223,7 +222,7 @@ class FastRay {
     return true;
   }
 
-  double res_ = 0, length_ = 0;
+  double res_, length_;
   double ox_ = 0, oy_ = 0, ax_ = 0, ay_ = 0, ix_ = 0, iy_ = 0;
   typename Field::Cursor cursor_{};
   int32_t u_ = 0, v_ = 0;  // relative to the first cell
@@ -284,45 +283,6 @@ void CastInPairs(const Field& field, const GridGeometry& geometry, const std::ve
     hits[i + 1] = b.result();
   }
   if (i < rays.size()) hits[i] = single(rays[i]);
-}
-
-/// The same with kLanes rays in flight, each lane taking the next ray when its own is done.
-template <size_t kLanes, typename Field, typename Fast, typename Single>
-void CastInLanes(const Field& field, const GridGeometry& geometry, const std::vector<RayQuery>& rays,
-                 std::vector<RayHit>& hits, const Fast& fast, const Single& single) {
-  hits.resize(rays.size());
-  std::array<FastRay<Field>, kLanes> lane;
-  std::array<size_t, kLanes> lane_ray{};
-  size_t next = 0;
-  const auto refill = [&](size_t k) {
-    while (next < rays.size()) {
-      const size_t i = next++;
-      if (fast(rays[i])) {
-        lane[k] = FastRay<Field>(field, geometry, rays[i].origin, rays[i].direction, rays[i].max_range_m);
-        lane_ray[k] = i;
-        return true;
-      }
-      hits[i] = single(rays[i]);
-    }
-    return false;
-  };
-  constexpr unsigned kAll = (1u << kLanes) - 1;
-  unsigned active = 0;
-  for (size_t k = 0; k < kLanes; ++k) active |= refill(k) ? 1u << k : 0u;
-  while (active == kAll) {
-    for (size_t k = 0; k < kLanes; ++k) {
-      if (lane[k].Advance(field)) {
-        hits[lane_ray[k]] = lane[k].result();
-        if (!refill(k)) active &= ~(1u << k);
-      }
-    }
-  }
-  for (size_t k = 0; k < kLanes; ++k) {
-    if ((active & (1u << k)) == 0) continue;
-    while (!lane[k].Advance(field)) {
-    }
-    hits[lane_ray[k]] = lane[k].result();
-  }
 }
 
 }  // namespace
@@ -454,7 +414,7 @@ bool MatchWindow::Covers(const RayQuery& q) const {
 void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits) {
   const OccupancyGrid& grid = window.grid();
   const WindowField field(window);
-  CastInLanes<4>(
+  CastInPairs(
       field, grid.geometry(), rays, hits, [&](const RayQuery& q) { return window.Covers(q); },
       [&](const RayQuery& q) {
         return window.Covers(q) ? CastOne(field, grid.geometry(), q)
