@@ -96,6 +96,21 @@ uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows) {
   return mask;
 }
 
+void RelaxRow(uint8_t* row, uint8_t* scratch, size_t width, bool from_below, bool from_above) {
+  // Doubling the offset (1, 2, ..., 64) instead of one sequential scan each way: the same
+  // minimum, in loops without a carried dependency (they vectorise).
+  for (size_t s = 1; s < width && s <= 64; s <<= 1) {
+    std::copy(row, row + width, scratch);
+    const auto step = static_cast<uint8_t>(s);
+    if (from_below) {
+      for (size_t x = s; x < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x - s] + step));
+    }
+    if (from_above) {
+      for (size_t x = 0; x + s < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x + s] + step));
+    }
+  }
+}
+
 namespace {
 
 /// row[x] = min(row[x], near[x - 1] + 1, near[x] + 1, near[x + 1] + 1): the row next to it.
@@ -107,21 +122,8 @@ void RelaxFromRow(uint8_t* row, const uint8_t* near, uint8_t* scratch, size_t wi
   for (size_t x = 0; x < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x] + 1));
 }
 
-/// row[x] = min over j of row[j] + |x - j| (for |x - j| < 128: values never exceed
-/// kClearanceFar, so a farther j never lowers one), by doubling the offset (1, 2, ..., 64)
-/// instead of one sequential scan each way: the same minimum, in loops without a carried
-/// dependency. `scratch` holds `width` bytes.
-void RelaxAlongRow(uint8_t* row, uint8_t* scratch, size_t width) {
-  for (size_t s = 1; s < width && s <= 64; s <<= 1) {
-    std::copy(row, row + width, scratch);
-    const auto step = static_cast<uint8_t>(s);
-    for (size_t x = s; x < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x - s] + step));
-    for (size_t x = 0; x + s < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x + s] + step));
-  }
-}
-
-}  // namespace
-
+/// In place on a width x height array (0 on occupied cells, kClearanceFar elsewhere): the
+/// chessboard distance of every cell to the nearest occupied one (kClearanceFar when none).
 void ChessboardDistance(uint8_t* d, int width, int height) {
   // Two-pass chamfer transform with the 3 x 3 mask of unit weights, exact for the chessboard
   // distance (values stay below 127 + 64, so uint8_t never wraps): downwards from the row
@@ -133,13 +135,15 @@ void ChessboardDistance(uint8_t* d, int width, int height) {
   std::vector<uint8_t> scratch(w);
   for (size_t y = 0; y < h; ++y) {
     if (y > 0) RelaxFromRow(d + y * w, d + (y - 1) * w, scratch.data(), w);
-    RelaxAlongRow(d + y * w, scratch.data(), w);
+    RelaxRow(d + y * w, scratch.data(), w, true, true);
   }
   for (size_t y = h - 1; y-- > 0;) {
     RelaxFromRow(d + y * w, d + (y + 1) * w, scratch.data(), w);
-    RelaxAlongRow(d + y * w, scratch.data(), w);
+    RelaxRow(d + y * w, scratch.data(), w, true, true);
   }
 }
+
+}  // namespace
 
 void ComputeClearance(const std::array<uint64_t, kTileSize>& rows, std::array<uint8_t, kTileCells>& clearance) {
   for (size_t y = 0; y < kTileSize; ++y) {

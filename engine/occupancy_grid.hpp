@@ -3,6 +3,7 @@
 
 #include <array>
 #include <atomic>
+#include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -64,10 +65,11 @@ inline constexpr uint8_t kClearanceFar = 127;
 std::array<uint64_t, kTileSize> ComputeOccupiedRows(const Tile& tile);
 /// The summary of those cells (bit per block, see Tile::occupied_blocks).
 uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows);
-/// In place, on a row-major `width` x `height` array holding 0 on occupied cells and
-/// kClearanceFar elsewhere: the chessboard distance of every cell to the nearest occupied one,
-/// kClearanceFar where it is that far or more (or there is none).
-void ChessboardDistance(uint8_t* d, int width, int height);
+/// In place on a row of `width` bytes no greater than kClearanceFar: row[x] = min over j of
+/// row[j] + |x - j|, over the j below x (from_below), above x (from_above) or both, for
+/// |x - j| < 128 (a farther j never lowers a value). `scratch` holds `width` bytes. Shared by
+/// the tiles' clearance and the MatchWindow's free squares.
+void RelaxRow(uint8_t* row, uint8_t* scratch, size_t width, bool from_below, bool from_above);
 /// The chessboard distance of every cell to the nearest of those cells (kClearanceFar when
 /// there is none), see Tile::clearance.
 void ComputeClearance(const std::array<uint64_t, kTileSize>& rows, std::array<uint8_t, kTileCells>& clearance);

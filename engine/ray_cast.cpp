@@ -304,26 +304,6 @@ void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& ray
       [&](const RayQuery& q) { return CastToObstacle(grid, q.origin, q.direction, q.max_range_m, occupied_above); });
 }
 
-namespace {
-
-/// In place on one row of a quadrant's free squares: row[x] = min over j >= 0 of
-/// row[x + j * dir] + j (for j < 128: values never exceed kClearanceFar, so a farther j never
-/// lowers one), by doubling the offset (1, 2, ..., 64) instead of one sequential scan: loops
-/// without a carried dependency. `scratch` holds `width` bytes.
-void RelaxTowards(uint8_t* row, uint8_t* scratch, size_t width, bool backwards) {
-  for (size_t s = 1; s < width && s <= 64; s <<= 1) {
-    std::copy(row, row + width, scratch);
-    const auto step = static_cast<uint8_t>(s);
-    if (backwards) {
-      for (size_t x = s; x < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x - s] + step));
-    } else {
-      for (size_t x = 0; x + s < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x + s] + step));
-    }
-  }
-}
-
-}  // namespace
-
 MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, CellIndex lo, CellIndex hi)
     : grid_(&grid),
       occupied_above_(occupied_above),
@@ -392,7 +372,7 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
         }
         for (size_t x = 0; x < w; ++x) row[x] = occupancy[x] == 0 ? uint8_t{0} : static_cast<uint8_t>(row[x] + 1);
       }
-      RelaxTowards(row, scratch.data(), w, back_x);
+      RelaxRow(row, scratch.data(), w, back_x, !back_x);  // from the far side only
     }
   }
 }
