@@ -223,11 +223,13 @@ BENCHMARK(BM_MatchingRayPlain)
 
 // What the engine's MatchWindow benchmarks share: 64 windows of 3.4 m x 3.4 m of the map of
 // fill range(0) (as the engine builds one per particle and scan), each around one ray origin of
-// RaysFor (a pose of the mapped run), and batches of 64 rays of at most range(1) cm from within
-// 5 cm of it (the candidates' rays).
+// RaysFor (a pose of the mapped run), and for each window 16 candidates' batches of 64 rays of at
+// most range(1) cm: the window's rays (from within 5 cm of its centre, in random directions)
+// moved and turned as one by the candidate's offset (2 cm and 5 degrees, the engine's minimum
+// pose uncertainties), as the engine casts a particle's candidates through its window.
 struct WindowRays {
   static constexpr int32_t kHalf = 170;  // cells
-  static constexpr size_t kWindows = 64, kBatch = 64;
+  static constexpr size_t kWindows = 64, kCandidates = 16, kBatch = 64;
 
   explicit WindowRays(const benchmark::State& state, bool build = true) : m(state) {
     Rng rng(8);
@@ -236,18 +238,40 @@ struct WindowRays {
       const CellIndex c = m.grid.geometry().CellOf(centre);
       bounds.push_back({CellIndex{c.x - kHalf, c.y - kHalf}, CellIndex{c.x + kHalf - 1, c.y + kHalf - 1}});
       if (build) windows.emplace_back(m.grid, m.threshold, bounds.back().first, bounds.back().second);
-      std::vector<RayQuery>& batch = batches.emplace_back();
+      std::vector<RayQuery> base;
       for (size_t i = 0; i < kBatch; ++i) {
         const Ray& r = m.rays[(w * kBatch + i) % m.rays.size()];
-        batch.push_back({centre + Vec2(rng.Gaussian(0.05), rng.Gaussian(0.05)), r.direction, m.max_range});
+        base.push_back({centre + Vec2(rng.Gaussian(0.05), rng.Gaussian(0.05)), r.direction, m.max_range});
+      }
+      for (size_t k = 0; k < kCandidates; ++k) {
+        const Vec2 shift(rng.Gaussian(0.02), rng.Gaussian(0.02));
+        const double turn = rng.Gaussian(DegToRad(5.0));
+        const double cos_turn = std::cos(turn), sin_turn = std::sin(turn);
+        const auto rotate = [&](const Vec2& v) {
+          return Vec2(cos_turn * v.x() - sin_turn * v.y(), sin_turn * v.x() + cos_turn * v.y());
+        };
+        std::vector<RayQuery>& batch = batches.emplace_back();
+        for (const RayQuery& q : base) {
+          batch.push_back({centre + rotate(q.origin - centre) + shift, rotate(q.direction), q.max_range_m});
+        }
       }
     }
+  }
+
+  /// The window and the batch of the i-th batch cast: consecutive batches in different windows
+  /// (`engine_order` false: each window cold in the caches, the worst case), or each window's
+  /// candidates in a row, as the engine casts them.
+  std::pair<size_t, size_t> Pick(size_t i, bool engine_order) const {
+    i %= kWindows * kCandidates;
+    const size_t window = engine_order ? i / kCandidates : i % kWindows;
+    const size_t candidate = engine_order ? i % kCandidates : i / kWindows;
+    return {window, window * kCandidates + candidate};
   }
 
   MatchingRays m;
   std::vector<std::pair<CellIndex, CellIndex>> bounds;
   std::vector<MatchWindow> windows;
-  std::vector<std::vector<RayQuery>> batches;
+  std::vector<std::vector<RayQuery>> batches;  // kCandidates per window, window-major
 };
 
 // Building a MatchWindow (reading the window's cells, its free squares). Items are cells.
@@ -265,20 +289,30 @@ void BM_MatchWindowBuild(benchmark::State& state) {
 }
 BENCHMARK(BM_MatchWindowBuild)->ArgNames({"fill", "length_cm"})->Args({kRoom, 150})->Args({kMapped, 150});
 
-// Matching rays cast 64 at a time through a built MatchWindow around their origins, and the
-// same batches through the grid's tiles (CastToObstacles on the grid): the ratio in one run.
+// Matching rays cast 64 at a time through a built MatchWindow around their origins (window 1),
+// and the same batches through the grid's tiles (CastToObstacles on the grid, window 0): the
+// ratio in one run. engine 1: as the engine casts them, each window's 16 candidates in a row
+// right after the window was built (built again, untimed, before its first batch: the window is
+// warm in the caches, as the engine's is); engine 0: every batch in another window, built long
+// before (cold in the caches, the worst case).
 void BM_MatchingRayWindow(benchmark::State& state) {
-  const WindowRays w(state);
-  const bool through_window = state.range(2) != 0;
+  WindowRays w(state);
+  const bool through_window = state.range(2) != 0, engine_order = state.range(3) != 0;
   std::vector<RayHit> hits;
   size_t i = 0;
   int64_t cells = 0, jumps = 0;
   for (auto _ : state) {
-    const size_t k = i++ % w.batches.size();
+    const auto [window, batch] = w.Pick(i++, engine_order);
+    if (engine_order && batch % WindowRays::kCandidates == 0) {
+      state.PauseTiming();
+      const auto& [lo, hi] = w.bounds[window];
+      w.windows[window] = MatchWindow(w.m.grid, w.m.threshold, lo, hi);
+      state.ResumeTiming();
+    }
     if (through_window) {
-      CastToObstacles(w.windows[k], w.batches[k], hits);
+      CastToObstacles(w.windows[window], w.batches[batch], hits);
     } else {
-      CastToObstacles(w.m.grid, w.batches[k], w.m.threshold, hits);
+      CastToObstacles(w.m.grid, w.batches[batch], w.m.threshold, hits);
     }
     for (const RayHit& hit : hits) {
       cells += hit.cells;
@@ -289,8 +323,8 @@ void BM_MatchingRayWindow(benchmark::State& state) {
   w.m.Report(state, state.iterations() * static_cast<int64_t>(WindowRays::kBatch), cells, jumps);
 }
 BENCHMARK(BM_MatchingRayWindow)
-    ->ArgNames({"fill", "length_cm", "window"})
-    ->ArgsProduct({{kRoom, kMapped}, {30, 75, 150}, {0, 1}});
+    ->ArgNames({"fill", "length_cm", "window", "engine"})
+    ->ArgsProduct({{kRoom, kMapped}, {30, 75, 150}, {0, 1}, {0, 1}});
 
 // Update rays with the long sensor's profile for a reading at range(1) cm, on a map of fill
 // range(0) (the map keeps changing: cells saturate at the clamp, as in a long run).

@@ -2,6 +2,11 @@
 
 #include <algorithm>
 #include <array>
+#include <cstdint>
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#include <immintrin.h>
+#endif
 
 namespace slam {
 
@@ -108,6 +113,11 @@ class TileField {
   LogOdds occupied_above_;
 };
 
+/// How far (cells) a ray a MatchWindow covers stays inside the window's edge at its ends: the
+/// cells a ray crosses lie between the cells of its ends, and FastRay may step one cell beyond
+/// (a crossing within its corner tolerance of the end).
+constexpr double kWindowMargin = 2.0;
+
 /// A MatchWindow's free squares in the ray's quadrant: across tile edges, exact for its
 /// threshold, one byte read per step. Only for rays the window covers.
 class WindowField {
@@ -171,6 +181,14 @@ class FastRay {
   }
 
   const RayHit& result() const { return result_; }
+
+  /// The ray as the wide kernel starts it: origin within its first cell, |direction| and its
+  /// inverse, length in cells, and where its first cell is in the field.
+  struct Start {
+    double ox, oy, ax, ay, ix, iy, length;
+    typename Field::Cursor cursor;
+  };
+  Start start() const { return {ox_, oy_, ax_, ay_, ix_, iy_, length_, cursor_}; }
 
   /// One jump or one cell through `field` (the one the ray was made for); true once the ray
   /// has its answer. No branches but at the end of the ray: which tile comes next, whether the
@@ -349,7 +367,7 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
   // at kClearanceFar (cells beyond the window count as free: no ray the window covers gets
   // there). Along the row, as the minimum of a + j over the cells j further (a the value
   // from the next row alone, 0 where occupied).
-  squares_.assign(4 * w * h, kClearanceFar);
+  squares_.assign(4 * w * h + kFreeSquaresPadding, kClearanceFar);
   std::vector<uint8_t> scratch(w);
   for (size_t quadrant = 0; quadrant < 4; ++quadrant) {
     const bool back_x = (quadrant & 1) != 0, back_y = (quadrant & 2) != 0;
@@ -379,11 +397,9 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
 
 bool MatchWindow::Covers(const RayQuery& q) const {
   if (!(q.max_range_m > 0) || !std::isfinite(q.max_range_m)) return false;
-  // The cells a ray crosses lie between the cells of its ends; FastRay may step one cell
-  // beyond (a crossing within its corner tolerance of the end), hence the margin.
   const GridGeometry& geometry = grid_->geometry();
   const Vec2 a = geometry.ToGrid(q.origin), b = geometry.ToGrid(q.origin + q.direction * q.max_range_m);
-  const double margin = 2.0;
+  const double margin = kWindowMargin;
   const auto inside = [&](const Vec2& p) {
     return p.x() >= static_cast<double>(x0_) + margin && p.y() >= static_cast<double>(y0_) + margin &&
            p.x() <= static_cast<double>(x0_ + width_) - margin && p.y() <= static_cast<double>(y0_ + height_) - margin;
@@ -391,15 +407,308 @@ bool MatchWindow::Covers(const RayQuery& q) const {
   return inside(a) && inside(b);
 }
 
-void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits) {
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define SLAM_WIDE_WINDOW_KERNEL 1
+#endif
+
+namespace {
+
+#ifdef SLAM_WIDE_WINDOW_KERNEL
+
+#define SLAM_WIDE_TARGET __attribute__((target("avx2,avx512f,avx512vl")))
+// GCC 12's AVX-512 headers start some results from _mm512_undefined_pd(), a variable initialised
+// from itself, which -Wmaybe-uninitialized reports once inlined here (a known false positive).
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+
+/// The `n` lowest set bits of `mask`.
+inline __mmask8 LowestBits(__mmask8 mask, int n) {
+  __mmask8 kept = 0;
+  for (; n > 0 && mask != 0; --n) {
+    const auto lowest = static_cast<__mmask8>(mask & -mask);
+    kept = static_cast<__mmask8>(kept | lowest);
+    mask = static_cast<__mmask8>(mask & ~lowest);
+  }
+  return kept;
+}
+
+/// FloorToInt on each lane (a truncation, one less where that rounded up).
+SLAM_WIDE_TARGET inline __m256i FloorLanes(__m512d g) {
+  const __m256i truncated = _mm512_cvttpd_epi32(g);
+  const __mmask8 below = _mm512_cmp_pd_mask(g, _mm512_cvtepi32_pd(truncated), _CMP_LT_OQ);
+  return _mm256_mask_sub_epi32(truncated, below, truncated, _mm256_set1_epi32(1));
+}
+
+/// -g on the lanes of `where` (the sign bit flipped, as the scalar negation does).
+SLAM_WIDE_TARGET inline __m512d NegateLanes(__m512d g, __mmask8 where) {
+  const __m512i bits = _mm512_castpd_si512(g);
+  return _mm512_castsi512_pd(_mm512_mask_xor_epi64(bits, where, bits, _mm512_set1_epi64(INT64_MIN)));
+}
+
+/// The window's rays, started as FastRay starts them, one array per quantity (eight
+/// consecutive rays' values are loaded at once); reused per thread.
+struct WideRays {
+  std::vector<double> ox, oy, ax, ay, ix, iy, length, max_range;
+  std::vector<int32_t> base, step_u, step_v;
+  std::vector<uint32_t> index;     // in the caller's rays
+  std::vector<uint32_t> uncovered;  // the caller's rays the window does not cover
+
+  void Reserve(size_t n) {
+    for (auto* v : {&ox, &oy, &ax, &ay, &ix, &iy, &length, &max_range}) v->resize(n + 8);
+    for (auto* v : {&base, &step_u, &step_v}) v->resize(n + 8);
+    index.resize(n + 8);
+    uncovered.resize(n + 8);
+  }
+};
+
+/// CastToObstacles(window, rays, hits) eight rays at a time. Rays start eight at a time too
+/// (MatchWindow::Covers and FastRay's constructor on each lane); the covered ones are packed,
+/// then advance as FastRay<WindowField>::Advance does, each lane taking the next ray as soon as
+/// its own has its answer. Every operation is the scalar one on each lane (IEEE double
+/// arithmetic without contraction, the same comparisons, std::min(a, b) as min(b, a), which
+/// keeps the scalar choice for equal values and NaN), so each answer is FastRay's, bit for bit.
+SLAM_WIDE_TARGET void CastWide(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits) {
+  const GridGeometry& geometry = window.grid().geometry();
+  const size_t n = rays.size();
+  hits.resize(n);
+  thread_local WideRays in;
+  in.Reserve(n);
+
+  const __m512d zero = _mm512_setzero_pd(), one = _mm512_set1_pd(1.0);
+  const __m256i zero_i = _mm256_setzero_si256(), one_i = _mm256_set1_epi32(1);
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+
+  // Starting the rays. The queries' doubles, gathered with a stride of one RayQuery.
+  const auto* raw = reinterpret_cast<const double*>(rays.data());
+  const auto offset_of = [&](const double* member) {
+    return static_cast<int32_t>(member - raw);  // in doubles (RayQuery holds doubles only)
+  };
+  static_assert(sizeof(RayQuery) % sizeof(double) == 0);
+  const auto stride = static_cast<int32_t>(sizeof(RayQuery) / sizeof(double));
+  int32_t at_ox = 0, at_oy = 1, at_dx = 2, at_dy = 3, at_range = 4;
+  if (n > 0) {
+    at_ox = offset_of(rays[0].origin.data());
+    at_oy = offset_of(rays[0].origin.data() + 1);
+    at_dx = offset_of(rays[0].direction.data());
+    at_dy = offset_of(rays[0].direction.data() + 1);
+    at_range = offset_of(&rays[0].max_range_m);
+  }
+  const __m512d inv = _mm512_set1_pd(1.0 / geometry.resolution());
+  const __m512d res = _mm512_set1_pd(geometry.resolution());
+  const __m512d margin = _mm512_set1_pd(kWindowMargin);
+  const CellIndex lo = window.lo();
+  const __m512d x_min = _mm512_add_pd(_mm512_set1_pd(static_cast<double>(lo.x)), margin);
+  const __m512d y_min = _mm512_add_pd(_mm512_set1_pd(static_cast<double>(lo.y)), margin);
+  const __m512d x_max = _mm512_sub_pd(_mm512_set1_pd(static_cast<double>(lo.x + window.width())), margin);
+  const __m512d y_max = _mm512_sub_pd(_mm512_set1_pd(static_cast<double>(lo.y + window.height())), margin);
+  const __m512d infinity = _mm512_set1_pd(std::numeric_limits<double>::infinity());
+  const __m256i width = _mm256_set1_epi32(static_cast<int32_t>(window.width()));
+  const __m256i cells_per_quadrant = _mm256_set1_epi32(static_cast<int32_t>(window.cells()));
+  const __m256i x0 = _mm256_set1_epi32(lo.x), y0 = _mm256_set1_epi32(lo.y);
+  size_t covered = 0, uncovered = 0;
+  for (size_t i = 0; i < n; i += 8) {
+    const auto lanes = static_cast<__mmask8>(n - i >= 8 ? 0xff : (1u << (n - i)) - 1);
+    const __m256i at = _mm256_mullo_epi32(_mm256_add_epi32(lane, _mm256_set1_epi32(static_cast<int32_t>(i))),
+                                          _mm256_set1_epi32(stride));
+#define SLAM_GATHER(member) \
+  _mm512_mask_i32gather_pd(zero, lanes, _mm256_add_epi32(at, _mm256_set1_epi32(member)), raw, 8)
+    const __m512d px = SLAM_GATHER(at_ox), py = SLAM_GATHER(at_oy), dx = SLAM_GATHER(at_dx),
+                  dy = SLAM_GATHER(at_dy), range = SLAM_GATHER(at_range);
+#undef SLAM_GATHER
+    // MatchWindow::Covers: a positive, finite range, both ends inside the window's margin.
+    const __m512d gx = _mm512_mul_pd(px, inv), gy = _mm512_mul_pd(py, inv);
+    const __m512d ex = _mm512_mul_pd(_mm512_add_pd(px, _mm512_mul_pd(dx, range)), inv);
+    const __m512d ey = _mm512_mul_pd(_mm512_add_pd(py, _mm512_mul_pd(dy, range)), inv);
+    __mmask8 inside = static_cast<__mmask8>(lanes & _mm512_cmp_pd_mask(range, zero, _CMP_GT_OQ) &
+                                            _mm512_cmp_pd_mask(range, infinity, _CMP_LT_OQ));
+    inside = static_cast<__mmask8>(inside & _mm512_cmp_pd_mask(gx, x_min, _CMP_GE_OQ) &
+                                   _mm512_cmp_pd_mask(gx, x_max, _CMP_LE_OQ) &
+                                   _mm512_cmp_pd_mask(ex, x_min, _CMP_GE_OQ) & _mm512_cmp_pd_mask(ex, x_max, _CMP_LE_OQ));
+    inside = static_cast<__mmask8>(inside & _mm512_cmp_pd_mask(gy, y_min, _CMP_GE_OQ) &
+                                   _mm512_cmp_pd_mask(gy, y_max, _CMP_LE_OQ) &
+                                   _mm512_cmp_pd_mask(ey, y_min, _CMP_GE_OQ) & _mm512_cmp_pd_mask(ey, y_max, _CMP_LE_OQ));
+    const __m256i ray = _mm256_add_epi32(lane, _mm256_set1_epi32(static_cast<int32_t>(i)));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(in.uncovered.data() + uncovered),
+                        _mm256_maskz_compress_epi32(static_cast<__mmask8>(lanes & ~inside), ray));
+    uncovered += static_cast<size_t>(_mm_popcnt_u32(static_cast<__mmask8>(lanes & ~inside)));
+    if (inside == 0) continue;
+    // FastRay's constructor: the first cell (FloorToInt), mirrored where the ray goes back.
+    const __mmask8 back_x = _mm512_cmp_pd_mask(dx, zero, _CMP_LT_OQ), back_y = _mm512_cmp_pd_mask(dy, zero, _CMP_LT_OQ);
+    const __m256i cx = FloorLanes(gx), cy = FloorLanes(gy);
+    const __m256i all_ones = _mm256_set1_epi32(-1);
+    const __m256i u0 = _mm256_mask_xor_epi32(cx, back_x, cx, all_ones);
+    const __m256i v0 = _mm256_mask_xor_epi32(cy, back_y, cy, all_ones);
+    const __m512d ox = _mm512_sub_pd(NegateLanes(gx, back_x), _mm512_cvtepi32_pd(u0));
+    const __m512d oy = _mm512_sub_pd(NegateLanes(gy, back_y), _mm512_cvtepi32_pd(v0));
+    const __m512d ax = _mm512_abs_pd(dx), ay = _mm512_abs_pd(dy);
+    // WindowField::CursorFor: the first cell in the ray's quadrant, and how far steps move.
+    const __m256i quadrant = _mm256_add_epi32(_mm256_maskz_mov_epi32(back_x, one_i),
+                                              _mm256_maskz_mov_epi32(back_y, _mm256_set1_epi32(2)));
+    const __m256i base = _mm256_add_epi32(
+        _mm256_mullo_epi32(quadrant, cells_per_quadrant),
+        _mm256_add_epi32(_mm256_mullo_epi32(_mm256_sub_epi32(cy, y0), width), _mm256_sub_epi32(cx, x0)));
+    const __m256i step_u = _mm256_mask_sub_epi32(one_i, back_x, zero_i, one_i);
+    const __m256i step_v = _mm256_mask_sub_epi32(width, back_y, zero_i, width);
+    // Packed: the covered lanes' values one after another.
+    _mm512_storeu_pd(in.ox.data() + covered, _mm512_maskz_compress_pd(inside, ox));
+    _mm512_storeu_pd(in.oy.data() + covered, _mm512_maskz_compress_pd(inside, oy));
+    _mm512_storeu_pd(in.ax.data() + covered, _mm512_maskz_compress_pd(inside, ax));
+    _mm512_storeu_pd(in.ay.data() + covered, _mm512_maskz_compress_pd(inside, ay));
+    _mm512_storeu_pd(in.ix.data() + covered, _mm512_maskz_compress_pd(inside, _mm512_div_pd(one, ax)));
+    _mm512_storeu_pd(in.iy.data() + covered, _mm512_maskz_compress_pd(inside, _mm512_div_pd(one, ay)));
+    _mm512_storeu_pd(in.length.data() + covered, _mm512_maskz_compress_pd(inside, _mm512_div_pd(range, res)));
+    _mm512_storeu_pd(in.max_range.data() + covered, _mm512_maskz_compress_pd(inside, range));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(in.base.data() + covered), _mm256_maskz_compress_epi32(inside, base));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(in.step_u.data() + covered), _mm256_maskz_compress_epi32(inside, step_u));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(in.step_v.data() + covered), _mm256_maskz_compress_epi32(inside, step_v));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(in.index.data() + covered), _mm256_maskz_compress_epi32(inside, ray));
+    covered += static_cast<size_t>(_mm_popcnt_u32(inside));
+  }
+  for (size_t j = 0; j < uncovered; ++j) {
+    const RayQuery& q = rays[in.uncovered[j]];
+    hits[in.uncovered[j]] = CastToObstacle(window.grid(), q.origin, q.direction, q.max_range_m, window.occupied_above());
+  }
+
+  // Advancing them.
+  const uint8_t* squares = window.free_squares();
+  const __m512d epsilon = _mm512_set1_pd(GridWalk::kCornerEpsilon);
+  const __m256i byte = _mm256_set1_epi32(0xff);
+  __m512d ox = zero, oy = zero, ax = zero, ay = zero, ix = zero, iy = zero, length = zero, t = zero;
+  __m256i base = zero_i, step_u = zero_i, step_v = zero_i, u = zero_i, v = zero_i, cells = zero_i,
+          jumps = zero_i, ray = zero_i;
+  __mmask8 active = 0, free_lanes = 0xff;
+  const auto count = static_cast<int32_t>(covered);
+  int32_t next = 0;
+  alignas(64) double distance_out[8], exit_out[8];
+  alignas(32) int32_t ray_out[8], cells_out[8], jumps_out[8];
+  while (true) {
+    // Lanes without a ray take the next ones (consecutive in `in`, expanded into the lanes).
+    if (free_lanes != 0 && next < count) {
+      const __mmask8 fill = LowestBits(free_lanes, count - next);
+      ox = _mm512_mask_expand_pd(ox, fill, _mm512_loadu_pd(in.ox.data() + next));
+      oy = _mm512_mask_expand_pd(oy, fill, _mm512_loadu_pd(in.oy.data() + next));
+      ax = _mm512_mask_expand_pd(ax, fill, _mm512_loadu_pd(in.ax.data() + next));
+      ay = _mm512_mask_expand_pd(ay, fill, _mm512_loadu_pd(in.ay.data() + next));
+      ix = _mm512_mask_expand_pd(ix, fill, _mm512_loadu_pd(in.ix.data() + next));
+      iy = _mm512_mask_expand_pd(iy, fill, _mm512_loadu_pd(in.iy.data() + next));
+      length = _mm512_mask_expand_pd(length, fill, _mm512_loadu_pd(in.length.data() + next));
+      base = _mm256_mask_expand_epi32(base, fill, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(in.base.data() + next)));
+      step_u = _mm256_mask_expand_epi32(step_u, fill, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(in.step_u.data() + next)));
+      step_v = _mm256_mask_expand_epi32(step_v, fill, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(in.step_v.data() + next)));
+      ray = _mm256_mask_expand_epi32(ray, fill, _mm256_add_epi32(lane, _mm256_set1_epi32(next)));
+      t = _mm512_mask_mov_pd(t, fill, zero);
+      u = _mm256_mask_mov_epi32(u, fill, zero_i);
+      v = _mm256_mask_mov_epi32(v, fill, zero_i);
+      cells = _mm256_mask_mov_epi32(cells, fill, zero_i);
+      jumps = _mm256_mask_mov_epi32(jumps, fill, zero_i);
+      active = static_cast<__mmask8>(active | fill);
+      next += _mm_popcnt_u32(fill);
+    }
+    free_lanes = 0;
+    if (active == 0) break;
+
+    // WindowField::At: the free square of the ray's quadrant at its cell (a 4-byte load at
+    // each byte's address, the padding after the squares keeps it inside).
+    const __m256i at = _mm256_add_epi32(
+        base, _mm256_add_epi32(_mm256_mullo_epi32(step_u, u), _mm256_mullo_epi32(step_v, v)));
+    const __m256i k =
+        _mm256_and_si256(_mm256_mmask_i32gather_epi32(zero_i, active, at, squares, 1), byte);
+    const __mmask8 occupied = _mm256_cmpeq_epi32_mask(k, zero_i);
+    // A hit, unless the ray only touches the cell.
+    const __m512d leave_u = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(_mm256_add_epi32(u, one_i)), ox), ix);
+    const __m512d leave_v = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(_mm256_add_epi32(v, one_i)), oy), iy);
+    const __m512d t_leave = _mm512_min_pd(length, _mm512_min_pd(leave_v, leave_u));
+    const __mmask8 hit = static_cast<__mmask8>(occupied & _mm512_cmp_pd_mask(t_leave, t, _CMP_GT_OQ));
+    // LeaveBox: out of the free square (of this cell when k <= 1).
+    const __m256i reach = _mm256_max_epi32(k, one_i);
+    const __m256i end_u = _mm256_add_epi32(u, reach), end_v = _mm256_add_epi32(v, reach);
+    const __mmask8 jump = _mm256_cmpgt_epi32_mask(k, one_i);
+    const __m512d exit_u = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(end_u), ox), ix);
+    const __m512d exit_v = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(end_v), oy), iy);
+    const __m512d t_exit = _mm512_min_pd(exit_v, exit_u);
+    const auto counted = static_cast<__mmask8>(active & ~hit);
+    jumps = _mm256_mask_add_epi32(jumps, static_cast<__mmask8>(counted & jump), jumps, one_i);
+    const __mmask8 crossed = _mm512_cmp_pd_mask(_mm512_min_pd(length, t_exit), t, _CMP_GT_OQ);
+    cells = _mm256_mask_add_epi32(cells, static_cast<__mmask8>(counted & ~jump & crossed), cells, one_i);
+    const __mmask8 out = _mm512_cmp_pd_mask(t_exit, length, _CMP_GE_OQ);
+    const __m512d slack = _mm512_mul_pd(epsilon, _mm512_add_pd(one, t_exit));
+    const __mmask8 corner = _mm512_cmp_pd_mask(_mm512_abs_pd(_mm512_sub_pd(exit_u, exit_v)), slack, _CMP_LE_OQ);
+    const __m512d ahead = _mm512_add_pd(t_exit, slack);
+    const __m256i along_u = _mm256_min_epi32(
+        _mm256_max_epi32(_mm512_cvttpd_epi32(_mm512_add_pd(ox, _mm512_mul_pd(ax, ahead))), u),
+        _mm256_sub_epi32(end_u, one_i));
+    const __m256i along_v = _mm256_min_epi32(
+        _mm256_max_epi32(_mm512_cvttpd_epi32(_mm512_add_pd(oy, _mm512_mul_pd(ay, ahead))), v),
+        _mm256_sub_epi32(end_v, one_i));
+    const auto across_u = static_cast<__mmask8>(corner | _mm512_cmp_pd_mask(exit_u, exit_v, _CMP_LT_OQ));
+    const auto across_v = static_cast<__mmask8>(corner | _mm512_cmp_pd_mask(exit_v, exit_u, _CMP_LT_OQ));
+    const __m512d t_hit = t;
+    u = _mm256_mask_blend_epi32(across_u, along_u, end_u);
+    v = _mm256_mask_blend_epi32(across_v, along_v, end_v);
+    t = _mm512_max_pd(t_exit, t);
+
+    const auto done = static_cast<__mmask8>(active & (hit | out));
+    if (done == 0) continue;
+    // The finished lanes' answers, then their lanes are free for the next rays.
+    _mm512_store_pd(distance_out, _mm512_mul_pd(t_hit, res));
+    _mm512_store_pd(exit_out, _mm512_mul_pd(t_leave, res));
+    _mm256_store_si256(reinterpret_cast<__m256i*>(ray_out), ray);
+    _mm256_store_si256(reinterpret_cast<__m256i*>(cells_out), cells);
+    _mm256_store_si256(reinterpret_cast<__m256i*>(jumps_out), jumps);
+    for (unsigned bits = done; bits != 0; bits &= bits - 1) {
+      const auto j = static_cast<unsigned>(__builtin_ctz(bits));
+      const auto r = static_cast<size_t>(ray_out[j]);
+      const bool lane_hit = ((hit >> j) & 1) != 0;
+      RayHit& h = hits[in.index[r]];
+      h.hit = lane_hit;
+      h.distance_m = lane_hit ? distance_out[j] : in.max_range[r];
+      h.exit_m = lane_hit ? exit_out[j] : in.max_range[r];
+      h.cells = cells_out[j];
+      h.jumps = jumps_out[j];
+    }
+    active = static_cast<__mmask8>(active & ~done);
+    free_lanes = done;
+  }
+}
+
+#pragma GCC diagnostic pop
+#undef SLAM_WIDE_TARGET
+
+bool DetectWideKernel() {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f") &&
+         __builtin_cpu_supports("avx512vl");
+}
+
+#endif  // SLAM_WIDE_WINDOW_KERNEL
+
+}  // namespace
+
+bool WideWindowKernelAvailable() {
+#ifdef SLAM_WIDE_WINDOW_KERNEL
+  static const bool available = DetectWideKernel();
+  return available;
+#else
+  return false;
+#endif
+}
+
+void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits,
+                     WindowKernel kernel) {
   const OccupancyGrid& grid = window.grid();
   const WindowField field(window);
+  const auto through_grid = [&](const RayQuery& q) {
+    return CastToObstacle(grid, q.origin, q.direction, q.max_range_m, window.occupied_above());
+  };
+#ifdef SLAM_WIDE_WINDOW_KERNEL
+  if (kernel != WindowKernel::kPortable && WideWindowKernelAvailable()) {
+    CastWide(window, rays, hits);
+    return;
+  }
+#endif
   CastInPairs(
       field, grid.geometry(), rays, hits, [&](const RayQuery& q) { return window.Covers(q); },
-      [&](const RayQuery& q) {
-        return window.Covers(q) ? CastOne(field, grid.geometry(), q)
-                                : CastToObstacle(grid, q.origin, q.direction, q.max_range_m, window.occupied_above());
-      });
+      [&](const RayQuery& q) { return window.Covers(q) ? CastOne(field, grid.geometry(), q) : through_grid(q); });
 }
 
 int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle, const UpdateProfile& profile) {

@@ -160,10 +160,15 @@ class MatchWindow {
                     static_cast<size_t>(IndexOf(c))];
   }
   /// The four quadrants' squares (forward, back in x, back in y, back in both), each
-  /// row-major from the window's lower-left cell; cell c at IndexOf(c) of each.
+  /// row-major from the window's lower-left cell; cell c at IndexOf(c) of each. Followed by
+  /// kFreeSquaresPadding readable bytes (a wide kernel loads 4 bytes where it needs one).
   const uint8_t* free_squares() const { return squares_.data(); }
+  static constexpr size_t kFreeSquaresPadding = 3;
   int64_t IndexOf(CellIndex c) const { return (int64_t{c.y} - y0_) * width_ + (int64_t{c.x} - x0_); }
   int64_t width() const { return width_; }
+  int64_t height() const { return height_; }
+  /// The window's lower-left cell.
+  CellIndex lo() const { return {x0_, y0_}; }
 
   const OccupancyGrid& grid() const { return *grid_; }
   LogOdds occupied_above() const { return occupied_above_; }
@@ -177,9 +182,20 @@ class MatchWindow {
   std::vector<uint8_t> squares_;
 };
 
+/// How CastToObstacles casts the rays a MatchWindow covers; the answers are the same.
+enum class WindowKernel {
+  kBest,      // kWide where the processor has it, else kPortable
+  kPortable,  // two rays in flight (any processor)
+  kWide,      // eight rays per instruction (x86-64 with AVX-512F and VL); kPortable elsewhere
+};
+
+/// Whether this build and this processor run WindowKernel::kWide.
+bool WideWindowKernelAvailable();
+
 /// CastToObstacles(window.grid(), rays, window.occupied_above(), hits), the same answers, with
-/// the rays the window covers cast through its free squares.
-void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits);
+/// the rays the window covers cast through its free squares by `kernel`.
+void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits,
+                     WindowKernel kernel = WindowKernel::kBest);
 
 /// The same along `angle` (radians).
 inline RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,

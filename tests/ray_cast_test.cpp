@@ -390,6 +390,17 @@ TEST(MatchWindow, FreeSquaresAreTheLargestInEachQuadrant) {
 
 // Rays through a window around the origin: those it covers through its field, the others
 // through the grid; all as the plain traversal finds them.
+// The kernels a test runs: the portable one always, the wide one where this processor has it.
+std::vector<WindowKernel> KernelsHere() {
+  std::vector<WindowKernel> kernels{WindowKernel::kPortable};
+  if (WideWindowKernelAvailable()) kernels.push_back(WindowKernel::kWide);
+  return kernels;
+}
+
+const char* KernelName(WindowKernel kernel) { return kernel == WindowKernel::kWide ? "wide" : "portable"; }
+
+// Rays through a window around the origin: those it covers through its field, the others
+// through the grid; all as the plain traversal finds them, with each kernel.
 void ExpectWindowFindsWhatThePlainTraversalFinds(const OccupancyGrid& grid, uint64_t seed, LogOdds threshold) {
   const MatchWindow window(grid, threshold, {-250, -250}, {249, 249});
   const std::vector<RayQuery> queries = RandomRays(seed, 30000, grid.geometry().resolution());
@@ -403,9 +414,11 @@ void ExpectWindowFindsWhatThePlainTraversalFinds(const OccupancyGrid& grid, uint
   EXPECT_GT(covered, 30000 / 4);
   EXPECT_LT(covered, 30000 * 3 / 4);
   EXPECT_GT(hits, 30000 / 10);
-  std::vector<RayHit> fast;
-  CastToObstacles(window, queries, fast);
-  ExpectSameAs(plain, fast, queries, "window");
+  for (const WindowKernel kernel : KernelsHere()) {
+    std::vector<RayHit> fast;
+    CastToObstacles(window, queries, fast, kernel);
+    ExpectSameAs(plain, fast, queries, KernelName(kernel));
+  }
 }
 
 TEST(MatchWindow, FindsWhatThePlainTraversalFinds) {
@@ -420,11 +433,59 @@ TEST(MatchWindow, FindsWhatThePlainTraversalFinds) {
   const OccupancyGrid empty(GridGeometry(0.01), 2000);
   const MatchWindow window(empty, 0, {-200, -200}, {199, 199});
   ASSERT_TRUE(window.Covers(q));
-  std::vector<RayHit> hits;
-  CastToObstacles(window, {q}, hits);
-  EXPECT_FALSE(hits[0].hit);
-  EXPECT_EQ(hits[0].cells, 0);
-  EXPECT_LE(hits[0].jumps, 1);
+  for (const WindowKernel kernel : KernelsHere()) {
+    std::vector<RayHit> hits;
+    CastToObstacles(window, {q}, hits, kernel);
+    EXPECT_FALSE(hits[0].hit) << KernelName(kernel);
+    EXPECT_EQ(hits[0].cells, 0) << KernelName(kernel);
+    EXPECT_LE(hits[0].jumps, 1) << KernelName(kernel);
+  }
+}
+
+// The wide kernel gives the portable one's answers bit for bit (distances, cells and jumps
+// counted) on batches of every size around its eight lanes, with rays from cell corners and
+// edges, along the axes and diagonals, of zero and tiny length, and leaving the window.
+TEST(MatchWindow, WideKernelGivesThePortableAnswersBitForBit) {
+  if (!WideWindowKernelAvailable()) GTEST_SKIP() << "this processor has no AVX-512F/VL: only the portable kernel runs";
+  OccupancyGrid grid = RandomMap(37, 0.01);
+  grid.RefreshSummaries();
+  const MatchWindow window(grid, 0, {-180, -220}, {209, 139});
+  std::vector<RayQuery> all = RandomRays(38, 20000, 0.01);
+  Rng rng(39);
+  for (int i = 0; i < 2000; ++i) {
+    // On cell corners and edges, exactly along axes and diagonals, tiny lengths.
+    const Vec2 corner(std::round(rng.Uniform() * 300 - 150) * 0.01, std::round(rng.Uniform() * 300 - 150) * 0.01);
+    const double angle = std::round(rng.Uniform() * 8) * kPi / 4;
+    const double range = i % 4 == 0 ? 1e-12 : rng.Uniform() * 1.5;
+    all.push_back({corner, Vec2(std::cos(angle), std::sin(angle)), range});
+    all.push_back({corner + Vec2(0.005, 0.0), Vec2(std::cos(angle + 1e-13), std::sin(angle + 1e-13)), range});
+  }
+  size_t covered = 0;
+  for (const RayQuery& q : all) covered += window.Covers(q) ? size_t{1} : size_t{0};
+  EXPECT_GT(covered, all.size() / 4);
+  EXPECT_LT(covered, all.size());
+  // Batches of 0 to 17 rays (every way of filling and draining eight lanes), then one of all.
+  size_t begin = 0;
+  std::vector<std::vector<RayQuery>> batches;
+  for (size_t size = 0; begin + size <= all.size() && batches.size() < 600; ++size) {
+    batches.emplace_back(all.begin() + static_cast<std::ptrdiff_t>(begin),
+                         all.begin() + static_cast<std::ptrdiff_t>(begin + size % 18));
+    begin += size % 18;
+  }
+  batches.push_back(all);
+  for (const std::vector<RayQuery>& batch : batches) {
+    std::vector<RayHit> portable, wide(5, RayHit{});  // resized by the call
+    CastToObstacles(window, batch, portable, WindowKernel::kPortable);
+    CastToObstacles(window, batch, wide, WindowKernel::kWide);
+    ASSERT_EQ(wide.size(), batch.size());
+    for (size_t i = 0; i < batch.size(); ++i) {
+      ASSERT_EQ(wide[i].hit, portable[i].hit) << "ray " << i << " of " << batch.size();
+      ASSERT_EQ(wide[i].distance_m, portable[i].distance_m) << "ray " << i << " of " << batch.size();
+      ASSERT_EQ(wide[i].exit_m, portable[i].exit_m) << "ray " << i << " of " << batch.size();
+      ASSERT_EQ(wide[i].cells, portable[i].cells) << "ray " << i << " of " << batch.size();
+      ASSERT_EQ(wide[i].jumps, portable[i].jumps) << "ray " << i << " of " << batch.size();
+    }
+  }
 }
 
 TEST(ApplyUpdateRay, AddsTheProfileByDistance) {
