@@ -448,13 +448,14 @@ SLAM_WIDE_TARGET inline __m512d NegateLanes(__m512d g, __mmask8 where) {
 /// The window's rays, started as FastRay starts them, one array per quantity (eight
 /// consecutive rays' values are loaded at once); reused per thread.
 struct WideRays {
+  std::vector<double> px, py, dx, dy, range;  // the queries, one array per quantity
   std::vector<double> ox, oy, ax, ay, ix, iy, length, max_range;
   std::vector<int32_t> base, step_u, step_v;
   std::vector<uint32_t> index;     // in the caller's rays
   std::vector<uint32_t> uncovered;  // the caller's rays the window does not cover
 
   void Reserve(size_t n) {
-    for (auto* v : {&ox, &oy, &ax, &ay, &ix, &iy, &length, &max_range}) v->resize(n + 8);
+    for (auto* v : {&px, &py, &dx, &dy, &range, &ox, &oy, &ax, &ay, &ix, &iy, &length, &max_range}) v->resize(n + 8);
     for (auto* v : {&base, &step_u, &step_v}) v->resize(n + 8);
     index.resize(n + 8);
     uncovered.resize(n + 8);
@@ -478,20 +479,15 @@ SLAM_WIDE_TARGET void CastWide(const MatchWindow& window, const std::vector<RayQ
   const __m256i zero_i = _mm256_setzero_si256(), one_i = _mm256_set1_epi32(1);
   const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
 
-  // Starting the rays. The queries' doubles, gathered with a stride of one RayQuery.
-  const auto* raw = reinterpret_cast<const double*>(rays.data());
-  const auto offset_of = [&](const double* member) {
-    return static_cast<int32_t>(member - raw);  // in doubles (RayQuery holds doubles only)
-  };
-  static_assert(sizeof(RayQuery) % sizeof(double) == 0);
-  const auto stride = static_cast<int32_t>(sizeof(RayQuery) / sizeof(double));
-  int32_t at_ox = 0, at_oy = 1, at_dx = 2, at_dy = 3, at_range = 4;
-  if (n > 0) {
-    at_ox = offset_of(rays[0].origin.data());
-    at_oy = offset_of(rays[0].origin.data() + 1);
-    at_dx = offset_of(rays[0].direction.data());
-    at_dy = offset_of(rays[0].direction.data() + 1);
-    at_range = offset_of(&rays[0].max_range_m);
+  // Starting the rays: the queries one array per quantity (plain loads and stores, done with
+  // before the vector loads read them), then eight at a time.
+  for (size_t i = 0; i < n; ++i) {
+    const RayQuery& q = rays[i];
+    in.px[i] = q.origin.x();
+    in.py[i] = q.origin.y();
+    in.dx[i] = q.direction.x();
+    in.dy[i] = q.direction.y();
+    in.range[i] = q.max_range_m;
   }
   const __m512d inv = _mm512_set1_pd(1.0 / geometry.resolution());
   const __m512d res = _mm512_set1_pd(geometry.resolution());
@@ -508,13 +504,9 @@ SLAM_WIDE_TARGET void CastWide(const MatchWindow& window, const std::vector<RayQ
   size_t covered = 0, uncovered = 0;
   for (size_t i = 0; i < n; i += 8) {
     const auto lanes = static_cast<__mmask8>(n - i >= 8 ? 0xff : (1u << (n - i)) - 1);
-    const __m256i at = _mm256_mullo_epi32(_mm256_add_epi32(lane, _mm256_set1_epi32(static_cast<int32_t>(i))),
-                                          _mm256_set1_epi32(stride));
-#define SLAM_GATHER(member) \
-  _mm512_mask_i32gather_pd(zero, lanes, _mm256_add_epi32(at, _mm256_set1_epi32(member)), raw, 8)
-    const __m512d px = SLAM_GATHER(at_ox), py = SLAM_GATHER(at_oy), dx = SLAM_GATHER(at_dx),
-                  dy = SLAM_GATHER(at_dy), range = SLAM_GATHER(at_range);
-#undef SLAM_GATHER
+    const __m512d px = _mm512_maskz_loadu_pd(lanes, in.px.data() + i), py = _mm512_maskz_loadu_pd(lanes, in.py.data() + i);
+    const __m512d dx = _mm512_maskz_loadu_pd(lanes, in.dx.data() + i), dy = _mm512_maskz_loadu_pd(lanes, in.dy.data() + i);
+    const __m512d range = _mm512_maskz_loadu_pd(lanes, in.range.data() + i);
     // MatchWindow::Covers: a positive, finite range, both ends inside the window's margin.
     const __m512d gx = _mm512_mul_pd(px, inv), gy = _mm512_mul_pd(py, inv);
     const __m512d ex = _mm512_mul_pd(_mm512_add_pd(px, _mm512_mul_pd(dx, range)), inv);
