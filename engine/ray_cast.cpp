@@ -415,21 +415,16 @@ namespace {
 
 #ifdef SLAM_WIDE_WINDOW_KERNEL
 
-#define SLAM_WIDE_TARGET __attribute__((target("avx2,avx512f,avx512vl")))
+#define SLAM_WIDE_TARGET __attribute__((target("avx2,bmi2,avx512f,avx512vl")))
+#define SLAM_WIDE_INLINE __attribute__((target("avx2,bmi2,avx512f,avx512vl"), always_inline)) inline
 // GCC 12's AVX-512 headers start some results from _mm512_undefined_pd(), a variable initialised
 // from itself, which -Wmaybe-uninitialized reports once inlined here (a known false positive).
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 
 /// The `n` lowest set bits of `mask`.
-inline __mmask8 LowestBits(__mmask8 mask, int n) {
-  __mmask8 kept = 0;
-  for (; n > 0 && mask != 0; --n) {
-    const auto lowest = static_cast<__mmask8>(mask & -mask);
-    kept = static_cast<__mmask8>(kept | lowest);
-    mask = static_cast<__mmask8>(mask & ~lowest);
-  }
-  return kept;
+SLAM_WIDE_INLINE __mmask8 LowestBits(__mmask8 mask, int n) {
+  return static_cast<__mmask8>(_pdep_u32((1u << std::min(n, 8)) - 1, mask));
 }
 
 /// FloorToInt on each lane (a truncation, one less where that rounded up).
@@ -453,21 +448,134 @@ struct WideRays {
   std::vector<int32_t> base, step_u, step_v;
   std::vector<uint32_t> index;     // in the caller's rays
   std::vector<uint32_t> uncovered;  // the caller's rays the window does not cover
+  // The answers, in the order the rays finish: which ray (in these arrays), and what it found.
+  std::vector<int32_t> finished, hit, cells, jumps;
+  std::vector<double> distance, exit;
 
   void Reserve(size_t n) {
     for (auto* v : {&px, &py, &dx, &dy, &range, &ox, &oy, &ax, &ay, &ix, &iy, &length, &max_range}) v->resize(n + 8);
     for (auto* v : {&base, &step_u, &step_v}) v->resize(n + 8);
     index.resize(n + 8);
     uncovered.resize(n + 8);
+    for (auto* v : {&finished, &hit, &cells, &jumps}) v->resize(n + 8);
+    for (auto* v : {&distance, &exit}) v->resize(n + 8);
   }
 };
 
-/// CastToObstacles(window, rays, hits) eight rays at a time. Rays start eight at a time too
-/// (MatchWindow::Covers and FastRay's constructor on each lane); the covered ones are packed,
-/// then advance as FastRay<WindowField>::Advance does, each lane taking the next ray as soon as
-/// its own has its answer. Every operation is the scalar one on each lane (IEEE double
-/// arithmetic without contraction, the same comparisons, std::min(a, b) as min(b, a), which
-/// keeps the scalar choice for equal values and NaN), so each answer is FastRay's, bit for bit.
+
+/// What every lane's step reads.
+struct WideStep {
+  const uint8_t* squares;  // the window's free squares
+  __m512d res;             // the grid's resolution
+};
+
+/// Eight lanes, each advancing one ray as FastRay<WindowField> does, and taking the next ray
+/// as soon as its own has its answer. Every operation is the scalar one on each lane (IEEE
+/// double arithmetic without contraction, the same comparisons, std::min(a, b) as min(b, a),
+/// which keeps the scalar choice for equal values and NaN), so each answer is FastRay's, bit
+/// for bit.
+struct WideLanes {
+  __m512d ox, oy, ax, ay, ix, iy, length, t;
+  __m256i base, step_u, step_v, u, v, cells, jumps, ray;
+  __mmask8 active = 0, free_lanes = 0xff;
+
+  SLAM_WIDE_INLINE WideLanes() {
+    ox = oy = ax = ay = ix = iy = length = t = _mm512_setzero_pd();
+    base = step_u = step_v = u = v = cells = jumps = ray = _mm256_setzero_si256();
+  }
+
+  /// Lanes without a ray take the next ones (consecutive in `in`, expanded into the lanes).
+  SLAM_WIDE_INLINE void Fill(const WideRays& in, int32_t& next, int32_t count) {
+    if (free_lanes == 0 || next >= count) return;
+    const __mmask8 fill = LowestBits(free_lanes, count - next);
+    free_lanes = static_cast<__mmask8>(free_lanes & ~fill);
+    ox = _mm512_mask_expand_pd(ox, fill, _mm512_loadu_pd(in.ox.data() + next));
+    oy = _mm512_mask_expand_pd(oy, fill, _mm512_loadu_pd(in.oy.data() + next));
+    ax = _mm512_mask_expand_pd(ax, fill, _mm512_loadu_pd(in.ax.data() + next));
+    ay = _mm512_mask_expand_pd(ay, fill, _mm512_loadu_pd(in.ay.data() + next));
+    ix = _mm512_mask_expand_pd(ix, fill, _mm512_loadu_pd(in.ix.data() + next));
+    iy = _mm512_mask_expand_pd(iy, fill, _mm512_loadu_pd(in.iy.data() + next));
+    length = _mm512_mask_expand_pd(length, fill, _mm512_loadu_pd(in.length.data() + next));
+    base = _mm256_mask_expand_epi32(base, fill, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(in.base.data() + next)));
+    step_u = _mm256_mask_expand_epi32(step_u, fill, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(in.step_u.data() + next)));
+    step_v = _mm256_mask_expand_epi32(step_v, fill, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(in.step_v.data() + next)));
+    ray = _mm256_mask_expand_epi32(ray, fill, _mm256_add_epi32(_mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7), _mm256_set1_epi32(next)));
+    const __m256i zero_i = _mm256_setzero_si256();
+    t = _mm512_mask_mov_pd(t, fill, _mm512_setzero_pd());
+    u = _mm256_mask_mov_epi32(u, fill, zero_i);
+    v = _mm256_mask_mov_epi32(v, fill, zero_i);
+    cells = _mm256_mask_mov_epi32(cells, fill, zero_i);
+    jumps = _mm256_mask_mov_epi32(jumps, fill, zero_i);
+    active = static_cast<__mmask8>(active | fill);
+    next += _mm_popcnt_u32(fill);
+  }
+
+  /// One jump or one cell of every active lane; the finished lanes' answers packed into
+  /// `answers`' arrays from `finished` on.
+  SLAM_WIDE_INLINE void Advance(const WideStep& step, WideRays& answers, int32_t& finished) {
+    if (active == 0) return;
+    const __m512d one = _mm512_set1_pd(1.0);
+    const __m256i zero_i = _mm256_setzero_si256(), one_i = _mm256_set1_epi32(1);
+    // WindowField::At: the free square of the ray's quadrant at its cell (a 4-byte load at
+    // each byte's address, the padding after the squares keeps it inside).
+    const __m256i at = _mm256_add_epi32(
+        base, _mm256_add_epi32(_mm256_mullo_epi32(step_u, u), _mm256_mullo_epi32(step_v, v)));
+    const __m256i k = _mm256_and_si256(_mm256_mmask_i32gather_epi32(zero_i, active, at, step.squares, 1),
+                                       _mm256_set1_epi32(0xff));
+    const __mmask8 occupied = _mm256_cmpeq_epi32_mask(k, zero_i);
+    // A hit, unless the ray only touches the cell.
+    const __m512d leave_u = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(_mm256_add_epi32(u, one_i)), ox), ix);
+    const __m512d leave_v = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(_mm256_add_epi32(v, one_i)), oy), iy);
+    const __m512d t_leave = _mm512_min_pd(length, _mm512_min_pd(leave_v, leave_u));
+    const __mmask8 hit = static_cast<__mmask8>(occupied & _mm512_cmp_pd_mask(t_leave, t, _CMP_GT_OQ));
+    // LeaveBox: out of the free square (of this cell when k <= 1).
+    const __m256i reach = _mm256_max_epi32(k, one_i);
+    const __m256i end_u = _mm256_add_epi32(u, reach), end_v = _mm256_add_epi32(v, reach);
+    const __mmask8 jump = _mm256_cmpgt_epi32_mask(k, one_i);
+    const __m512d exit_u = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(end_u), ox), ix);
+    const __m512d exit_v = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(end_v), oy), iy);
+    const __m512d t_exit = _mm512_min_pd(exit_v, exit_u);
+    const auto counted = static_cast<__mmask8>(active & ~hit);
+    jumps = _mm256_mask_add_epi32(jumps, static_cast<__mmask8>(counted & jump), jumps, one_i);
+    const __mmask8 crossed = _mm512_cmp_pd_mask(_mm512_min_pd(length, t_exit), t, _CMP_GT_OQ);
+    cells = _mm256_mask_add_epi32(cells, static_cast<__mmask8>(counted & ~jump & crossed), cells, one_i);
+    const __mmask8 out = _mm512_cmp_pd_mask(t_exit, length, _CMP_GE_OQ);
+    const __m512d slack = _mm512_mul_pd(_mm512_set1_pd(GridWalk::kCornerEpsilon), _mm512_add_pd(one, t_exit));
+    const __mmask8 corner = _mm512_cmp_pd_mask(_mm512_abs_pd(_mm512_sub_pd(exit_u, exit_v)), slack, _CMP_LE_OQ);
+    const __m512d ahead = _mm512_add_pd(t_exit, slack);
+    const __m256i along_u = _mm256_min_epi32(
+        _mm256_max_epi32(_mm512_cvttpd_epi32(_mm512_add_pd(ox, _mm512_mul_pd(ax, ahead))), u),
+        _mm256_sub_epi32(end_u, one_i));
+    const __m256i along_v = _mm256_min_epi32(
+        _mm256_max_epi32(_mm512_cvttpd_epi32(_mm512_add_pd(oy, _mm512_mul_pd(ay, ahead))), v),
+        _mm256_sub_epi32(end_v, one_i));
+    const auto across_u = static_cast<__mmask8>(corner | _mm512_cmp_pd_mask(exit_u, exit_v, _CMP_LT_OQ));
+    const auto across_v = static_cast<__mmask8>(corner | _mm512_cmp_pd_mask(exit_v, exit_u, _CMP_LT_OQ));
+    const __m512d t_hit = t;
+    u = _mm256_mask_blend_epi32(across_u, along_u, end_u);
+    v = _mm256_mask_blend_epi32(across_v, along_v, end_v);
+    t = _mm512_max_pd(t_exit, t);
+
+    const auto done = static_cast<__mmask8>(active & (hit | out));
+    if (done == 0) return;
+    // The finished lanes' answers, packed, then their lanes are free for the next rays.
+    const auto at_out = static_cast<size_t>(finished);
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(answers.finished.data() + at_out), _mm256_maskz_compress_epi32(done, ray));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(answers.hit.data() + at_out),
+                        _mm256_maskz_compress_epi32(done, _mm256_maskz_mov_epi32(hit, one_i)));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(answers.cells.data() + at_out), _mm256_maskz_compress_epi32(done, cells));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(answers.jumps.data() + at_out), _mm256_maskz_compress_epi32(done, jumps));
+    _mm512_storeu_pd(answers.distance.data() + at_out, _mm512_maskz_compress_pd(done, _mm512_mul_pd(t_hit, step.res)));
+    _mm512_storeu_pd(answers.exit.data() + at_out, _mm512_maskz_compress_pd(done, _mm512_mul_pd(t_leave, step.res)));
+    finished += _mm_popcnt_u32(done);
+    active = static_cast<__mmask8>(active & ~done);
+    free_lanes = static_cast<__mmask8>(free_lanes | done);
+  }
+};
+
+/// CastToObstacles(window, rays, hits) eight rays at a time: rays start eight at a time
+/// (MatchWindow::Covers and FastRay's constructor on each lane, the same operations), the
+/// covered ones are packed, then advance in WideLanes.
 SLAM_WIDE_TARGET void CastWide(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits) {
   const GridGeometry& geometry = window.grid().geometry();
   const size_t n = rays.size();
@@ -561,114 +669,35 @@ SLAM_WIDE_TARGET void CastWide(const MatchWindow& window, const std::vector<RayQ
     hits[in.uncovered[j]] = CastToObstacle(window.grid(), q.origin, q.direction, q.max_range_m, window.occupied_above());
   }
 
-  // Advancing them.
-  const uint8_t* squares = window.free_squares();
-  const __m512d epsilon = _mm512_set1_pd(GridWalk::kCornerEpsilon);
-  const __m256i byte = _mm256_set1_epi32(0xff);
-  __m512d ox = zero, oy = zero, ax = zero, ay = zero, ix = zero, iy = zero, length = zero, t = zero;
-  __m256i base = zero_i, step_u = zero_i, step_v = zero_i, u = zero_i, v = zero_i, cells = zero_i,
-          jumps = zero_i, ray = zero_i;
-  __mmask8 active = 0, free_lanes = 0xff;
+  // Advancing them (one group of eight lanes: two groups side by side measured slower), then
+  // the answers in place.
+  const WideStep step{window.free_squares(), res};
+  WideLanes lanes;
   const auto count = static_cast<int32_t>(covered);
-  int32_t next = 0;
-  alignas(64) double distance_out[8], exit_out[8];
-  alignas(32) int32_t ray_out[8], cells_out[8], jumps_out[8];
+  int32_t next = 0, finished = 0;
   while (true) {
-    // Lanes without a ray take the next ones (consecutive in `in`, expanded into the lanes).
-    if (free_lanes != 0 && next < count) {
-      const __mmask8 fill = LowestBits(free_lanes, count - next);
-      ox = _mm512_mask_expand_pd(ox, fill, _mm512_loadu_pd(in.ox.data() + next));
-      oy = _mm512_mask_expand_pd(oy, fill, _mm512_loadu_pd(in.oy.data() + next));
-      ax = _mm512_mask_expand_pd(ax, fill, _mm512_loadu_pd(in.ax.data() + next));
-      ay = _mm512_mask_expand_pd(ay, fill, _mm512_loadu_pd(in.ay.data() + next));
-      ix = _mm512_mask_expand_pd(ix, fill, _mm512_loadu_pd(in.ix.data() + next));
-      iy = _mm512_mask_expand_pd(iy, fill, _mm512_loadu_pd(in.iy.data() + next));
-      length = _mm512_mask_expand_pd(length, fill, _mm512_loadu_pd(in.length.data() + next));
-      base = _mm256_mask_expand_epi32(base, fill, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(in.base.data() + next)));
-      step_u = _mm256_mask_expand_epi32(step_u, fill, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(in.step_u.data() + next)));
-      step_v = _mm256_mask_expand_epi32(step_v, fill, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(in.step_v.data() + next)));
-      ray = _mm256_mask_expand_epi32(ray, fill, _mm256_add_epi32(lane, _mm256_set1_epi32(next)));
-      t = _mm512_mask_mov_pd(t, fill, zero);
-      u = _mm256_mask_mov_epi32(u, fill, zero_i);
-      v = _mm256_mask_mov_epi32(v, fill, zero_i);
-      cells = _mm256_mask_mov_epi32(cells, fill, zero_i);
-      jumps = _mm256_mask_mov_epi32(jumps, fill, zero_i);
-      active = static_cast<__mmask8>(active | fill);
-      next += _mm_popcnt_u32(fill);
-    }
-    free_lanes = 0;
-    if (active == 0) break;
-
-    // WindowField::At: the free square of the ray's quadrant at its cell (a 4-byte load at
-    // each byte's address, the padding after the squares keeps it inside).
-    const __m256i at = _mm256_add_epi32(
-        base, _mm256_add_epi32(_mm256_mullo_epi32(step_u, u), _mm256_mullo_epi32(step_v, v)));
-    const __m256i k =
-        _mm256_and_si256(_mm256_mmask_i32gather_epi32(zero_i, active, at, squares, 1), byte);
-    const __mmask8 occupied = _mm256_cmpeq_epi32_mask(k, zero_i);
-    // A hit, unless the ray only touches the cell.
-    const __m512d leave_u = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(_mm256_add_epi32(u, one_i)), ox), ix);
-    const __m512d leave_v = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(_mm256_add_epi32(v, one_i)), oy), iy);
-    const __m512d t_leave = _mm512_min_pd(length, _mm512_min_pd(leave_v, leave_u));
-    const __mmask8 hit = static_cast<__mmask8>(occupied & _mm512_cmp_pd_mask(t_leave, t, _CMP_GT_OQ));
-    // LeaveBox: out of the free square (of this cell when k <= 1).
-    const __m256i reach = _mm256_max_epi32(k, one_i);
-    const __m256i end_u = _mm256_add_epi32(u, reach), end_v = _mm256_add_epi32(v, reach);
-    const __mmask8 jump = _mm256_cmpgt_epi32_mask(k, one_i);
-    const __m512d exit_u = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(end_u), ox), ix);
-    const __m512d exit_v = _mm512_mul_pd(_mm512_sub_pd(_mm512_cvtepi32_pd(end_v), oy), iy);
-    const __m512d t_exit = _mm512_min_pd(exit_v, exit_u);
-    const auto counted = static_cast<__mmask8>(active & ~hit);
-    jumps = _mm256_mask_add_epi32(jumps, static_cast<__mmask8>(counted & jump), jumps, one_i);
-    const __mmask8 crossed = _mm512_cmp_pd_mask(_mm512_min_pd(length, t_exit), t, _CMP_GT_OQ);
-    cells = _mm256_mask_add_epi32(cells, static_cast<__mmask8>(counted & ~jump & crossed), cells, one_i);
-    const __mmask8 out = _mm512_cmp_pd_mask(t_exit, length, _CMP_GE_OQ);
-    const __m512d slack = _mm512_mul_pd(epsilon, _mm512_add_pd(one, t_exit));
-    const __mmask8 corner = _mm512_cmp_pd_mask(_mm512_abs_pd(_mm512_sub_pd(exit_u, exit_v)), slack, _CMP_LE_OQ);
-    const __m512d ahead = _mm512_add_pd(t_exit, slack);
-    const __m256i along_u = _mm256_min_epi32(
-        _mm256_max_epi32(_mm512_cvttpd_epi32(_mm512_add_pd(ox, _mm512_mul_pd(ax, ahead))), u),
-        _mm256_sub_epi32(end_u, one_i));
-    const __m256i along_v = _mm256_min_epi32(
-        _mm256_max_epi32(_mm512_cvttpd_epi32(_mm512_add_pd(oy, _mm512_mul_pd(ay, ahead))), v),
-        _mm256_sub_epi32(end_v, one_i));
-    const auto across_u = static_cast<__mmask8>(corner | _mm512_cmp_pd_mask(exit_u, exit_v, _CMP_LT_OQ));
-    const auto across_v = static_cast<__mmask8>(corner | _mm512_cmp_pd_mask(exit_v, exit_u, _CMP_LT_OQ));
-    const __m512d t_hit = t;
-    u = _mm256_mask_blend_epi32(across_u, along_u, end_u);
-    v = _mm256_mask_blend_epi32(across_v, along_v, end_v);
-    t = _mm512_max_pd(t_exit, t);
-
-    const auto done = static_cast<__mmask8>(active & (hit | out));
-    if (done == 0) continue;
-    // The finished lanes' answers, then their lanes are free for the next rays.
-    _mm512_store_pd(distance_out, _mm512_mul_pd(t_hit, res));
-    _mm512_store_pd(exit_out, _mm512_mul_pd(t_leave, res));
-    _mm256_store_si256(reinterpret_cast<__m256i*>(ray_out), ray);
-    _mm256_store_si256(reinterpret_cast<__m256i*>(cells_out), cells);
-    _mm256_store_si256(reinterpret_cast<__m256i*>(jumps_out), jumps);
-    for (unsigned bits = done; bits != 0; bits &= bits - 1) {
-      const auto j = static_cast<unsigned>(__builtin_ctz(bits));
-      const auto r = static_cast<size_t>(ray_out[j]);
-      const bool lane_hit = ((hit >> j) & 1) != 0;
-      RayHit& h = hits[in.index[r]];
-      h.hit = lane_hit;
-      h.distance_m = lane_hit ? distance_out[j] : in.max_range[r];
-      h.exit_m = lane_hit ? exit_out[j] : in.max_range[r];
-      h.cells = cells_out[j];
-      h.jumps = jumps_out[j];
-    }
-    active = static_cast<__mmask8>(active & ~done);
-    free_lanes = done;
+    lanes.Fill(in, next, count);
+    if (lanes.active == 0) break;
+    lanes.Advance(step, in, finished);
+  }
+  for (size_t j = 0; j < covered; ++j) {
+    const auto r = static_cast<size_t>(in.finished[j]);
+    RayHit& h = hits[in.index[r]];
+    h.hit = in.hit[j] != 0;
+    h.distance_m = h.hit ? in.distance[j] : in.max_range[r];
+    h.exit_m = h.hit ? in.exit[j] : in.max_range[r];
+    h.cells = in.cells[j];
+    h.jumps = in.jumps[j];
   }
 }
 
 #pragma GCC diagnostic pop
+#undef SLAM_WIDE_INLINE
 #undef SLAM_WIDE_TARGET
 
 bool DetectWideKernel() {
   __builtin_cpu_init();
-  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f") &&
+  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("bmi2") && __builtin_cpu_supports("avx512f") &&
          __builtin_cpu_supports("avx512vl");
 }
 
