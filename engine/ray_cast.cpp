@@ -452,13 +452,14 @@ struct WideRays {
   std::vector<int32_t> finished, hit, cells, jumps;
   std::vector<double> distance, exit;
 
+  /// Room for n rays and the eight lanes' reads past them (grows only: no refill of zeros).
   void Reserve(size_t n) {
-    for (auto* v : {&px, &py, &dx, &dy, &range, &ox, &oy, &ax, &ay, &ix, &iy, &length, &max_range}) v->resize(n + 8);
-    for (auto* v : {&base, &step_u, &step_v}) v->resize(n + 8);
-    index.resize(n + 8);
-    uncovered.resize(n + 8);
-    for (auto* v : {&finished, &hit, &cells, &jumps}) v->resize(n + 8);
-    for (auto* v : {&distance, &exit}) v->resize(n + 8);
+    if (index.size() >= n + 8) return;
+    for (auto* v : {&px, &py, &dx, &dy, &range, &ox, &oy, &ax, &ay, &ix, &iy, &length, &max_range, &distance, &exit}) {
+      v->resize(n + 8);
+    }
+    for (auto* v : {&base, &step_u, &step_v, &finished, &hit, &cells, &jumps}) v->resize(n + 8);
+    for (auto* v : {&index, &uncovered}) v->resize(n + 8);
   }
 };
 
@@ -713,6 +714,8 @@ bool WideWindowKernelAvailable() {
   return false;
 #endif
 }
+
+const char* BestWindowKernelName() { return WideWindowKernelAvailable() ? "avx512" : "portable"; }
 
 void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits,
                      WindowKernel kernel) {

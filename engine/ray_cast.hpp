@@ -191,6 +191,8 @@ enum class WindowKernel {
 
 /// Whether this build and this processor run WindowKernel::kWide.
 bool WideWindowKernelAvailable();
+/// What WindowKernel::kBest runs here, as tools report it: "avx512" or "portable".
+const char* BestWindowKernelName();
 
 /// CastToObstacles(window.grid(), rays, window.occupied_above(), hits), the same answers, with
 /// the rays the window covers cast through its free squares by `kernel`.

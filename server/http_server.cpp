@@ -20,6 +20,7 @@
 #include "engine/io/map_image.hpp"
 #include "engine/io/params_json.hpp"
 #include "engine/io/tum.hpp"
+#include "engine/ray_cast.hpp"
 #include "hw_link/status_json.hpp"
 #include "server/state_store.hpp"
 
@@ -664,7 +665,8 @@ json HttpServer::Impl::StatusJson() {
           {"features",
            {{"save", !options.state_dir.empty()},
             {"tuning", jobs.configured()},
-            {"experiments", jobs.Experiments()}}}};
+            {"experiments", jobs.Experiments()},
+            {"ray_kernel", BestWindowKernelName()}}}};
 }
 
 std::string HttpServer::Impl::MetricsText() {

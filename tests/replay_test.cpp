@@ -13,6 +13,7 @@
 
 #include "engine/io/map_image.hpp"
 #include "engine/io/tum.hpp"
+#include "engine/ray_cast.hpp"
 #include "hw_link/experiment.hpp"
 #include "hw_link/experiment_reader.hpp"
 #include "scheduler/replay.hpp"
@@ -188,6 +189,7 @@ TEST_F(ReplayTest, SummaryHasTheContractKeysAndMapQuality) {
     EXPECT_TRUE(summary[key].is_number()) << key;
   }
   EXPECT_EQ(summary["budget"], 8125);
+  EXPECT_EQ(summary.value("ray_kernel", ""), WideWindowKernelAvailable() ? "avx512" : "portable");
   EXPECT_EQ(summary["frames"], Box().counters.frames);
   EXPECT_EQ(summary["frames_rejected"], 0);
   EXPECT_DOUBLE_EQ(summary["e"].get<double>(), std::log(1.0 - summary["q"].get<double>()));

@@ -970,6 +970,9 @@ TEST_F(SharedSlamd, StatusHasTheDocumentedShape) {
   EXPECT_EQ(status["budget"], GetJson(http(), kBudgetPath));
   EXPECT_TRUE(status.contains("job"));
   EXPECT_TRUE(status["job"].is_null());
+  // How matching rays are cast on this processor (replay_test checks which one).
+  const std::set<std::string> kernels = {"avx512", "portable"};
+  EXPECT_TRUE(kernels.count(status["features"].value("ray_kernel", "?"))) << status["features"].dump();
 }
 
 TEST_F(SharedSlamd, ServesThePageFromTheWebRoot) {

@@ -6,6 +6,7 @@
 #include "engine/io/map_image.hpp"
 #include "engine/io/params_json.hpp"
 #include "engine/io/tum.hpp"
+#include "engine/ray_cast.hpp"
 #include "sim/map_quality.hpp"
 
 namespace slam::tools {
@@ -121,6 +122,7 @@ nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResul
   j["duration_s"] = experiment.duration_s();
   j["wall_s"] = run.wall_s;
   j["cpu_s"] = run.cpu_s;
+  j["ray_kernel"] = BestWindowKernelName();  // the timings depend on it, the answers do not
   j["ns_per_ray"] = run.rays_total > 0 ? 1e9 * run.cpu_s / static_cast<double>(run.rays_total) : 0.0;
   j["cpu_ms_per_scan"] =
       run.scans > 0 ? 1000.0 * run.cpu_s / static_cast<double>(run.scans) : 0.0;
