@@ -207,7 +207,8 @@ int main(int argc, char** argv) {
   const auto ratio = [](std::optional<double> a, std::optional<double> b) {
     return a && b && *b > 0 ? Fixed(*a / *b, 2) + "x" : std::string("-");
   };
-  row("speed-up of the wide kernel over the portable one / over the tiles / over the cell-by-cell traversal, same run",
+  row("speed-up of the wide kernel over the portable one / the tiles (same rays) / the cell-by-cell traversal "
+      "(similar rays), same run",
       ratio(matching, portable) + " / " + ratio(matching, tiles) + " / " + ratio(matching, plain), "", "");
   const std::string room_rays = "BM_MatchingRayWindow/fill:1/length_cm:150/path:";
   const auto room = items(room_rays + "2/engine:1");
