@@ -419,8 +419,10 @@ namespace {
 #define SLAM_WIDE_INLINE __attribute__((target("avx2,bmi2,avx512f,avx512vl"), always_inline)) inline
 // GCC 12's AVX-512 headers start some results from _mm512_undefined_pd(), a variable initialised
 // from itself, which -Wmaybe-uninitialized reports once inlined here (a known false positive).
+#if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
 
 /// The `n` lowest set bits of `mask`.
 SLAM_WIDE_INLINE __mmask8 LowestBits(__mmask8 mask, int n) {
@@ -692,7 +694,9 @@ SLAM_WIDE_TARGET void CastWide(const MatchWindow& window, const std::vector<RayQ
   }
 }
 
+#if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC diagnostic pop
+#endif
 #undef SLAM_WIDE_INLINE
 #undef SLAM_WIDE_TARGET
 
