@@ -290,12 +290,12 @@ void BM_MatchWindowBuild(benchmark::State& state) {
 BENCHMARK(BM_MatchWindowBuild)->ArgNames({"fill", "length_cm"})->Args({kRoom, 150})->Args({kMapped, 150});
 
 // What BM_MatchingRayWindow casts through.
-enum RayPath : int64_t { kTiles = 0, kWindowPortable = 1, kWindowWide = 2 };
+enum RayPath : int64_t { kTiles = 0, kWindowPortable = 1, kWindowAvx512 = 2, kWindowAvx2 = 3 };
 
 // Matching rays cast 64 at a time through the grid's tiles (CastToObstacles on the grid, path 0)
-// or through a built MatchWindow around their origins with the portable kernel (path 1) or the
-// wide one (path 2; where the processor lacks AVX-512 it runs the portable one and says so in
-// its label): the ratios in one run. engine 1: as the engine casts them, each window's 64
+// or through a built MatchWindow around their origins with the portable kernel (path 1), the
+// AVX-512 one (path 2) or the AVX2 one (path 3; where the processor lacks a kernel it runs the
+// portable one and says so in its label): the ratios in one run. engine 1: as the engine casts them, each window's 64
 // candidates in a row right after the window was built (built again, untimed, before its first
 // batch: the window is warm in the caches, as the engine's is); engine 0: every batch in another
 // window, built long before (cold in the caches, the worst case).
@@ -303,7 +303,9 @@ void BM_MatchingRayWindow(benchmark::State& state) {
   WindowRays w(state);
   const int64_t path = state.range(2);
   const bool engine_order = state.range(3) != 0;
-  const WindowKernel kernel = path == kWindowWide ? WindowKernel::kWide : WindowKernel::kPortable;
+  const WindowKernel kernel = path == kWindowAvx512 ? WindowKernel::kAvx512
+                              : path == kWindowAvx2  ? WindowKernel::kAvx2
+                                                     : WindowKernel::kPortable;
   std::vector<RayHit> hits;
   size_t i = 0;
   int64_t cells = 0, jumps = 0;
@@ -327,13 +329,14 @@ void BM_MatchingRayWindow(benchmark::State& state) {
     benchmark::DoNotOptimize(hits.data());
   }
   w.m.Report(state, state.iterations() * static_cast<int64_t>(WindowRays::kBatch), cells, jumps);
-  if (path == kWindowWide && !WideWindowKernelAvailable()) {
-    state.SetLabel(std::string(FillName(w.m.fill)) + ", no AVX-512 here: portable kernel");
+  if (path != kTiles && !WindowKernelAvailable(kernel)) {
+    state.SetLabel(std::string(FillName(w.m.fill)) + (path == kWindowAvx2 ? ", no AVX2" : ", no AVX-512") +
+                   " here: portable kernel");
   }
 }
 BENCHMARK(BM_MatchingRayWindow)
     ->ArgNames({"fill", "length_cm", "path", "engine"})
-    ->ArgsProduct({{kRoom, kMapped}, {30, 75, 150}, {kTiles, kWindowPortable, kWindowWide}, {0, 1}});
+    ->ArgsProduct({{kRoom, kMapped}, {30, 75, 150}, {kTiles, kWindowPortable, kWindowAvx512, kWindowAvx2}, {0, 1}});
 
 // Update rays with the long sensor's profile for a reading at range(1) cm, on a map of fill
 // range(0) (the map keeps changing: cells saturate at the clamp, as in a long run).

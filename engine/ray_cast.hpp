@@ -182,20 +182,23 @@ class MatchWindow {
   std::vector<uint8_t> squares_;
 };
 
-/// How CastToObstacles casts the rays a MatchWindow covers; the answers are the same.
+/// How CastToObstacles casts the rays a MatchWindow covers; the answers are the same, bit for bit.
 enum class WindowKernel {
-  kBest,      // kWide where the processor has it, else kPortable
+  kBest,      // the fastest this processor runs: kAvx512, else kAvx2, else kPortable (the
+              // environment variable SLAM_RAY_KERNEL=portable|avx2 caps it)
   kPortable,  // two rays in flight (any processor)
-  kWide,      // eight rays per instruction (x86-64 with AVX-512F and VL); kPortable elsewhere
+  kAvx2,      // four rays per instruction (x86-64 with AVX2)
+  kAvx512,    // eight rays per instruction (x86-64 with AVX-512F/VL and BMI2)
 };
 
-/// Whether this build and this processor run WindowKernel::kWide.
-bool WideWindowKernelAvailable();
-/// What WindowKernel::kBest runs here, as tools report it: "avx512" or "portable".
+/// Whether this build and this processor run `kernel` (kBest and kPortable always).
+bool WindowKernelAvailable(WindowKernel kernel);
+/// What WindowKernel::kBest runs here, as tools report it: "avx512", "avx2" or "portable".
 const char* BestWindowKernelName();
 
 /// CastToObstacles(window.grid(), rays, window.occupied_above(), hits), the same answers, with
-/// the rays the window covers cast through its free squares by `kernel`.
+/// the rays the window covers cast through its free squares by `kernel` (kPortable where this
+/// processor lacks it).
 void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits,
                      WindowKernel kernel = WindowKernel::kBest);
 

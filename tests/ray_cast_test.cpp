@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <set>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -390,14 +392,18 @@ TEST(MatchWindow, FreeSquaresAreTheLargestInEachQuadrant) {
 
 // Rays through a window around the origin: those it covers through its field, the others
 // through the grid; all as the plain traversal finds them.
-// The kernels a test runs: the portable one always, the wide one where this processor has it.
+// The kernels a test runs: the portable one always, the others where this processor has them.
 std::vector<WindowKernel> KernelsHere() {
   std::vector<WindowKernel> kernels{WindowKernel::kPortable};
-  if (WideWindowKernelAvailable()) kernels.push_back(WindowKernel::kWide);
+  for (const WindowKernel k : {WindowKernel::kAvx2, WindowKernel::kAvx512}) {
+    if (WindowKernelAvailable(k)) kernels.push_back(k);
+  }
   return kernels;
 }
 
-const char* KernelName(WindowKernel kernel) { return kernel == WindowKernel::kWide ? "wide" : "portable"; }
+const char* KernelName(WindowKernel kernel) {
+  return kernel == WindowKernel::kAvx512 ? "avx512" : kernel == WindowKernel::kAvx2 ? "avx2" : "portable";
+}
 
 // Rays through a window around the origin: those it covers through its field, the others
 // through the grid; all as the plain traversal finds them, with each kernel.
@@ -442,11 +448,13 @@ TEST(MatchWindow, FindsWhatThePlainTraversalFinds) {
   }
 }
 
-// The wide kernel gives the portable one's answers bit for bit (distances, cells and jumps
-// counted) on batches of every size around its eight lanes, with rays from cell corners and
-// edges, along the axes and diagonals, of zero and tiny length, and leaving the window.
-TEST(MatchWindow, WideKernelGivesThePortableAnswersBitForBit) {
-  if (!WideWindowKernelAvailable()) GTEST_SKIP() << "this processor has no AVX-512F/VL: only the portable kernel runs";
+// The wide kernels give the portable one's answers bit for bit (distances, cells and jumps
+// counted) on batches of every size around their four and eight lanes, with rays from cell
+// corners and edges, along the axes and diagonals, of tiny length, and leaving the window.
+class WideKernel : public ::testing::TestWithParam<WindowKernel> {};
+
+TEST_P(WideKernel, GivesThePortableAnswersBitForBit) {
+  if (!WindowKernelAvailable(GetParam())) GTEST_SKIP() << "this processor cannot run the " << KernelName(GetParam()) << " kernel";
   OccupancyGrid grid = RandomMap(37, 0.01);
   grid.RefreshSummaries();
   const MatchWindow window(grid, 0, {-180, -220}, {209, 139});
@@ -464,7 +472,7 @@ TEST(MatchWindow, WideKernelGivesThePortableAnswersBitForBit) {
   for (const RayQuery& q : all) covered += window.Covers(q) ? size_t{1} : size_t{0};
   EXPECT_GT(covered, all.size() / 4);
   EXPECT_LT(covered, all.size());
-  // Batches of 0 to 17 rays (every way of filling and draining eight lanes), then one of all.
+  // Batches of 0 to 17 rays (every way of filling and draining the lanes), then one of all.
   size_t begin = 0;
   std::vector<std::vector<RayQuery>> batches;
   for (size_t size = 0; begin + size <= all.size() && batches.size() < 600; ++size) {
@@ -476,7 +484,7 @@ TEST(MatchWindow, WideKernelGivesThePortableAnswersBitForBit) {
   for (const std::vector<RayQuery>& batch : batches) {
     std::vector<RayHit> portable, wide(5, RayHit{});  // resized by the call
     CastToObstacles(window, batch, portable, WindowKernel::kPortable);
-    CastToObstacles(window, batch, wide, WindowKernel::kWide);
+    CastToObstacles(window, batch, wide, GetParam());
     ASSERT_EQ(wide.size(), batch.size());
     for (size_t i = 0; i < batch.size(); ++i) {
       ASSERT_EQ(wide[i].hit, portable[i].hit) << "ray " << i << " of " << batch.size();
@@ -486,6 +494,22 @@ TEST(MatchWindow, WideKernelGivesThePortableAnswersBitForBit) {
       ASSERT_EQ(wide[i].jumps, portable[i].jumps) << "ray " << i << " of " << batch.size();
     }
   }
+}
+
+INSTANTIATE_TEST_SUITE_P(Kernels, WideKernel, ::testing::Values(WindowKernel::kAvx2, WindowKernel::kAvx512),
+                         [](const ::testing::TestParamInfo<WindowKernel>& kernel) {
+                           return std::string(KernelName(kernel.param));
+                         });
+
+// kBest runs the fastest kernel this processor has, and says which.
+TEST(WindowKernel, BestIsTheFastestAvailable) {
+  if (std::getenv("SLAM_RAY_KERNEL") != nullptr) GTEST_SKIP() << "SLAM_RAY_KERNEL caps the kernel (replay_test checks it)";
+  const std::string best = BestWindowKernelName();
+  EXPECT_EQ(best, WindowKernelAvailable(WindowKernel::kAvx512) ? "avx512"
+                  : WindowKernelAvailable(WindowKernel::kAvx2) ? "avx2"
+                                                               : "portable");
+  EXPECT_TRUE(WindowKernelAvailable(WindowKernel::kBest));
+  EXPECT_TRUE(WindowKernelAvailable(WindowKernel::kPortable));
 }
 
 TEST(ApplyUpdateRay, AddsTheProfileByDistance) {

@@ -189,7 +189,8 @@ TEST_F(ReplayTest, SummaryHasTheContractKeysAndMapQuality) {
     EXPECT_TRUE(summary[key].is_number()) << key;
   }
   EXPECT_EQ(summary["budget"], 8125);
-  EXPECT_EQ(summary.value("ray_kernel", ""), WideWindowKernelAvailable() ? "avx512" : "portable");
+  EXPECT_EQ(summary.value("ray_kernel", ""), BestWindowKernelName());
+  EXPECT_NE(summary.value("ray_kernel", ""), "");
   EXPECT_EQ(summary["frames"], Box().counters.frames);
   EXPECT_EQ(summary["frames_rejected"], 0);
   EXPECT_DOUBLE_EQ(summary["e"].get<double>(), std::log(1.0 - summary["q"].get<double>()));
@@ -321,6 +322,35 @@ CommandResult RunCommand(const std::string& command, const fs::path& scratch) {
   result.out = testing::ReadFile(out);
   result.err = testing::ReadFile(err);
   return result;
+}
+
+// SLAM_RAY_KERNEL caps the ray kernel, slam-replay says which one ran, and the replay's answers
+// (trajectory, quality, counters: everything but the timings) are the same with every kernel.
+TEST_F(ReplayTest, EveryRayKernelGivesTheSameReplay) {
+  const fs::path scratch = root_ / "kernels";
+  fs::create_directories(scratch);
+  const std::string replay = std::string(SLAM_REPLAY_BIN) + " " + (root_ / "rooms").string() + " --budget 65000 --quiet";
+  std::vector<std::pair<std::string, Json>> runs;
+  for (const std::string kernel : {"", "portable", "avx2"}) {
+    const std::string env = kernel.empty() ? "env -u SLAM_RAY_KERNEL " : "env SLAM_RAY_KERNEL=" + kernel + " ";
+    const CommandResult run = RunCommand(env + replay, scratch);
+    ASSERT_EQ(run.status, 0) << run.err;
+    runs.emplace_back(kernel, Json::parse(run.out));
+  }
+  EXPECT_EQ(runs[0].second.value("ray_kernel", ""), WindowKernelAvailable(WindowKernel::kAvx512) ? "avx512"
+                                                    : WindowKernelAvailable(WindowKernel::kAvx2)   ? "avx2"
+                                                                                                   : "portable");
+  EXPECT_EQ(runs[1].second.value("ray_kernel", ""), "portable");
+  EXPECT_EQ(runs[2].second.value("ray_kernel", ""),
+            WindowKernelAvailable(WindowKernel::kAvx2) ? "avx2" : "portable");
+  EXPECT_GT(runs[0].second.value("rays_total", 0), 0);
+  for (auto& [kernel, summary] : runs) {
+    for (const char* timing : {"wall_s", "cpu_s", "cpu_ms_per_scan", "realtime_factor", "ns_per_ray", "ray_kernel"}) {
+      summary.erase(timing);
+    }
+  }
+  EXPECT_EQ(runs[1].second, runs[0].second);
+  EXPECT_EQ(runs[2].second, runs[0].second);
 }
 
 TEST_F(ReplayTest, CommandLineReplaysAndReportsBadExperiments) {

@@ -971,7 +971,7 @@ TEST_F(SharedSlamd, StatusHasTheDocumentedShape) {
   EXPECT_TRUE(status.contains("job"));
   EXPECT_TRUE(status["job"].is_null());
   // How matching rays are cast on this processor (replay_test checks which one).
-  const std::set<std::string> kernels = {"avx512", "portable"};
+  const std::set<std::string> kernels = {"avx512", "avx2", "portable"};
   EXPECT_TRUE(kernels.count(status["features"].value("ray_kernel", "?"))) << status["features"].dump();
 }
 
