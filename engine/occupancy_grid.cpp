@@ -96,19 +96,38 @@ uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows) {
   return mask;
 }
 
-void RelaxRow(uint8_t* row, uint8_t* scratch, size_t width, bool from_below, bool from_above) {
+void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above, std::vector<uint8_t>& scratch) {
   // Doubling the offset (1, 2, ..., 64) instead of one sequential scan each way: the same
-  // minimum, in loops without a carried dependency (they vectorise).
-  for (size_t s = 1; s < width && s <= 64; s <<= 1) {
-    std::copy(row, row + width, scratch);
-    const auto step = static_cast<uint8_t>(s);
-    if (from_below) {
-      for (size_t x = s; x < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x - s] + step));
-    }
-    if (from_above) {
-      for (size_t x = 0; x + s < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x + s] + step));
-    }
+  // minimum, in loops without a carried dependency. Each pass reads one copy of the row and
+  // writes the other; the copies are padded with far cells on both sides, which never lower a
+  // value (row values are <= kClearanceFar, so a padded value plus 64 still fits a byte), so
+  // every pass is one uniform loop over the row (they vectorise).
+  constexpr size_t kPad = 64;  // the farthest offset a pass reads
+  const size_t stride = width + 2 * kPad;
+  if (scratch.size() < 2 * stride) scratch.resize(2 * stride);
+  uint8_t* src = scratch.data() + kPad;
+  uint8_t* dst = src + stride;
+  for (uint8_t* copy : {src, dst}) {
+    std::fill(copy - kPad, copy, kClearanceFar);
+    std::fill(copy + width, copy + width + kPad, kClearanceFar);
   }
+  std::copy(row, row + width, src);
+  for (size_t s = 1; s < width && s <= kPad; s <<= 1) {
+    const auto step = static_cast<uint8_t>(s);
+    if (from_below && from_above) {
+      for (size_t x = 0; x < width; ++x) {
+        dst[x] = std::min(src[x], static_cast<uint8_t>(std::min(src[x - s], src[x + s]) + step));
+      }
+    } else if (from_below) {
+      for (size_t x = 0; x < width; ++x) dst[x] = std::min(src[x], static_cast<uint8_t>(src[x - s] + step));
+    } else if (from_above) {
+      for (size_t x = 0; x < width; ++x) dst[x] = std::min(src[x], static_cast<uint8_t>(src[x + s] + step));
+    } else {
+      break;
+    }
+    std::swap(src, dst);
+  }
+  std::copy(src, src + width, row);
 }
 
 namespace {
@@ -132,14 +151,14 @@ void ChessboardDistance(uint8_t* d, int width, int height) {
   // scans, since every path it adds is also a valid chessboard path.
   if (width <= 0 || height <= 0) return;
   const auto w = static_cast<size_t>(width), h = static_cast<size_t>(height);
-  std::vector<uint8_t> scratch(w);
+  std::vector<uint8_t> near(w), scratch;
   for (size_t y = 0; y < h; ++y) {
-    if (y > 0) RelaxFromRow(d + y * w, d + (y - 1) * w, scratch.data(), w);
-    RelaxRow(d + y * w, scratch.data(), w, true, true);
+    if (y > 0) RelaxFromRow(d + y * w, d + (y - 1) * w, near.data(), w);
+    RelaxRow(d + y * w, w, true, true, scratch);
   }
   for (size_t y = h - 1; y-- > 0;) {
-    RelaxFromRow(d + y * w, d + (y + 1) * w, scratch.data(), w);
-    RelaxRow(d + y * w, scratch.data(), w, true, true);
+    RelaxFromRow(d + y * w, d + (y + 1) * w, near.data(), w);
+    RelaxRow(d + y * w, w, true, true, scratch);
   }
 }
 

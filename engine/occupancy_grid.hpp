@@ -67,9 +67,10 @@ std::array<uint64_t, kTileSize> ComputeOccupiedRows(const Tile& tile);
 uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows);
 /// In place on a row of `width` bytes no greater than kClearanceFar: row[x] = min over j of
 /// row[j] + |x - j|, over the j below x (from_below), above x (from_above) or both, for
-/// |x - j| < 128 (a farther j never lowers a value). `scratch` holds `width` bytes. Shared by
-/// the tiles' clearance and the MatchWindow's free squares.
-void RelaxRow(uint8_t* row, uint8_t* scratch, size_t width, bool from_below, bool from_above);
+/// |x - j| < 128 (a farther j never lowers a value). `scratch` is working memory, grown as
+/// needed (keep it across calls). Shared by the tiles' clearance and the MatchWindow's free
+/// squares.
+void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above, std::vector<uint8_t>& scratch);
 /// The chessboard distance of every cell to the nearest of those cells (kClearanceFar when
 /// there is none), see Tile::clearance.
 void ComputeClearance(const std::array<uint64_t, kTileSize>& rows, std::array<uint8_t, kTileCells>& clearance);

@@ -370,7 +370,7 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
   // there). Along the row, as the minimum of a + j over the cells j further (a the value
   // from the next row alone, 0 where occupied).
   squares_.assign(4 * w * h + kFreeSquaresPadding, kClearanceFar);
-  std::vector<uint8_t> scratch(w);
+  std::vector<uint8_t> scratch;
   for (size_t quadrant = 0; quadrant < 4; ++quadrant) {
     const bool back_x = (quadrant & 1) != 0, back_y = (quadrant & 2) != 0;
     uint8_t* q = squares_.data() + quadrant * w * h;
@@ -392,7 +392,7 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
         }
         for (size_t x = 0; x < w; ++x) row[x] = occupancy[x] == 0 ? uint8_t{0} : static_cast<uint8_t>(row[x] + 1);
       }
-      RelaxRow(row, scratch.data(), w, back_x, !back_x);  // from the far side only
+      RelaxRow(row, w, back_x, !back_x, scratch);  // from the far side only
     }
   }
 }
