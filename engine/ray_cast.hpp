@@ -149,8 +149,12 @@ class MatchWindow {
   /// `occupied_above` (any threshold: unknown cells, 0, count as occupied below 0).
   MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, CellIndex lo, CellIndex hi);
 
-  /// Whether a ray runs inside the window from start to end (else it is cast through the grid).
+  /// Whether a ray runs inside the window from start to end (else it is cast through the grid):
+  /// a positive, finite range, and both ends at least kCoverMargin cells inside its edges.
   bool Covers(const RayQuery& ray) const;
+  /// The cells a ray crosses lie between the cells of its ends, and the traversal may step one
+  /// cell beyond (a crossing within its corner tolerance of the end): hence two cells.
+  static constexpr double kCoverMargin = 2.0;
   /// The side of the largest square of free cells [x, x + k) x [y, y + k), with x growing
   /// towards -x when back_x (cells x - k + 1 .. x) and y likewise, capped at kClearanceFar;
   /// cells beyond the window count as free. 0 on a cell above the threshold. Precondition:
