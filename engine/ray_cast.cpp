@@ -113,7 +113,6 @@ class TileField {
   LogOdds occupied_above_;
 };
 
-
 /// A MatchWindow's free squares in the ray's quadrant: across tile edges, exact for its
 /// threshold, one byte read per step. Only for rays the window covers.
 class WindowField {
@@ -387,10 +386,9 @@ bool MatchWindow::Covers(const RayQuery& q) const {
   if (!(q.max_range_m > 0) || !std::isfinite(q.max_range_m)) return false;
   const GridGeometry& geometry = grid_->geometry();
   const Vec2 a = geometry.ToGrid(q.origin), b = geometry.ToGrid(q.origin + q.direction * q.max_range_m);
-  const double margin = kCoverMargin;
+  const std::array<double, 4> box = CoverBox();
   const auto inside = [&](const Vec2& p) {
-    return p.x() >= static_cast<double>(x0_) + margin && p.y() >= static_cast<double>(y0_) + margin &&
-           p.x() <= static_cast<double>(x0_ + width_) - margin && p.y() <= static_cast<double>(y0_ + height_) - margin;
+    return p.x() >= box[0] && p.y() >= box[1] && p.x() <= box[2] && p.y() <= box[3];
   };
   return inside(a) && inside(b);
 }

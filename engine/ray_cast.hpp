@@ -8,6 +8,7 @@
 //    (cells are half-open, [i*r, (i+1)*r));
 //  - cells crossed over zero length (a ray starting on a boundary and leaving it) are not visited.
 
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -155,6 +156,12 @@ class MatchWindow {
   /// The cells a ray crosses lie between the cells of its ends, and the traversal may step one
   /// cell beyond (a crossing within its corner tolerance of the end): hence two cells.
   static constexpr double kCoverMargin = 2.0;
+  /// Where both ends of a ray the window covers lie, in grid coordinates (cells): kCoverMargin
+  /// inside its edges, as {x_min, y_min, x_max, y_max} (inclusive).
+  std::array<double, 4> CoverBox() const {
+    return {static_cast<double>(x0_) + kCoverMargin, static_cast<double>(y0_) + kCoverMargin,
+            static_cast<double>(x0_ + width_) - kCoverMargin, static_cast<double>(y0_ + height_) - kCoverMargin};
+  }
   /// The side of the largest square of free cells [x, x + k) x [y, y + k), with x growing
   /// towards -x when back_x (cells x - k + 1 .. x) and y likewise, capped at kClearanceFar;
   /// cells beyond the window count as free. 0 on a cell above the threshold. Precondition:

@@ -1,6 +1,7 @@
 #include "engine/ray_cast_wide.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <limits>
 #include <vector>
@@ -256,14 +257,10 @@ SLAM_WIDE_TARGET void CastEight(const MatchWindow& window, const std::vector<Ray
   CopyQueries(rays, in);
   const __m512d inv = _mm512_set1_pd(1.0 / geometry.resolution());
   const __m512d res = _mm512_set1_pd(geometry.resolution());
-  const __m512d margin = _mm512_set1_pd(MatchWindow::kCoverMargin);
+  const std::array<double, 4> box = window.CoverBox();
   const CellIndex lo = window.lo();
-  const __m512d x_min = _mm512_add_pd(_mm512_set1_pd(static_cast<double>(lo.x)), margin);
-  const __m512d y_min = _mm512_add_pd(_mm512_set1_pd(static_cast<double>(lo.y)), margin);
-  const __m512d x_max =
-      _mm512_sub_pd(_mm512_set1_pd(static_cast<double>(lo.x + window.width())), margin);
-  const __m512d y_max =
-      _mm512_sub_pd(_mm512_set1_pd(static_cast<double>(lo.y + window.height())), margin);
+  const __m512d x_min = _mm512_set1_pd(box[0]), y_min = _mm512_set1_pd(box[1]);
+  const __m512d x_max = _mm512_set1_pd(box[2]), y_max = _mm512_set1_pd(box[3]);
   const __m512d infinity = _mm512_set1_pd(std::numeric_limits<double>::infinity());
   const __m256i width = _mm256_set1_epi32(static_cast<int32_t>(window.width()));
   const __m256i cells_per_quadrant = _mm256_set1_epi32(static_cast<int32_t>(window.cells()));
@@ -451,14 +448,10 @@ SLAM_AVX2_TARGET size_t StartAvx2(const MatchWindow& window, const std::vector<R
   const __m128i one_i = _mm_set1_epi32(1);
   const __m256d inv = _mm256_set1_pd(1.0 / geometry.resolution()),
                 res = _mm256_set1_pd(geometry.resolution());
-  const __m256d margin = _mm256_set1_pd(MatchWindow::kCoverMargin);
+  const std::array<double, 4> box = window.CoverBox();
   const CellIndex lo = window.lo();
-  const __m256d x_min = _mm256_add_pd(_mm256_set1_pd(static_cast<double>(lo.x)), margin);
-  const __m256d y_min = _mm256_add_pd(_mm256_set1_pd(static_cast<double>(lo.y)), margin);
-  const __m256d x_max =
-      _mm256_sub_pd(_mm256_set1_pd(static_cast<double>(lo.x + window.width())), margin);
-  const __m256d y_max =
-      _mm256_sub_pd(_mm256_set1_pd(static_cast<double>(lo.y + window.height())), margin);
+  const __m256d x_min = _mm256_set1_pd(box[0]), y_min = _mm256_set1_pd(box[1]);
+  const __m256d x_max = _mm256_set1_pd(box[2]), y_max = _mm256_set1_pd(box[3]);
   const __m256d infinity = _mm256_set1_pd(std::numeric_limits<double>::infinity());
   const __m128i width = _mm_set1_epi32(static_cast<int32_t>(window.width()));
   const __m128i cells_per_quadrant = _mm_set1_epi32(static_cast<int32_t>(window.cells()));
