@@ -27,6 +27,13 @@ constexpr size_t kReadChunk = 64 * 1024;     // bytes read from the file at a ti
 constexpr size_t kMaxLineBytes = 64 * 1024;  // longer lines are bad lines, not memory
 constexpr size_t kKeptErrors = 5;            // first bad lines kept for Describe()
 constexpr double kMaxOffsetNs = 1e18;        // paced: ~30 years, keeps the cast defined
+// candump stamps frames with the wall clock, which NTP or a user can step. A step back, or a
+// silence longer than kMaxGapUs (the marXbot's bus is never quiet that long while logging), is
+// a clock jump: the replay's time goes on kJumpGapUs after the previous frame instead, a silence
+// the scan assembler sees as one (it abandons the scan in progress) rather than an hour to wait
+// through or a stretch of frames out of order.
+constexpr int64_t kMaxGapUs = 5'000'000;
+constexpr int64_t kJumpGapUs = 1'000'000;
 
 // Splits a file into lines ('\n'-terminated; the last line may lack it), reading it in chunks.
 class LineReader {
@@ -121,7 +128,8 @@ class CandumpReplay final : public FrameSource {
             {"frames", frames_},
             {"ignored_lines", ignored_},
             {"bad_lines", bad_},
-            {"first_bad_line", first_bad_line_}};
+            {"first_bad_line", first_bad_line_},
+            {"clock_jumps", clock_jumps_}};
   }
 
  private:
@@ -155,15 +163,29 @@ class CandumpReplay final : public FrameSource {
         case CandumpLineKind::kFrame: {
           ++frames_;
           Pending pending;
-          pending.time_us = parsed.time_us;
+          pending.time_us = Continuous(parsed.time_us);
           pending.frame.frame = parsed.frame;
-          pending.frame.t = static_cast<double>(parsed.time_us) * 1e-6;
-          pending.frame.source_t = pending.frame.t;
+          pending.frame.t = static_cast<double>(pending.time_us) * 1e-6;
+          pending.frame.source_t = static_cast<double>(parsed.time_us) * 1e-6;  // as logged
           return pending;
         }
       }
     }
     return std::nullopt;
+  }
+
+  // The log's time with clock jumps taken out (see kMaxGapUs).
+  // Each frame moves time on by at most kMaxGapUs, so it cannot overflow in any real log.
+  int64_t Continuous(int64_t logged_us) {
+    int64_t out_us = logged_us;
+    if (last_logged_us_) {
+      const int64_t step = logged_us - *last_logged_us_;  // both >= 0: cannot overflow
+      if (step < 0 || step > kMaxGapUs) ++clock_jumps_;
+      out_us = last_out_us_ + (step < 0 || step > kMaxGapUs ? kJumpGapUs : step);
+    }
+    last_logged_us_ = logged_us;
+    last_out_us_ = out_us;
+    return out_us;
   }
 
   void NoteBadLine(const std::string& reason) {
@@ -250,6 +272,9 @@ class CandumpReplay final : public FrameSource {
   uint64_t bad_ = 0;
   uint64_t first_bad_line_ = 0;  // 1-based; 0 = none
   std::vector<std::string> errors_;
+  std::optional<int64_t> last_logged_us_;
+  int64_t last_out_us_ = 0;  // the previous frame's time with the jumps taken out
+  uint64_t clock_jumps_ = 0;
   // Paced replay only.
   bool started_ = false;
   int64_t replay_start_ns_ = 0;

@@ -19,7 +19,8 @@ struct CandumpReplayOptions {
   double speed = 1.0;  // with paced: 2.0 plays twice as fast as recorded
 };
 
-/// Replays a candump -l log. Frame times are the log's. Garbage lines are counted and skipped
+/// Replays a candump -l log. Frame times are the log's, with wall-clock jumps (a step back, or more
+/// than 5 s of silence) taken out and counted ("clock_jumps"). Garbage lines are counted and skipped
 /// ("bad_lines"), comments counted ("ignored_lines"); the end of the file is kEnd.
 OpenResult OpenCandumpReplay(const std::string& path, const CandumpReplayOptions& options = {});
 

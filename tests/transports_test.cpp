@@ -276,7 +276,7 @@ TEST(CandumpReplayTest, PacedReadNeverWaitsLongerThanItsTimeout) {
   TempDir dir;
   const std::string path = dir.File("slow.log");
   WriteFile(path, FormatCandumpLine(kLogStartUs, "can0", frame) + "\n" +
-                      FormatCandumpLine(kLogStartUs + 10'000'000, "can0", frame) + "\n");
+                      FormatCandumpLine(kLogStartUs + 4'000'000, "can0", frame) + "\n");
   auto source = Unwrap(OpenCandumpReplay(path, CandumpReplayOptions{.paced = true}));
   ASSERT_NE(source, nullptr);
   std::vector<TimedFrame> frames;
@@ -284,8 +284,65 @@ TEST(CandumpReplayTest, PacedReadNeverWaitsLongerThanItsTimeout) {
   EXPECT_EQ(frames.size(), 1u);  // the first frame at once
   const auto start = std::chrono::steady_clock::now();
   EXPECT_EQ(source->Read(frames, milliseconds(20)).status, ReadStatus::kOk);
-  EXPECT_EQ(frames.size(), 1u);  // the second is due in 10 s
+  EXPECT_EQ(frames.size(), 1u);  // the second is due in 4 s
   EXPECT_LT(std::chrono::steady_clock::now() - start, milliseconds(500));
+}
+
+TEST(CandumpReplayTest, ClockJumpsAreTakenOutOfTheTimelineAndCounted) {
+  // candump stamps frames with the wall clock: a log recorded while NTP stepped the clock back
+  // 30 s, then while the machine's clock was set an hour ahead.
+  CanFrame frame;
+  frame.id = 0x304;
+  frame.len = 1;
+  std::vector<int64_t> logged;
+  for (int i = 0; i < 50; ++i) logged.push_back(kLogStartUs + i * 10'000);
+  const int64_t back = logged.back() - 30'000'000;
+  for (int i = 0; i < 50; ++i) logged.push_back(back + i * 10'000);
+  const int64_t ahead = logged.back() + 3'600'000'000;
+  for (int i = 0; i < 50; ++i) logged.push_back(ahead + i * 10'000);
+  // A silence of 4 s is kept as it is (the robot may have been switched off and on).
+  const int64_t pause = logged.back() + 4'000'000;
+  for (int i = 0; i < 50; ++i) logged.push_back(pause + i * 10'000);
+  std::string text;
+  for (const int64_t t : logged) text += FormatCandumpLine(t, "can0", frame) + "\n";
+  TempDir dir;
+  const std::string path = dir.File("jumps.log");
+  WriteFile(path, text);
+
+  auto unpaced = Unwrap(OpenCandumpReplay(path));
+  ASSERT_NE(unpaced, nullptr);
+  const std::vector<TimedFrame> frames = ReadToEnd(*unpaced, milliseconds(20));
+  ASSERT_EQ(frames.size(), logged.size());
+  std::vector<double> steps;
+  for (size_t i = 1; i < frames.size(); ++i) {
+    steps.push_back(frames[i].t - frames[i - 1].t);
+    ASSERT_TRUE(frames[i].source_t.has_value());
+    EXPECT_DOUBLE_EQ(*frames[i].source_t, static_cast<double>(logged[i]) * 1e-6);  // as logged
+  }
+  EXPECT_NEAR(frames.front().t, static_cast<double>(kLogStartUs) * 1e-6, 1e-6);
+  for (size_t i = 0; i < steps.size(); ++i) {
+    // Each jump becomes one second of silence; every other step is the log's own.
+    const double expected = (i == 49 || i == 99) ? 1.0 : (i == 149 ? 4.0 : 0.01);
+    EXPECT_NEAR(steps[i], expected, 1e-6) << "step " << i;
+  }
+  const auto counters = unpaced->Counters();
+  const auto jumps = std::find_if(counters.begin(), counters.end(),
+                                  [](const auto& c) { return c.first == "clock_jumps"; });
+  ASSERT_NE(jumps, counters.end());
+  EXPECT_EQ(jumps->second, 2u);
+
+  // Paced at 100x: the hour ahead costs 10 ms, not 36 s, and the step back no burst.
+  auto paced = Unwrap(OpenCandumpReplay(path, CandumpReplayOptions{.paced = true, .speed = 100.0}));
+  ASSERT_NE(paced, nullptr);
+  const auto start = std::chrono::steady_clock::now();
+  const std::vector<TimedFrame> replayed = ReadToEnd(*paced, milliseconds(20));
+  const double elapsed =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_EQ(replayed.size(), logged.size());
+  EXPECT_GT(elapsed, 0.07);  // (1.5 + 2 + 4) s of log at 100x: 75 ms
+  EXPECT_LT(elapsed, 2.0);
+  // Released after the previous frame's due time plus the jump's second (at 100x: 10 ms).
+  EXPECT_GE(replayed[50].receive_ns - replayed[49].receive_ns, 9'000'000);
 }
 
 // --------------------------------------------------------------------------------------------
