@@ -122,6 +122,7 @@ void Link::Start() {
     return;
   }
   state_.store(LinkState::kRunning);
+  status_.started_ns = SteadyNowNs();
   thread_ = std::thread(&Link::Run, this);
 }
 
@@ -140,6 +141,7 @@ LinkStatus Link::Status() const {
   LinkStatus status = status_;
   status.state = state_.load();
   status.queue_size = queue_.size();
+  status.status_ns = SteadyNowNs();
   return status;
 }
 
@@ -174,6 +176,7 @@ void Link::Run() {
     if (outcome.status == ReadStatus::kError) next = LinkState::kSourceError;
     {
       std::lock_guard<std::mutex> lock(status_mutex_);
+      if (!frames.empty()) status_.last_frame_ns = SteadyNowNs();
       status_.frames = frame_count;
       status_.reassembly = decoder_.reassembly();
       status_.decoder = decoder_.decoder();

@@ -28,6 +28,10 @@ struct LinkEvent {
   int64_t receive_ns = 0;  // steady clock
 };
 
+/// How long without a frame before a running link is reported silent (the marXbot sends tens of
+/// frames a second; a live source that says nothing for this long has lost the robot).
+inline constexpr double kLinkSilentAfterS = 1.0;
+
 struct LinkOptions {
   size_t queue_capacity = 1024;                       // events (about 9 s of robot traffic)
   std::chrono::milliseconds read_timeout{50};         // how often the thread checks for stop
@@ -46,12 +50,27 @@ struct LinkStatus {
   std::string last_error;  // the latest source error, empty if none
   uint64_t source_errors = 0;
   uint64_t frames = 0;
+  int64_t started_ns = 0;     // steady clock when the link started; 0: not started
+  int64_t last_frame_ns = 0;  // steady clock when the latest frame was read; 0: none yet
+  int64_t status_ns = 0;      // steady clock when this copy was taken
   ReassemblyCounters reassembly;
   DecoderCounters decoder;
   uint64_t events_queued = 0;  // pushed into the queue
   uint64_t queue_drops = 0;    // dropped because the queue was full
   uint64_t queue_size = 0;     // waiting now
   SourceCounters source_counters;
+
+  /// Seconds without a frame as of this copy: since the latest frame, or since the start if
+  /// none came; 0 before the start.
+  double SecondsWithoutFrames() const {
+    if (started_ns == 0) return 0.0;
+    const int64_t since = last_frame_ns != 0 ? last_frame_ns : started_ns;
+    return status_ns > since ? static_cast<double>(status_ns - since) * 1e-9 : 0.0;
+  }
+  /// Running, but nothing heard for kLinkSilentAfterS: the robot or its transport went quiet.
+  bool Silent() const {
+    return state == LinkState::kRunning && SecondsWithoutFrames() >= kLinkSilentAfterS;
+  }
 };
 
 /// A bounded single-producer single-consumer queue of events; TryPush never blocks.

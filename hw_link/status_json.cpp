@@ -12,6 +12,8 @@ nlohmann::json LinkStatusToJson(const LinkStatus& s) {
           {"last_error", s.last_error},
           {"source_errors", s.source_errors},
           {"frames", s.frames},
+          {"silent", s.Silent()},
+          {"seconds_without_frames", s.SecondsWithoutFrames()},
           {"frames_rejected", r.Rejected() + d.Rejected()},
           {"events_queued", s.events_queued},
           {"queue_drops", s.queue_drops},

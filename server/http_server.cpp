@@ -710,6 +710,11 @@ std::string HttpServer::Impl::MetricsText() {
   metric("map_version", "gauge", "Largest tile version.", snapshot->map_version);
   metric("link_up", "gauge", "1 when the link is reading its source.",
          l.state == hw::LinkState::kRunning ? 1 : 0);
+  metric("link_silent", "gauge",
+         "1 when the link is running but has read no frame for a second (robot or transport quiet).",
+         l.Silent() ? 1 : 0);
+  metric("link_seconds_without_frames", "gauge", "Seconds since the latest CAN frame.",
+         l.SecondsWithoutFrames());
   metric("link_frames_total", "counter", "CAN frames read from the source.", l.frames);
   metric("link_frames_rejected_total", "counter", "Frames dropped by reassembly or decoding.",
          l.reassembly.Rejected() + l.decoder.Rejected());

@@ -66,6 +66,10 @@ TEST_F(SharedSlamd, StatusHasTheDocumentedShape) {
     EXPECT_TRUE(link[key].is_number_integer()) << key << " in " << link.dump();
   }
   EXPECT_GT(link.value("frames", 0), 0);
+  // The virtual marXbot talks all the time: never silent, frames a moment ago.
+  EXPECT_EQ(link.value("silent", true), false) << link.dump();
+  EXPECT_TRUE(link["seconds_without_frames"].is_number()) << link.dump();
+  EXPECT_LT(link.value("seconds_without_frames", 99.0), 0.5) << link.dump();
   for (const char* key : {"reassembly", "decoder", "source_counters"}) {
     EXPECT_TRUE(link[key].is_object()) << key << " in " << link.dump();
   }
@@ -706,6 +710,8 @@ TEST_F(SharedSlamd, MetricsAreTextFormatWithEveryDocumentedName) {
                            "link_source_errors_total",
                            "link_frames_rejected_total",
                            "link_up",
+                           "link_silent",
+                           "link_seconds_without_frames",
                            "http_requests_total",
                            "event_stream_clients",
                            "event_streams_rejected_total",

@@ -123,7 +123,7 @@ function setBadge(element, state, good, bad) {
 }
 
 function setLinkState(state) {
-  setBadge($('st-link'), state, ['running'], ['source_error', 'stopped']);
+  setBadge($('st-link'), state, ['running'], ['source_error', 'stopped', 'silent']);
 }
 
 function setSlamState(state) {
@@ -135,7 +135,8 @@ function showStatus(status) {
   $('st-source').textContent = `${source.spec ?? '–'}${source.simulated ? ' (simulated)' : ''}`;
   $('st-source').title = source.description ?? '';
   $('source-label').textContent = source.spec ?? '';
-  setLinkState(link.state);
+  // A running link that hears nothing is shown as silent (the robot or its transport is quiet).
+  setLinkState(link.silent ? 'silent' : link.state);
   $('st-frames').textContent = number(link.frames);
   $('st-drops').textContent = number(link.queue_drops);
   $('st-errors').textContent = number(link.source_errors);
