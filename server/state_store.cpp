@@ -181,12 +181,16 @@ std::optional<std::string> SaveState(const std::string& dir, const SaveInputs& i
   }
   if (auto e = io::WriteFileAtomic((base / "trajectory.tum").string(), tum)) return e;
 
-  // Older versioned files are no longer named by state.json.
+  // Older versioned files are no longer named by state.json; temporaries (".tmp-PID-N") are
+  // what a save killed in the middle left behind (saves are one at a time: none is in flight).
   for (const auto& entry : fs::directory_iterator(base, ec)) {
     const std::string name = entry.path().filename().string();
     const bool versioned = (name.rfind("map-", 0) == 0 && name.ends_with(".tiles")) ||
                            (name.rfind("trajectory-", 0) == 0 && name.ends_with(".tum"));
-    if (versioned && name != tiles_name && name != trajectory_name) fs::remove(entry.path(), ec);
+    const bool temporary = name.find(".tmp-") != std::string::npos;
+    if ((versioned && name != tiles_name && name != trajectory_name) || temporary) {
+      fs::remove(entry.path(), ec);
+    }
   }
   return std::nullopt;
 }

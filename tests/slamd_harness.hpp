@@ -127,9 +127,12 @@ class SlamdProcess {
     if (!stderr_path_.empty()) fs::remove(stderr_path_, ec);
   }
 
+  /// The --speed of the next Spawn (sim and candump sources; default 4).
+  void set_speed(double speed) { speed_ = std::to_string(speed); }
+
   /// Spawns slamd with the common flags plus `extra_args`; does not wait for anything.
   bool Spawn(const std::vector<std::string>& extra_args, std::string* error) {
-    std::vector<std::string> args = {SlamdBinary(), "--port", "0", "--speed", "4", "--quiet"};
+    std::vector<std::string> args = {SlamdBinary(), "--port", "0", "--speed", speed_, "--quiet"};
     args.insert(args.end(), extra_args.begin(), extra_args.end());
     command_line_.clear();
     for (const auto& arg : args) command_line_ += arg + " ";
@@ -297,6 +300,7 @@ class SlamdProcess {
   }
 
   static inline int spawn_counter_ = 0;
+  std::string speed_ = "4";
   pid_t pid_ = -1;
   std::optional<int> exit_status_;
   int stdout_fd_ = -1;

@@ -1,0 +1,598 @@
+// slamd under faults, as a black box: the link's source going away and coming back (a
+// pseudo-terminal hang-up, a log ending, UDP silence), bursts of lost and corrupted frames,
+// odometry and scanner stalls, clock jumps in a log, a SLAM thread slower than real time, and
+// kill -9 during map saves. Each test starts its own slamd (tests/slamd_harness.hpp) on frames
+// made from one small generated experiment (slam-sim, the box world, 30 s), and checks that
+// slamd keeps serving, reports the fault in /api/v1/status, and that the SLAM goes on after it.
+
+// Engine headers before httplib (see bench/server_bench.cpp: <resolv.h> defines `_res`).
+#include "hw_link/candump.hpp"
+#include "hw_link/cannelloni.hpp"
+#include "hw_link/slcan.hpp"
+#include "server/state_store.hpp"
+// clang-format off
+#include "tests/slamd_harness.hpp"
+// clang-format on
+
+#include <stdlib.h>
+#include <termios.h>
+
+#include <random>
+
+namespace slamd_test {
+namespace {
+
+using slam::hw::CanFrame;
+
+// ---------------------------------------------------------------------------------------------
+// The experiment's frames
+
+struct LoggedFrame {
+  int64_t time_us = 0;
+  CanFrame frame;
+};
+
+constexpr int kBaseNode = 1;     // config/marxbot.robot.json: odometry
+constexpr int kScannerNode = 2;  // the rotating scanner
+constexpr double kLogSeconds = 30.0;
+
+int NodeOf(const CanFrame& frame) { return static_cast<int>(frame.id & 0xFF); }
+
+/// A 30 s box-world experiment written by slam-sim into the test's temp dir (once per process).
+const fs::path& ExperimentDir() {
+  static const fs::path dir = [] {
+    const fs::path path = fs::path(::testing::TempDir()) /
+                          ("slamd_faults_experiment_" + std::to_string(::getpid()));
+    fs::remove_all(path);
+    const std::string command = SlamSimBinary() + " --world box --duration " +
+                                std::to_string(static_cast<int>(kLogSeconds)) +
+                                " --seed 5 --out " + path.string() + " > /dev/null";
+    if (std::system(command.c_str()) != 0) return fs::path();
+    return path;
+  }();
+  return dir;
+}
+
+std::vector<LoggedFrame> ReadLog(const fs::path& path) {
+  std::vector<LoggedFrame> frames;
+  std::istringstream lines(ReadFile(path));
+  std::string line;
+  while (std::getline(lines, line)) {
+    const slam::hw::CandumpLine parsed = slam::hw::ParseCandumpLine(line);
+    if (parsed.kind == slam::hw::CandumpLineKind::kFrame) {
+      frames.push_back({parsed.time_us, parsed.frame});
+    }
+  }
+  return frames;
+}
+
+void WriteLog(const fs::path& path, const std::vector<LoggedFrame>& frames) {
+  std::string text;
+  for (const LoggedFrame& f : frames) {
+    text += slam::hw::FormatCandumpLine(f.time_us, "can0", f.frame) + "\n";
+  }
+  WriteFile(path, text);
+}
+
+/// The experiment's frames, or a test failure.
+std::vector<LoggedFrame> ExperimentFrames() {
+  const fs::path& dir = ExperimentDir();
+  EXPECT_FALSE(dir.empty()) << "slam-sim failed (" << SlamSimBinary() << ")";
+  if (dir.empty()) return {};
+  std::vector<LoggedFrame> frames = ReadLog(dir / "can.log");
+  EXPECT_GT(frames.size(), 1000u);
+  return frames;
+}
+
+/// Seconds of log time from the first frame.
+double LogSeconds(const std::vector<LoggedFrame>& frames, const LoggedFrame& f) {
+  return static_cast<double>(f.time_us - frames.front().time_us) * 1e-6;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Polling slamd
+
+json Status(Http& http) { return GetJson(http, "/api/v1/status"); }
+
+/// Polls the status until `done` holds or `timeout_s` passes; the last status.
+template <typename Predicate>
+json PollStatus(Http& http, double timeout_s, Predicate done) {
+  const auto deadline = After(timeout_s);
+  json status;
+  while (true) {
+    status = Status(http);
+    if (status.is_object() && done(status)) return status;
+    if (Clock::now() >= deadline) return status;
+    Nap();
+  }
+}
+
+int64_t Scans(const json& status) { return status["slam"].value("scans", int64_t{-1}); }
+std::string LinkState(const json& status) { return status["link"].value("state", "?"); }
+uint64_t SourceCounter(const json& status, const std::string& name) {
+  return status["link"]["source_counters"].value(name, uint64_t{0});
+}
+
+/// Waits for the link to end and the SLAM to take every queued event (scans stop changing).
+json WaitEndedAndSettled(Http& http, double timeout_s) {
+  json status = PollStatus(http, timeout_s, [](const json& s) {
+    return LinkState(s) == "ended" && s["link"].value("queue_size", 1) == 0;
+  });
+  EXPECT_EQ(LinkState(status), "ended") << status["link"].dump();
+  // The SLAM thread finishes the scan it holds: scans stop changing for half a second.
+  const auto deadline = After(timeout_s);
+  int64_t scans = Scans(status);
+  while (Clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    status = Status(http);
+    if (Scans(status) == scans) break;
+    scans = Scans(status);
+  }
+  return status;
+}
+
+/// The SLAM trajectory's times (GET /api/v1/trajectory).
+std::vector<double> TrajectoryTimes(Http& http) {
+  const json trajectory = GetJson(http, "/api/v1/trajectory");
+  std::vector<double> times;
+  if (!trajectory.contains("slam") || !trajectory["slam"].is_array()) return times;
+  for (const json& pose : trajectory["slam"]) times.push_back(pose[0].get<double>());
+  return times;
+}
+
+void ExpectStillServing(Http& http) {
+  EXPECT_EQ(http.Get("/api/v1/health").status, 200);
+  EXPECT_EQ(http.Get("/api/v1/map").status, 200);
+  EXPECT_EQ(http.Get("/api/v1/map.png").status, 200);
+  EXPECT_EQ(http.Get("/metrics").status, 200);
+}
+
+/// Resident memory of `pid` in MiB (VmRSS), or -1.
+double RssMib(pid_t pid) {
+  std::istringstream lines(ReadFile("/proc/" + std::to_string(pid) + "/status"));
+  std::string line;
+  while (std::getline(lines, line)) {
+    if (StartsWith(line, "VmRSS:")) return std::atof(line.c_str() + 6) / 1024.0;
+  }
+  return -1.0;
+}
+
+/// Sleeps until `frame` is due: log time from `first_us`, divided by `speed`, after `start`.
+void WaitDue(const LoggedFrame& frame, int64_t first_us, double speed, Clock::time_point start) {
+  const double offset_s = static_cast<double>(frame.time_us - first_us) * 1e-6 / speed;
+  std::this_thread::sleep_until(start +
+                                std::chrono::microseconds(static_cast<int64_t>(offset_s * 1e6)));
+}
+
+// ---------------------------------------------------------------------------------------------
+// The source going away and coming back
+
+TEST(SlamdFaults, LogEndingKeepsServingAndReportsTheLinkEnded) {
+  ScratchDir scratch("log_end");
+  const auto frames = ExperimentFrames();
+  ASSERT_FALSE(frames.empty());
+  SlamdProcess slamd;
+  slamd.set_speed(20.0);
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--source", "candump:" + (ExperimentDir() / "can.log").string(),
+                           "--budget", "8000"},
+                          &error))
+      << error;
+  Http http(slamd.host(), slamd.port());
+  const json ended = WaitEndedAndSettled(http, 20.0);
+  EXPECT_EQ(ended["link"].value("frames", uint64_t{0}), frames.size());
+  EXPECT_GE(Scans(ended), 20) << ended["slam"].dump();
+  EXPECT_EQ(ended["link"].value("silent", true), false) << "an ended log is not a silence";
+
+  // A second later: still serving everything, nothing changes, the metrics say the link is down.
+  std::this_thread::sleep_for(std::chrono::seconds(1));
+  ExpectStillServing(http);
+  const json later = Status(http);
+  EXPECT_EQ(LinkState(later), "ended");
+  EXPECT_EQ(Scans(later), Scans(ended));
+  EXPECT_EQ(Metric(GetMetrics(http), "slamd_link_up"), 0.0);
+  EXPECT_GE(TrajectoryTimes(http).size(), static_cast<size_t>(Scans(ended)));
+}
+
+struct Pty {
+  int master = -1;
+  std::string slave_path;
+  ~Pty() {
+    if (master >= 0) ::close(master);
+  }
+};
+
+std::unique_ptr<Pty> OpenPty() {
+  auto pty = std::make_unique<Pty>();
+  pty->master = ::posix_openpt(O_RDWR | O_NOCTTY | O_CLOEXEC);
+  if (pty->master < 0 || ::grantpt(pty->master) != 0 || ::unlockpt(pty->master) != 0) return nullptr;
+  char name[128] = {};
+  if (::ptsname_r(pty->master, name, sizeof name) != 0) return nullptr;
+  pty->slave_path = name;
+  return pty;
+}
+
+// Points the symbolic link `link` at `target`, atomically (like /dev/serial/by-id/...).
+void PointLink(const fs::path& link, const std::string& target) {
+  const fs::path temporary = link.string() + ".new";
+  fs::remove(temporary);
+  fs::create_symlink(target, temporary);
+  fs::rename(temporary, link);
+}
+
+/// Writes frames [from, to) of the log to a pty as an slcan adapter would, `speed` times faster.
+void WriteSlcan(int master, const std::vector<LoggedFrame>& frames, size_t from, size_t to,
+                double speed) {
+  const auto start = Clock::now();
+  for (size_t i = from; i < to; ++i) {
+    WaitDue(frames[i], frames[from].time_us, speed, start);
+    const std::string line = slam::hw::FormatSlcanFrame(frames[i].frame);
+    if (::write(master, line.data(), line.size()) != static_cast<ssize_t>(line.size())) return;
+  }
+}
+
+TEST(SlamdFaults, PseudoTerminalHangUpIsReportedAndTheAdapterComingBackIsReopened) {
+  ScratchDir scratch("pty");
+  const auto frames = ExperimentFrames();
+  ASSERT_FALSE(frames.empty());
+  const fs::path link = scratch.path() / "ttySLCAN";
+  auto first = OpenPty();
+  ASSERT_NE(first, nullptr);
+  PointLink(link, first->slave_path);
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--source", "slcan:" + link.string(), "--budget", "8000"}, &error))
+      << error;
+  Http http(slamd.host(), slamd.port());
+
+  // 10 s of robot traffic at 4x, then the adapter is unplugged.
+  const size_t half = frames.size() / 3;
+  WriteSlcan(first->master, frames, 0, half, 4.0);
+  const json before = PollStatus(http, 10.0, [&](const json& s) {
+    return s["link"].value("frames", uint64_t{0}) == half && Scans(s) > 0;
+  });
+  ASSERT_EQ(before["link"].value("frames", uint64_t{0}), half) << before["link"].dump();
+  ASSERT_GT(Scans(before), 0);
+  PointLink(link, (scratch.path() / "missing").string());
+  first.reset();
+  const json gone =
+      PollStatus(http, 5.0, [](const json& s) { return LinkState(s) == "source_error"; });
+  ASSERT_EQ(LinkState(gone), "source_error") << gone["link"].dump();
+  EXPECT_NE(gone["link"].value("last_error", "").find("hung up"), std::string::npos)
+      << gone["link"].dump();
+  ExpectStillServing(http);
+
+  // A new adapter appears under the same name: slamd reopens it and maps on.
+  auto second = OpenPty();
+  ASSERT_NE(second, nullptr);
+  PointLink(link, second->slave_path);
+  const json reopened = PollStatus(http, 5.0, [](const json& s) {
+    return LinkState(s) == "running" && SourceCounter(s, "reopens") >= 1;
+  });
+  ASSERT_EQ(LinkState(reopened), "running") << reopened["link"].dump();
+  WriteSlcan(second->master, frames, half, 2 * half, 4.0);
+  const json after = PollStatus(http, 10.0, [&](const json& s) {
+    return s["link"].value("frames", uint64_t{0}) == 2 * half && Scans(s) > Scans(before) + 5;
+  });
+  EXPECT_EQ(after["link"].value("frames", uint64_t{0}), 2 * half) << after["link"].dump();
+  EXPECT_GT(Scans(after), Scans(before) + 5) << after["slam"].dump();
+  EXPECT_GE(after["link"].value("source_errors", uint64_t{0}), 1u);
+}
+
+// ---------------------------------------------------------------------------------------------
+// UDP: silence, then bursts of lost datagrams, garbage datagrams and corrupted frames
+
+class UdpSender {
+ public:
+  explicit UdpSender(int port) : fd_(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0)) {
+    to_.sin_family = AF_INET;
+    to_.sin_port = htons(static_cast<uint16_t>(port));
+    to_.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  }
+  ~UdpSender() { ::close(fd_); }
+  UdpSender(const UdpSender&) = delete;
+  UdpSender& operator=(const UdpSender&) = delete;
+
+  void Send(const std::vector<uint8_t>& bytes) {
+    ::sendto(fd_, bytes.data(), bytes.size(), 0, reinterpret_cast<const sockaddr*>(&to_),
+             sizeof to_);
+  }
+  /// One cannelloni datagram with the next sequence number.
+  void SendFrames(const std::vector<CanFrame>& frames) {
+    Send(slam::hw::EncodeCannelloni(sequence_++, frames));
+  }
+  /// Datagrams that never arrive: their sequence numbers are used up.
+  void Lose(int datagrams) { sequence_ = static_cast<uint8_t>(sequence_ + datagrams); }
+
+ private:
+  int fd_;
+  sockaddr_in to_{};
+  uint8_t sequence_ = 0;
+};
+
+struct UdpFaults {
+  int lose_every = 0;     // every Nth datagram starts a burst of `burst` lost ones (0: never)
+  int burst = 0;
+  int garbage_every = 0;  // a garbage datagram before every Nth (0: never)
+  int corrupt_every = 0;  // every Nth frame goes to an unknown node (0: never)
+};
+
+/// Sends frames [from, to) in datagrams of 10 ms of log each, `speed` times faster; the numbers
+/// of lost datagrams, garbage datagrams and corrupted frames.
+std::array<int, 3> SendUdp(UdpSender& sender, const std::vector<LoggedFrame>& frames, size_t from,
+                           size_t to, double speed, const UdpFaults& faults) {
+  std::mt19937 random(7);
+  std::array<int, 3> made{0, 0, 0};
+  const auto start = Clock::now();
+  int datagram = 0;
+  int frame_number = 0;
+  for (size_t i = from; i < to;) {
+    WaitDue(frames[i], frames[from].time_us, speed, start);
+    std::vector<CanFrame> batch;
+    const int64_t until = frames[i].time_us + 10'000;
+    for (; i < to && frames[i].time_us < until && batch.size() < 16; ++i) {
+      CanFrame frame = frames[i].frame;
+      if (faults.corrupt_every > 0 && ++frame_number % faults.corrupt_every == 0) {
+        frame.id = (frame.id & 0x300u) | 0x37u;  // a node the robot does not have
+        ++made[2];
+      }
+      batch.push_back(frame);
+    }
+    ++datagram;
+    if (faults.garbage_every > 0 && datagram % faults.garbage_every == 0) {
+      std::vector<uint8_t> garbage(1 + random() % 3);  // shorter than any cannelloni header
+      for (auto& byte : garbage) byte = static_cast<uint8_t>(random());
+      sender.Send(garbage);
+      ++made[1];
+    }
+    if (faults.lose_every > 0 && datagram % faults.lose_every == 0) {
+      sender.Lose(faults.burst);
+      made[0] += faults.burst;
+    }
+    sender.SendFrames(batch);
+  }
+  return made;
+}
+
+TEST(SlamdFaults, UdpSilenceIsReportedAndBurstsOfLostAndCorruptFramesAreCountedAndSurvived) {
+  const auto frames = ExperimentFrames();
+  ASSERT_FALSE(frames.empty());
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--source", "udp:127.0.0.1:0", "--budget", "8000"}, &error)) << error;
+  Http http(slamd.host(), slamd.port());
+  const std::string source = Status(http)["link"].value("source", "");
+  const std::string prefix = "udp:127.0.0.1:";
+  ASSERT_TRUE(StartsWith(source, prefix)) << source;
+  UdpSender sender(std::atoi(source.c_str() + prefix.size()));
+
+  // 10 s of robot traffic at 4x: mapping.
+  const size_t third = frames.size() / 3;
+  SendUdp(sender, frames, 0, third, 4.0, {});
+  const json mapping = PollStatus(http, 10.0, [&](const json& s) {
+    return s["link"].value("frames", uint64_t{0}) == third && Scans(s) > 0;
+  });
+  ASSERT_GT(Scans(mapping), 0) << mapping.dump();
+
+  // The sender goes quiet: within two seconds the link is reported silent, slamd serves on.
+  const json silent =
+      PollStatus(http, 3.0, [](const json& s) { return s["link"].value("silent", false); });
+  EXPECT_TRUE(silent["link"].value("silent", false)) << silent["link"].dump();
+  EXPECT_EQ(LinkState(silent), "running");
+  EXPECT_GE(silent["link"].value("seconds_without_frames", 0.0), 1.0);
+  EXPECT_EQ(Metric(GetMetrics(http), "slamd_link_silent"), 1.0);
+  ExpectStillServing(http);
+
+  // It comes back with bursts of loss (10 datagrams every 40), garbage datagrams and corrupted
+  // frames: all counted, and the SLAM goes on.
+  const auto made = SendUdp(sender, frames, third, 2 * third, 4.0,
+                            {.lose_every = 40, .burst = 10, .garbage_every = 25,
+                             .corrupt_every = 50});
+  ASSERT_GT(made[0], 0);
+  ASSERT_GT(made[1], 0);
+  ASSERT_GT(made[2], 0);
+  const json after = PollStatus(http, 10.0, [&](const json& s) {
+    return SourceCounter(s, "bad_datagrams") == static_cast<uint64_t>(made[1]) &&
+           Scans(s) > Scans(mapping) + 5;
+  });
+  EXPECT_FALSE(after["link"].value("silent", true)) << after["link"].dump();
+  EXPECT_EQ(SourceCounter(after, "lost"), static_cast<uint64_t>(made[0])) << after["link"].dump();
+  EXPECT_EQ(SourceCounter(after, "bad_datagrams"), static_cast<uint64_t>(made[1]));
+  EXPECT_GE(after["link"].value("frames_rejected", uint64_t{0}), static_cast<uint64_t>(made[2]))
+      << after["link"].dump();
+  EXPECT_GT(Scans(after), Scans(mapping) + 5) << after["slam"].dump();
+  // Scans that lost samples are sparser, not wrong: the assembler counts what went missing.
+  EXPECT_GT(after["slam"]["assembler"].value("samples_lost", uint64_t{0}), 0u)
+      << after["slam"]["assembler"].dump();
+  ExpectStillServing(http);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Stalls and clock jumps in a log
+
+TEST(SlamdFaults, OdometryAndScannerStallsAreCountedAndTheSlamGoesOn) {
+  ScratchDir scratch("stalls");
+  const auto frames = ExperimentFrames();
+  ASSERT_FALSE(frames.empty());
+  // No odometry for 2 s from 8 s, no scanner for 2 s from 16 s.
+  std::vector<LoggedFrame> stalled;
+  for (const LoggedFrame& f : frames) {
+    const double t = LogSeconds(frames, f);
+    if (NodeOf(f.frame) == kBaseNode && t >= 8.0 && t < 10.0) continue;
+    if (NodeOf(f.frame) == kScannerNode && t >= 16.0 && t < 18.0) continue;
+    stalled.push_back(f);
+  }
+  ASSERT_LT(stalled.size(), frames.size());
+  const fs::path log = scratch.path() / "stalled.log";
+  WriteLog(log, stalled);
+  SlamdProcess slamd;
+  slamd.set_speed(20.0);
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--source", "candump:" + log.string(), "--budget", "8000"}, &error))
+      << error;
+  Http http(slamd.host(), slamd.port());
+  const json ended = WaitEndedAndSettled(http, 20.0);
+  const json& assembler = ended["slam"]["assembler"];
+  EXPECT_GE(assembler.value("odometry_gaps", uint64_t{0}), 1u) << assembler.dump();
+  EXPECT_GE(assembler.value("sample_gaps", uint64_t{0}), 1u) << assembler.dump();
+  // Mapping went on after both stalls, to the end of the log.
+  const std::vector<double> times = TrajectoryTimes(http);
+  ASSERT_GE(times.size(), 20u);
+  EXPECT_GT(times.back() - times.front(), kLogSeconds - 3.0);
+  EXPECT_TRUE(std::is_sorted(times.begin(), times.end()));
+  ExpectStillServing(http);
+}
+
+TEST(SlamdFaults, ClockJumpsInALogNeitherStallNorDerailTheSlam) {
+  ScratchDir scratch("jumps");
+  const auto frames = ExperimentFrames();
+  ASSERT_FALSE(frames.empty());
+  // The recording machine's clock was set an hour ahead at 10 s, then stepped back 20 s at 20 s.
+  std::vector<LoggedFrame> jumped = frames;
+  for (LoggedFrame& f : jumped) {
+    const double t = LogSeconds(frames, f);
+    if (t >= 10.0) f.time_us += 3'600'000'000;
+    if (t >= 20.0) f.time_us -= 20'000'000;
+  }
+  const fs::path log = scratch.path() / "jumped.log";
+  WriteLog(log, jumped);
+  SlamdProcess slamd;
+  slamd.set_speed(20.0);
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--source", "candump:" + log.string(), "--budget", "8000"}, &error))
+      << error;
+  Http http(slamd.host(), slamd.port());
+  // 30 s of log at 20x: done in seconds, not after an hour.
+  const json ended = WaitEndedAndSettled(http, 20.0);
+  EXPECT_EQ(SourceCounter(ended, "clock_jumps"), 2u) << ended["link"].dump();
+  EXPECT_EQ(ended["link"].value("frames", uint64_t{0}), frames.size());
+  const std::vector<double> times = TrajectoryTimes(http);
+  ASSERT_GE(times.size(), 20u);
+  EXPECT_TRUE(std::adjacent_find(times.begin(), times.end(), std::greater_equal<>()) ==
+              times.end())
+      << "trajectory times must increase";
+  // Each jump became one second of silence.
+  EXPECT_GT(times.back() - times.front(), kLogSeconds - 3.0);
+  EXPECT_LT(times.back() - times.front(), kLogSeconds + 3.0);
+  ExpectStillServing(http);
+}
+
+// ---------------------------------------------------------------------------------------------
+// A SLAM thread slower than real time
+
+TEST(SlamdFaults, SlamSlowerThanRealTimeDropsEventsCountedWithBoundedQueueAndMemory) {
+  const auto frames = ExperimentFrames();
+  ASSERT_FALSE(frames.empty());
+  SlamdProcess slamd;
+  // The log at 40x with three million rays per scan: the SLAM takes several times the scan
+  // period, so the link's queue fills.
+  slamd.set_speed(40.0);
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--source", "candump:" + (ExperimentDir() / "can.log").string(),
+                           "--budget", "3000000"},
+                          &error))
+      << error;
+  Http http(slamd.host(), slamd.port());
+  double rss_first = -1.0, rss_max = 0.0, slowest_health_s = 0.0;
+  uint64_t queue_max = 0;
+  json status;
+  const auto deadline = After(60.0);
+  while (Clock::now() < deadline) {
+    const auto asked = Clock::now();
+    EXPECT_EQ(http.Get("/api/v1/health").status, 200);
+    slowest_health_s = std::max(slowest_health_s, SecondsSince(asked));
+    status = Status(http);
+    queue_max = std::max(queue_max, status["link"].value("queue_size", uint64_t{0}));
+    const double rss = RssMib(slamd.pid());
+    if (rss_first < 0.0) rss_first = rss;
+    rss_max = std::max(rss_max, rss);
+    if (LinkState(status) == "ended" && status["link"].value("queue_size", 1) == 0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  ASSERT_EQ(LinkState(status), "ended") << status["link"].dump();
+  const uint64_t drops = status["link"].value("queue_drops", uint64_t{0});
+  const uint64_t queued = status["link"].value("events_queued", uint64_t{0});
+  EXPECT_GT(drops, 0u) << status["link"].dump();
+  EXPECT_LE(queue_max, 1024u) << "the queue holds at most its capacity";
+  EXPECT_EQ(Metric(GetMetrics(http), "slamd_link_queue_drops_total"), static_cast<double>(drops));
+  // Nothing is lost silently: every decoded event was queued or counted as dropped.
+  const json& decoder = status["link"]["decoder"];
+  EXPECT_EQ(queued + drops,
+            decoder.value("odometry", uint64_t{0}) + decoder.value("scanner", uint64_t{0}));
+  // Memory stays bounded while events are being dropped, and slamd stays responsive.
+  ASSERT_GT(rss_first, 0.0);
+  EXPECT_LT(rss_max - rss_first, 64.0) << "RSS grew from " << rss_first << " to " << rss_max;
+  EXPECT_LT(slowest_health_s, 1.0);
+}
+
+// ---------------------------------------------------------------------------------------------
+// kill -9 during map saves
+
+TEST(SlamdFaults, KillDuringMapSavesLeavesALoadableStateThatARestartResumes) {
+  ScratchDir state("kill_save");
+  std::mt19937 random(11);
+  uint64_t loaded_version = 0;
+  size_t loaded_tiles = 0;
+  int interrupted = 0;
+  for (int round = 0; round < 6; ++round) {
+    SlamdProcess slamd;
+    std::string error;
+    ASSERT_TRUE(slamd.Start({"--state-dir", state.path().string(), "--budget", "8000"}, &error))
+        << "round " << round << ": " << error;
+    Http http(slamd.host(), slamd.port());
+    // Resumed what the previous round left (a complete state, whichever save it is).
+    const json map = GetJson(http, "/api/v1/map");
+    EXPECT_GE(map["tiles"].size(), loaded_tiles) << "round " << round;
+    EXPECT_GE(map.value("version", uint64_t{0}), loaded_version) << "round " << round;
+    // Mapping goes on: the map has changed since the resumed state.
+    const auto changed = After(15.0);
+    while (MapVersion(http) <= static_cast<int64_t>(loaded_version) && Clock::now() < changed) {
+      Nap();
+    }
+    ASSERT_GT(MapVersion(http), static_cast<int64_t>(loaded_version)) << "round " << round;
+    if (round == 0) {
+      ASSERT_EQ(http.PostJson("/api/v1/map/save", "{}").status, 200);
+    }
+    // Saves back to back on a second connection; SIGKILL lands at a random moment among them.
+    std::atomic<bool> saving{true};
+    std::atomic<int> saves{0};
+    std::thread saver([&] {
+      Http own(slamd.host(), slamd.port());
+      while (saving && own.PostJson("/api/v1/map/save", "{}").status == 200) ++saves;
+    });
+    while (saves < 2) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    std::this_thread::sleep_for(std::chrono::microseconds(random() % 20'000));
+    ::kill(slamd.pid(), SIGKILL);
+    saving = false;
+    saver.join();
+    EXPECT_EQ(slamd.Stop(), 128 + SIGKILL);
+
+    const slam::server::LoadOutcome loaded = slam::server::LoadState(state.path().string());
+    ASSERT_TRUE(loaded.error.empty()) << "round " << round << ": " << loaded.error;
+    ASSERT_TRUE(loaded.state.has_value()) << "round " << round;
+    EXPECT_GE(loaded.state->version, loaded_version);
+    EXPECT_FALSE(loaded.state->trajectory.empty());
+    loaded_version = loaded.state->version;
+    loaded_tiles = loaded.state->tiles.size();
+    for (const auto& entry : fs::directory_iterator(state.path())) {
+      if (entry.path().filename().string().find("tmp") != std::string::npos) ++interrupted;
+    }
+  }
+  // Informational: how many kills left a temporary behind (a save cut in the middle).
+  std::cout << "kills that interrupted a save's writing: " << interrupted << " of 6\n";
+
+  // The next save clears what the killed ones left.
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--state-dir", state.path().string(), "--budget", "8000"}, &error))
+      << error;
+  Http http(slamd.host(), slamd.port());
+  ASSERT_EQ(http.PostJson("/api/v1/map/save", "{}").status, 200);
+  for (const auto& entry : fs::directory_iterator(state.path())) {
+    EXPECT_EQ(entry.path().filename().string().find(".tmp-"), std::string::npos)
+        << "left behind: " << entry.path();
+  }
+}
+
+}  // namespace
+}  // namespace slamd_test
