@@ -230,6 +230,22 @@ struct HttpServer::Impl {
 
   std::mutex save_mutex;  // one save at a time
 
+  // Whole-map exports and the trajectory cost time in proportion to the map and the run: each
+  // kind is made at most once per published snapshot, one at a time; requests that come while
+  // one is being made wait for it and share its bytes. Their CPU cost is thus bounded by the scan
+  // rate, whatever the request rate. (Keys are made in Setup; the map is not resized later.)
+  struct Export {
+    std::mutex mutex;
+    bool valid = false;
+    uint64_t sequence = 0;  // of the snapshot it was made from
+    std::string body;
+    std::string type;
+    std::atomic<uint64_t> renders{0};
+  };
+  std::map<std::string, Export> exports;
+  template <typename Make>
+  void ServeExport(const std::string& kind, httplib::Response& res, Make make);
+
   std::mutex tile_cache_mutex;
   std::map<TileKey, std::pair<uint64_t, std::string>> tile_cache;  // version, PNG
 
@@ -310,7 +326,9 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
         res.set_header("WWW-Authenticate", "Bearer realm=\"slamd\"");
         return refuse(401, "Unauthorized", "this route needs Authorization: Bearer <token>");
       }
-      if (auth.rfind(prefix, 0) != 0 || !ConstantTimeEquals(auth.substr(prefix.size()), options.token)) {
+      // The scheme is case-insensitive (RFC 7235); the token is compared in constant time.
+      if (Lower(auth.substr(0, prefix.size())) != "bearer " ||
+          !ConstantTimeEquals(auth.substr(std::min(prefix.size(), auth.size())), options.token)) {
         res.set_header("WWW-Authenticate", "Bearer realm=\"slamd\", error=\"invalid_token\"");
         return refuse(401, "Unauthorized", "wrong token");
       }
@@ -458,6 +476,25 @@ void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response
     tile_cache[{x, y}] = {version, png};
   }
   res.set_content(png, "image/png");
+}
+
+template <typename Make>
+void HttpServer::Impl::ServeExport(const std::string& kind, httplib::Response& res, Make make) {
+  Export& e = exports.at(kind);
+  const std::lock_guard lock(e.mutex);
+  const auto snapshot = service.Snapshot();
+  if (!e.valid || e.sequence != snapshot->sequence) {
+    e.valid = false;
+    std::string error;
+    if (!make(*snapshot, e.body, e.type, error)) {
+      SendProblem(res, 500, "Internal Server Error", error);
+      return;
+    }
+    e.valid = true;
+    e.sequence = snapshot->sequence;
+    e.renders.fetch_add(1);
+  }
+  res.set_content(e.body, e.type.c_str());
 }
 
 void HttpServer::Impl::HandleEvents(const httplib::Request& req, httplib::Response& res) {
@@ -735,6 +772,11 @@ std::string HttpServer::Impl::MetricsText() {
   metric("event_streams_rejected_total", "counter", "Event streams refused (cap reached).",
          streams_rejected.load());
   metric("jobs_running", "gauge", "Tuning jobs running.", jobs.running());
+  o << "# HELP slamd_exports_made_total Whole-map and trajectory exports made (each at most once "
+       "per snapshot and kind).\n# TYPE slamd_exports_made_total counter\n";
+  for (const auto& [kind, e] : exports) {
+    o << "slamd_exports_made_total{kind=\"" << kind << "\"} " << e.renders.load() << '\n';
+  }
   return o.str();
 }
 
@@ -809,25 +851,37 @@ void HttpServer::Impl::Setup() {
   });
   server.Get(R"(/api/v1/map/tiles/(-?\d{1,9})/(-?\d{1,9})\.png)",
              [this](const Request& req, Response& res) { HandleTile(req, res); });
-  const auto whole_map = [this](const char* kind) {
+  for (const char* kind : {"map.pgm", "map.yaml", "map.png", "trajectory.tum", "trajectory.json"}) {
+    exports.try_emplace(kind);
+  }
+  const auto whole_map = [this](const std::string& kind) {
     return [this, kind](const Request&, Response& res) {
-      const auto s = service.Snapshot();
-      const OccupancyGrid grid = SnapshotGrid(*s, service.logodds_limit());
-      const io::GridImage image = io::MakeGridImage(grid);
-      const std::string k = kind;
-      if (k == "pgm") {
-        res.set_content(io::EncodePgm(image), "image/x-portable-graymap");
-      } else if (k == "yaml") {
-        res.set_content(io::MapYaml("map.pgm", image), "application/yaml");
-      } else {
-        const io::PngBytes png = io::EncodeGrayPng(image.width, image.height, image.gray);
-        if (!png.ok()) {
-          SendProblem(res, 500, "Internal Server Error", png.error);
-          return;
-        }
-        res.set_content(std::string(png.bytes.begin(), png.bytes.end()), "image/png");
+      ServeExport("map." + kind, res,
+                  [&](const SlamSnapshot& s, std::string& body, std::string& type,
+                      std::string& error) {
+                    const OccupancyGrid grid = SnapshotGrid(s, service.logodds_limit());
+                    const io::GridImage image = io::MakeGridImage(grid);
+                    if (kind == "pgm") {
+                      body = io::EncodePgm(image);
+                      type = "image/x-portable-graymap";
+                    } else if (kind == "yaml") {
+                      body = io::MapYaml("map.pgm", image);
+                      type = "application/yaml";
+                    } else {
+                      const io::PngBytes png =
+                          io::EncodeGrayPng(image.width, image.height, image.gray);
+                      if (!png.ok()) {
+                        error = png.error;
+                        return false;
+                      }
+                      body.assign(png.bytes.begin(), png.bytes.end());
+                      type = "image/png";
+                    }
+                    return true;
+                  });
+      if (res.status < 300) {
+        res.set_header("Content-Disposition", "attachment; filename=\"map." + kind + "\"");
       }
-      res.set_header("Content-Disposition", "attachment; filename=\"map." + k + "\"");
     };
   };
   server.Get("/api/v1/map.pgm", whole_map("pgm"));
@@ -840,21 +894,30 @@ void HttpServer::Impl::Setup() {
       SendProblem(res, 400, "Bad Request", "format must be json or tum, not \"" + format + "\"");
       return;
     }
-    const auto s = service.Snapshot();
-    const std::vector<TimedPose> trajectory = ScanEndTrajectory(*s);
+    ServeExport("trajectory." + format, res,
+                [&](const SlamSnapshot& s, std::string& body, std::string& type, std::string&) {
+                  const std::vector<TimedPose> trajectory = ScanEndTrajectory(s);
+                  if (format == "tum") {
+                    body = io::FormatTum(trajectory);
+                    type = "text/plain; charset=utf-8";
+                    return true;
+                  }
+                  const auto rows = [](const std::vector<TimedPose>& poses) {
+                    json list = json::array();
+                    for (const TimedPose& p : poses) {
+                      list.push_back({p.t, p.pose.x, p.pose.y, p.pose.theta});
+                    }
+                    return list;
+                  };
+                  json j = {{"slam", rows(trajectory)}};
+                  if (service.simulated()) j["ground_truth"] = rows(service.GroundTruth());
+                  body = j.dump();
+                  type = kJson;
+                  return true;
+                });
     if (format == "tum") {
-      res.set_content(io::FormatTum(trajectory), "text/plain; charset=utf-8");
       res.set_header("Content-Disposition", "attachment; filename=\"trajectory.tum\"");
-      return;
     }
-    const auto rows = [](const std::vector<TimedPose>& poses) {
-      json list = json::array();
-      for (const TimedPose& p : poses) list.push_back({p.t, p.pose.x, p.pose.y, p.pose.theta});
-      return list;
-    };
-    json body = {{"slam", rows(trajectory)}};
-    if (service.simulated()) body["ground_truth"] = rows(service.GroundTruth());
-    SendJson(res, body);
   });
 
   server.Get("/api/v1/events", [this](const Request& req, Response& res) { HandleEvents(req, res); });
