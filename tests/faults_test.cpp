@@ -41,12 +41,12 @@ int NodeOf(const CanFrame& frame) { return static_cast<int>(frame.id & 0xFF); }
 /// A 30 s box-world experiment written by slam-sim into the test's temp dir (once per process).
 const fs::path& ExperimentDir() {
   static const fs::path dir = [] {
-    const fs::path path = fs::path(::testing::TempDir()) /
-                          ("slamd_faults_experiment_" + std::to_string(::getpid()));
+    const fs::path path =
+        fs::path(::testing::TempDir()) / ("slamd_faults_experiment_" + std::to_string(::getpid()));
     fs::remove_all(path);
     const std::string command = SlamSimBinary() + " --world box --duration " +
-                                std::to_string(static_cast<int>(kLogSeconds)) +
-                                " --seed 5 --out " + path.string() + " > /dev/null";
+                                std::to_string(static_cast<int>(kLogSeconds)) + " --seed 5 --out " +
+                                path.string() + " > /dev/null";
     if (std::system(command.c_str()) != 0) return fs::path();
     return path;
   }();
@@ -174,9 +174,9 @@ TEST(SlamdFaults, LogEndingKeepsServingAndReportsTheLinkEnded) {
   SlamdProcess slamd;
   slamd.set_speed(20.0);
   std::string error;
-  ASSERT_TRUE(slamd.Start({"--source", "candump:" + (ExperimentDir() / "can.log").string(),
-                           "--budget", "8000"},
-                          &error))
+  ASSERT_TRUE(slamd.Start(
+      {"--source", "candump:" + (ExperimentDir() / "can.log").string(), "--budget", "8000"},
+      &error))
       << error;
   Http http(slamd.host(), slamd.port());
   const json ended = WaitEndedAndSettled(http, 20.0);
@@ -205,7 +205,8 @@ struct Pty {
 std::unique_ptr<Pty> OpenPty() {
   auto pty = std::make_unique<Pty>();
   pty->master = ::posix_openpt(O_RDWR | O_NOCTTY | O_CLOEXEC);
-  if (pty->master < 0 || ::grantpt(pty->master) != 0 || ::unlockpt(pty->master) != 0) return nullptr;
+  if (pty->master < 0 || ::grantpt(pty->master) != 0 || ::unlockpt(pty->master) != 0)
+    return nullptr;
   char name[128] = {};
   if (::ptsname_r(pty->master, name, sizeof name) != 0) return nullptr;
   pty->slave_path = name;
@@ -311,7 +312,7 @@ class UdpSender {
 };
 
 struct UdpFaults {
-  int lose_every = 0;     // every Nth datagram starts a burst of `burst` lost ones (0: never)
+  int lose_every = 0;  // every Nth datagram starts a burst of `burst` lost ones (0: never)
   int burst = 0;
   int garbage_every = 0;  // a garbage datagram before every Nth (0: never)
   int corrupt_every = 0;  // every Nth frame goes to an unknown node (0: never)
@@ -385,9 +386,9 @@ TEST(SlamdFaults, UdpSilenceIsReportedAndBurstsOfLostAndCorruptFramesAreCountedA
 
   // It comes back with bursts of loss (10 datagrams every 40), garbage datagrams and corrupted
   // frames: all counted, and the SLAM goes on.
-  const auto made = SendUdp(sender, frames, third, 2 * third, 4.0,
-                            {.lose_every = 40, .burst = 10, .garbage_every = 25,
-                             .corrupt_every = 50});
+  const auto made =
+      SendUdp(sender, frames, third, 2 * third, 4.0,
+              {.lose_every = 40, .burst = 10, .garbage_every = 25, .corrupt_every = 50});
   ASSERT_GT(made[0], 0);
   ASSERT_GT(made[1], 0);
   ASSERT_GT(made[2], 0);
@@ -468,8 +469,7 @@ TEST(SlamdFaults, ClockJumpsInALogNeitherStallNorDerailTheSlam) {
   EXPECT_EQ(ended["link"].value("frames", uint64_t{0}), frames.size());
   const std::vector<double> times = TrajectoryTimes(http);
   ASSERT_GE(times.size(), 20u);
-  EXPECT_TRUE(std::adjacent_find(times.begin(), times.end(), std::greater_equal<>()) ==
-              times.end())
+  EXPECT_TRUE(std::adjacent_find(times.begin(), times.end(), std::greater_equal<>()) == times.end())
       << "trajectory times must increase";
   // Each jump became one second of silence.
   EXPECT_GT(times.back() - times.front(), kLogSeconds - 3.0);
@@ -488,9 +488,9 @@ TEST(SlamdFaults, SlamSlowerThanRealTimeDropsEventsCountedWithBoundedQueueAndMem
   // period, so the link's queue fills.
   slamd.set_speed(40.0);
   std::string error;
-  ASSERT_TRUE(slamd.Start({"--source", "candump:" + (ExperimentDir() / "can.log").string(),
-                           "--budget", "3000000"},
-                          &error))
+  ASSERT_TRUE(slamd.Start(
+      {"--source", "candump:" + (ExperimentDir() / "can.log").string(), "--budget", "3000000"},
+      &error))
       << error;
   Http http(slamd.host(), slamd.port());
   double rss_first = -1.0, rss_max = 0.0, slowest_health_s = 0.0;

@@ -1,0 +1,212 @@
+// slamd's security limits, as a black box (tests/slamd_harness.hpp): loopback by default, bearer
+// tokens compared exactly, header and URI limits, no path out of the web root, no brotli (its
+// maximum quality costs seconds of CPU), and expensive routes whose cost does not grow with the
+// request rate. The limits tested elsewhere: bodies (413, 411, 415) and cross-origin mutations
+// (403) in slamd_http_test.cpp, event-stream caps (503) and one tuning job at a time (409) there
+// too, the constant-time comparison itself in server_test.cpp.
+
+#include <ifaddrs.h>
+
+// clang-format off
+#include "tests/slamd_harness.hpp"
+// clang-format on
+
+namespace slamd_test {
+namespace {
+
+/// The IPv4 addresses of this machine's interfaces that are not loopback.
+std::vector<std::string> NonLoopbackAddresses() {
+  std::vector<std::string> addresses;
+  ifaddrs* list = nullptr;
+  if (::getifaddrs(&list) != 0) return addresses;
+  for (const ifaddrs* a = list; a != nullptr; a = a->ifa_next) {
+    if (a->ifa_addr == nullptr || a->ifa_addr->sa_family != AF_INET) continue;
+    const auto* in = reinterpret_cast<const sockaddr_in*>(a->ifa_addr);
+    if ((ntohl(in->sin_addr.s_addr) >> 24) == 127) continue;
+    char text[INET_ADDRSTRLEN] = {};
+    ::inet_ntop(AF_INET, &in->sin_addr, text, sizeof text);
+    addresses.push_back(text);
+  }
+  ::freeifaddrs(list);
+  return addresses;
+}
+
+/// True if a TCP connection to address:port is accepted.
+bool Accepts(const std::string& address, int port) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return false;
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(static_cast<uint16_t>(port));
+  ::inet_pton(AF_INET, address.c_str(), &to.sin_addr);
+  const bool connected = ::connect(fd, reinterpret_cast<sockaddr*>(&to), sizeof to) == 0;
+  ::close(fd);
+  return connected;
+}
+
+/// slamd with a token file, no other flags.
+class SecuredSlamd : public SlamdSuite {
+ protected:
+  static constexpr const char* kToken = "Tk-9f2c41d87e0a5b36";
+  static void SetUpTestSuite() {
+    dir_ = std::make_unique<ScratchDir>("security");
+    WriteFile(dir_->path() / "token", std::string(kToken) + "\n");
+    fs::create_directories(dir_->path() / "web");
+    WriteFile(dir_->path() / "web" / "index.html", "<html>page</html>\n");
+    WriteFile(dir_->path() / "secret.txt", "outside the web root\n");
+    StartShared({"--token-file", (dir_->path() / "token").string(), "--web-root",
+                 (dir_->path() / "web").string(), "--budget", "8000"});
+  }
+  static void TearDownTestSuite() {
+    StopShared();
+    dir_.reset();
+  }
+  static inline std::unique_ptr<ScratchDir> dir_;
+};
+
+TEST_F(SecuredSlamd, BindsLoopbackByDefault) {
+  EXPECT_EQ(slamd_->host(), "127.0.0.1") << slamd_->serving_line();
+  EXPECT_TRUE(Accepts("127.0.0.1", port()));
+  const std::vector<std::string> others = NonLoopbackAddresses();
+  if (others.empty()) GTEST_SKIP() << "this machine has no other IPv4 address to try";
+  for (const std::string& address : others) {
+    EXPECT_FALSE(Accepts(address, port())) << "slamd answers on " << address;
+  }
+}
+
+TEST_F(SecuredSlamd, OnlyTheExactTokenMayChangeAnything) {
+  const std::string path = "/api/v1/budget";
+  const std::string body = R"({"rays_per_scan": 9000})";
+  const std::string token = kToken;
+  for (const std::string& wrong :
+       {token.substr(0, token.size() - 1), token + "0", "tk" + token.substr(2),
+        token.substr(0, 9) + "X" + token.substr(10), std::string(token.size(), 'x'),
+        std::string()}) {
+    SCOPED_TRACE("token '" + wrong + "'");
+    const Reply reply = http().MergePatch(path, body, {{"Authorization", "Bearer " + wrong}});
+    ExpectProblem(reply, 401);
+  }
+  ExpectProblem(http().MergePatch(path, body, {{"Authorization", "Basic " + token}}), 401);
+  ExpectProblem(http().MergePatch(path, body, {{"Authorization", token}}), 401);
+  EXPECT_EQ(GetJson(http(), path).value("rays_per_scan", 0), 8000) << "nothing changed";
+  // The scheme is case-insensitive (RFC 7235).
+  EXPECT_EQ(http().MergePatch(path, body, {{"Authorization", "bearer " + token}}).status, 200);
+  EXPECT_EQ(
+      http()
+          .MergePatch(path, R"({"rays_per_scan": 8000})", {{"Authorization", "Bearer " + token}})
+          .status,
+      200);
+}
+
+TEST_F(SecuredSlamd, OversizeHeadersAndUrisAreRefusedAndSlamdServesOn) {
+  const RawReply header = RawExchange(
+      port(), "GET /api/v1/health HTTP/1.1\r\nHost: x\r\nX-Big: " + std::string(100'000, 'a') +
+                  "\r\nConnection: close\r\n\r\n");
+  EXPECT_EQ(header.status, 400) << header;
+  const RawReply uri = RawExchange(port(), "GET /api/v1/health?" + std::string(20'000, 'a') +
+                                               " HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+  EXPECT_EQ(uri.status, 414) << uri;
+  EXPECT_EQ(http().Get("/api/v1/health").status, 200);
+}
+
+TEST_F(SecuredSlamd, NoPathLeadsOutOfTheWebRoot) {
+  EXPECT_EQ(http().Get("/index.html").status, 200);
+  for (const char* path :
+       {"/../secret.txt", "/%2e%2e/secret.txt", "/..%2fsecret.txt", "/%2E%2E%2Fsecret.txt",
+        "/./../secret.txt", "/vendor/uplot/../../../secret.txt", "//../secret.txt",
+        "/index.html/../../secret.txt", "/..\\secret.txt", "/%00/../secret.txt"}) {
+    const RawReply reply = RawExchange(
+        port(), std::string("GET ") + path + " HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+    EXPECT_NE(reply.status, 200) << path << ": " << reply;
+    EXPECT_EQ(reply.raw.find("outside the web root"), std::string::npos) << path << ": " << reply;
+  }
+}
+
+TEST(WebRoot, TheShippedPageHasNoSymbolicLinks) {
+  // The static handler follows symbolic links inside the web root (notes/httplib-0.11.md,
+  // point 10): the page slamd ships must have none, or a link could serve any file.
+  const fs::path web = fs::path(SLAM_SOURCE_DIR) / "web";
+  ASSERT_TRUE(fs::is_directory(web)) << web;
+  size_t files = 0;
+  for (auto it = fs::recursive_directory_iterator(web); it != fs::recursive_directory_iterator();
+       ++it) {
+    if (it->path().filename() == "node_modules") {
+      it.disable_recursion_pending();  // npm's, installed by scripts/deps, not shipped as is
+      continue;
+    }
+    EXPECT_FALSE(it->is_symlink()) << it->path();
+    ++files;
+  }
+  EXPECT_GT(files, 2u);
+}
+
+TEST_F(SecuredSlamd, BrotliIsNeverUsedWhateverTheClientOffers) {
+  for (const char* offer : {"br", "br, gzip, deflate", "gzip;q=0.1, br;q=1.0", "*"}) {
+    const Reply reply = http().Get("/api/v1/status", {{"Accept-Encoding", offer}});
+    EXPECT_EQ(reply.status, 200) << offer;
+    EXPECT_EQ(Lower(reply.Header("Content-Encoding")).find("br"), std::string::npos)
+        << offer << " gave Content-Encoding " << reply.Header("Content-Encoding");
+  }
+}
+
+TEST(ExpensiveRoutes, EachExportIsMadeOncePerSnapshotHoweverManyAsk) {
+  // A finished run (the map no longer changes): 12 clients ask for every whole-map export and
+  // the trajectory at once, three times each.
+  ScratchDir scratch("exports");
+  const std::string command = SlamSimBinary() + " --world box --duration 10 --seed 3 --out " +
+                              (scratch.path() / "run").string() + " > /dev/null";
+  ASSERT_EQ(std::system(command.c_str()), 0) << command;
+  SlamdProcess slamd;
+  slamd.set_speed(20.0);
+  std::string error;
+  ASSERT_TRUE(slamd.Start(
+      {"--source", "candump:" + (scratch.path() / "run" / "can.log").string(), "--budget", "8000"},
+      &error))
+      << error;
+  Http http(slamd.host(), slamd.port());
+  const auto deadline = After(20.0);
+  json status;
+  int64_t scans = -1;
+  while (Clock::now() < deadline) {
+    status = GetJson(http, "/api/v1/status");
+    const int64_t now = status["slam"].value("scans", int64_t{0});
+    if (status["link"].value("state", "") == "ended" && now == scans) break;
+    scans = now;
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  }
+  ASSERT_EQ(status["link"].value("state", ""), "ended");
+
+  const std::vector<std::string> routes = {"/api/v1/map.png", "/api/v1/map.pgm", "/api/v1/map.yaml",
+                                           "/api/v1/trajectory", "/api/v1/trajectory?format=tum"};
+  std::map<std::string, std::set<std::string>> bodies;
+  std::mutex mutex;
+  std::atomic<int> failures{0};
+  std::vector<std::thread> clients;
+  for (int c = 0; c < 12; ++c) {
+    clients.emplace_back([&] {
+      Http own(slamd.host(), slamd.port());
+      for (int round = 0; round < 3; ++round) {
+        for (const std::string& route : routes) {
+          const Reply reply = own.Get(route);
+          if (reply.status != 200) ++failures;
+          const std::lock_guard lock(mutex);
+          bodies[route].insert(reply.body);
+        }
+      }
+    });
+  }
+  for (auto& t : clients) t.join();
+  EXPECT_EQ(failures.load(), 0);
+  const auto metrics = GetMetrics(http);
+  for (const char* kind : {"map.png", "map.pgm", "map.yaml", "trajectory.json", "trajectory.tum"}) {
+    EXPECT_EQ(Metric(metrics, "slamd_exports_made_total", {{"kind", kind}}), 1.0) << kind;
+  }
+  for (const auto& [route, seen] : bodies) {
+    EXPECT_EQ(seen.size(), 1u) << route << ": every client got the same bytes";
+    EXPECT_FALSE(seen.begin()->empty()) << route;
+  }
+  EXPECT_EQ(bodies.size(), routes.size());
+}
+
+}  // namespace
+}  // namespace slamd_test
