@@ -3,11 +3,15 @@
 #include <arpa/inet.h>
 #include <httplib.h>
 #include <netinet/in.h>
+#include <poll.h>
 #include <sys/socket.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
+#include <cerrno>
 #include <cmath>
+#include <cstring>
 #include <cstdio>
 #include <filesystem>
 #include <map>
@@ -188,6 +192,170 @@ struct TileKey {
   }
 };
 
+// ---------------------------------------------------------------------------------------------
+// Connections with bounded requests
+//
+// cpp-httplib 0.11 bounds each header line (8 KiB) but not their number, nor the time a request
+// may take to arrive: a client streaming header lines grew slamd by 1.2 GB in 8 s (measured), and
+// one sending a byte every few seconds held a pool thread for ever. BoundedServer replaces the
+// library's connection loop with the same loop over BoundedStream, which gives each request a
+// byte budget (head plus the largest body allowed) and a deadline; past either, reads fail and
+// the library answers 400 and closes the connection.
+
+using SteadyTime = Clock::time_point;
+
+class BoundedStream final : public httplib::Stream {
+ public:
+  BoundedStream(int fd, std::chrono::milliseconds read_timeout,
+                std::chrono::milliseconds write_timeout)
+      : fd_(fd), read_timeout_(read_timeout), write_timeout_(write_timeout) {}
+
+  /// The next request may read `bytes` more bytes, until `deadline`.
+  void StartRequest(size_t bytes, SteadyTime deadline) {
+    budget_ = bytes;
+    deadline_ = deadline;
+    exhausted_ = false;
+  }
+  /// True once a read was refused for the budget or the deadline.
+  bool Exhausted() const { return exhausted_; }
+  /// Bytes already received and not yet read (a pipelined request).
+  bool HasBuffered() const { return begin_ < end_; }
+
+  bool is_readable() const override { return HasBuffered() || Wait(POLLIN, ReadLimit()); }
+  bool is_writable() const override { return Wait(POLLOUT, write_timeout_) && PeerOpen(); }
+
+  ssize_t read(char* ptr, size_t size) override {
+    if (budget_ == 0 || Clock::now() >= deadline_) {
+      exhausted_ = true;
+      return -1;
+    }
+    if (!HasBuffered()) {
+      if (!Wait(POLLIN, ReadLimit())) {
+        exhausted_ = Clock::now() >= deadline_;
+        return -1;
+      }
+      ssize_t n;
+      do {
+        n = ::recv(fd_, buffer_, sizeof buffer_, 0);
+      } while (n < 0 && errno == EINTR);
+      if (n <= 0) return n;
+      begin_ = 0;
+      end_ = static_cast<size_t>(n);
+    }
+    const size_t n = std::min({size, end_ - begin_, budget_});
+    std::memcpy(ptr, buffer_ + begin_, n);
+    begin_ += n;
+    budget_ -= n;
+    return static_cast<ssize_t>(n);
+  }
+
+  ssize_t write(const char* ptr, size_t size) override {
+    if (!Wait(POLLOUT, write_timeout_)) return -1;
+    ssize_t n;
+    do {
+      n = ::send(fd_, ptr, size, MSG_NOSIGNAL);
+    } while (n < 0 && errno == EINTR);
+    return n;
+  }
+
+  void get_remote_ip_and_port(std::string& ip, int& port) const override {
+    Address(::getpeername, ip, port);
+  }
+  void get_local_ip_and_port(std::string& ip, int& port) const override {
+    Address(::getsockname, ip, port);
+  }
+  socket_t socket() const override { return fd_; }
+
+ private:
+  std::chrono::milliseconds ReadLimit() const {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline_ - Clock::now());
+    return std::clamp(left, std::chrono::milliseconds(0), read_timeout_);
+  }
+
+  bool Wait(short events, std::chrono::milliseconds timeout) const {
+    pollfd p{fd_, events, 0};
+    int n;
+    do {
+      n = ::poll(&p, 1, static_cast<int>(timeout.count()));
+    } while (n < 0 && errno == EINTR);
+    return n > 0 && (p.revents & events) != 0;
+  }
+
+  // False once the peer has closed (an event stream's client went away).
+  bool PeerOpen() const {
+    pollfd p{fd_, POLLIN, 0};
+    if (::poll(&p, 1, 0) <= 0) return true;
+    if ((p.revents & (POLLERR | POLLHUP | POLLNVAL)) != 0) return false;
+    char byte;
+    return ::recv(fd_, &byte, 1, MSG_PEEK | MSG_DONTWAIT) != 0;
+  }
+
+  template <typename Getter>
+  void Address(Getter getter, std::string& ip, int& port) const {
+    sockaddr_storage address{};
+    socklen_t length = sizeof address;
+    ip.clear();
+    port = 0;
+    if (getter(fd_, reinterpret_cast<sockaddr*>(&address), &length) != 0) return;
+    char text[INET6_ADDRSTRLEN] = {};
+    if (address.ss_family == AF_INET) {
+      const auto* in = reinterpret_cast<const sockaddr_in*>(&address);
+      ::inet_ntop(AF_INET, &in->sin_addr, text, sizeof text);
+      port = ntohs(in->sin_port);
+    } else if (address.ss_family == AF_INET6) {
+      const auto* in = reinterpret_cast<const sockaddr_in6*>(&address);
+      ::inet_ntop(AF_INET6, &in->sin6_addr, text, sizeof text);
+      port = ntohs(in->sin6_port);
+    }
+    ip = text;
+  }
+
+  int fd_;
+  std::chrono::milliseconds read_timeout_, write_timeout_;
+  size_t budget_ = 0;
+  SteadyTime deadline_{};
+  bool exhausted_ = false;
+  char buffer_[4096];
+  size_t begin_ = 0, end_ = 0;
+};
+
+class BoundedServer final : public httplib::Server {
+ public:
+  size_t max_head_bytes = 64 * 1024;
+  size_t max_body_bytes = 64 * 1024;
+  std::chrono::seconds request_deadline{10};
+
+ private:
+  // httplib's loop (process_server_socket_core of 0.11) over a BoundedStream; the idle wait
+  // between requests looks at the listening socket every 100 ms, so that stop() is prompt.
+  bool process_and_close_socket(socket_t sock) override {
+    BoundedStream stream(sock, std::chrono::seconds(read_timeout_sec_),
+                         std::chrono::seconds(write_timeout_sec_));
+    bool ok = false;
+    for (size_t left = keep_alive_max_count_; left > 0 && svr_sock_ != INVALID_SOCKET; --left) {
+      if (!stream.HasBuffered() && !AwaitRequest(sock)) break;
+      stream.StartRequest(max_head_bytes + max_body_bytes, Clock::now() + request_deadline);
+      bool closed = false;
+      ok = process_request(stream, left == 1, closed, nullptr);
+      if (!ok || closed || stream.Exhausted()) break;  // the rest of a cut request is garbage
+    }
+    ::shutdown(sock, SHUT_RDWR);
+    ::close(sock);
+    return ok;
+  }
+
+  bool AwaitRequest(int sock) const {
+    const SteadyTime give_up = Clock::now() + std::chrono::seconds(keep_alive_timeout_sec_);
+    while (svr_sock_ != INVALID_SOCKET && Clock::now() < give_up) {
+      pollfd p{sock, POLLIN, 0};
+      const int n = ::poll(&p, 1, 100);
+      if (n > 0) return (p.revents & POLLIN) != 0;
+      if (n < 0 && errno != EINTR) return false;
+    }
+    return false;
+  }
+};
+
 }  // namespace
 
 bool IsLoopback(const std::string& address) {
@@ -214,7 +382,7 @@ struct HttpServer::Impl {
   hw::Link& link;
   JobManager& jobs;
   HttpOptions options;
-  httplib::Server server;
+  BoundedServer server;
   Clock::time_point started = Clock::now();
   // Tells one run of slamd from the next (the page reloads everything when it changes).
   std::string instance = std::to_string(
@@ -790,10 +958,13 @@ void HttpServer::Impl::Setup() {
   // a keep-alive connection).
   server.set_tcp_nodelay(true);
   server.set_keep_alive_max_count(1000);
-  server.set_keep_alive_timeout(2);  // short: stop() waits for idle keep-alive connections
+  // Short: an idle keep-alive connection holds a pool thread (stop() no longer waits for it).
+  server.set_keep_alive_timeout(2);
   server.set_read_timeout(5);
   server.set_write_timeout(5);
+  server.request_deadline = std::chrono::seconds(10);  // a whole request, head and body
   server.set_payload_max_length(options.max_body_bytes);
+  server.max_body_bytes = options.max_body_bytes;
   // SO_REUSEADDR only: with SO_REUSEPORT (the default) two slamd could share a port silently.
   server.set_socket_options([](socket_t sock) {
     int yes = 1;
