@@ -321,6 +321,15 @@ class BoundedStream final : public httplib::Stream {
 
 class BoundedServer final : public httplib::Server {
  public:
+  /// httplib listens with a backlog of 5: when the 8 viewers of the load test opened their tile
+  /// connections at once while the SLAM kept both cores busy, the kernel dropped SYNs
+  /// (TcpExtListenOverflows) and those requests waited for the 1 s SYN retransmission. Linux
+  /// takes a second listen() on a listening socket as a new backlog.
+  void WidenListenBacklog() {
+    const socket_t sock = svr_sock_;
+    if (sock != INVALID_SOCKET) ::listen(sock, 256);
+  }
+
   size_t max_head_bytes = 64 * 1024;
   size_t max_body_bytes = 64 * 1024;
   std::chrono::seconds request_deadline{10};
@@ -1200,6 +1209,7 @@ int HttpServer::Bind(std::string& error) {
   if (impl_->options.port == 0) {
     const int port = s.bind_to_any_port(impl_->options.bind);
     if (port <= 0) error = "cannot listen on " + impl_->options.bind + " (any port)";
+    if (port > 0) s.WidenListenBacklog();
     return port > 0 ? port : -1;
   }
   if (!s.bind_to_port(impl_->options.bind, impl_->options.port)) {
@@ -1207,6 +1217,7 @@ int HttpServer::Bind(std::string& error) {
             " (in use, or not an address of this machine)";
     return -1;
   }
+  s.WidenListenBacklog();
   return impl_->options.port;
 }
 
