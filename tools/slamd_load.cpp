@@ -7,8 +7,9 @@
 // counted from that due time, so a slow server cannot slow the load down and hide its own
 // queueing; what is still waiting when the time is up is reported as unsent). The mix cycles
 // through GET status, budget, map, a tile and /metrics, with a PATCH of the budget to its own value
-// every 50th request. /metrics is read before and after (scans, late scans, link queue drops), and
-// the RSS of --pid is sampled every second.
+// every 50th request. /metrics is read before and after (scans, late scans, link queue drops), the
+// status too (scans the assembler had to abandon: missed scans), and the RSS of --pid is sampled
+// every second (its growth and slope over the run's second half say whether memory is flat).
 //
 //   slamd-load --url http://127.0.0.1:8080/ [--viewers 8] [--rate 500] [--duration 60]
 //              [--token-file F] [--pid PID] [--json]
@@ -122,6 +123,47 @@ Percentiles Summarise(std::vector<double> values) {
 // --- /metrics and /proc ---------------------------------------------------------------------
 
 /// Sum of the samples named `name` (any labels) in Prometheus text; nullopt if absent.
+/// How the resident set moved: over the run's second half (after the map's first growth) its
+/// change and least-squares slope, and one sample every 10 s for the record.
+struct RssTrend {
+  std::optional<double> second_half_growth_mib;
+  std::optional<double> second_half_slope_mib_per_min;
+  json every_10_s = json::array();
+};
+
+RssTrend Trend(const std::vector<std::pair<double, double>>& series) {
+  RssTrend trend;
+  double next_mark = 0.0;
+  for (const auto& [t, mib] : series) {
+    if (t + 0.5 >= next_mark) {
+      trend.every_10_s.push_back(std::round(mib * 10.0) / 10.0);
+      next_mark += 10.0;
+    }
+  }
+  if (series.size() < 4) return trend;
+  const double half = series.back().first / 2.0;
+  std::vector<std::pair<double, double>> tail;
+  for (const auto& sample : series) {
+    if (sample.first >= half) tail.push_back(sample);
+  }
+  if (tail.size() < 2) return trend;
+  trend.second_half_growth_mib = tail.back().second - tail.front().second;
+  double mt = 0.0, mm = 0.0;
+  for (const auto& [t, mib] : tail) {
+    mt += t;
+    mm += mib;
+  }
+  mt /= static_cast<double>(tail.size());
+  mm /= static_cast<double>(tail.size());
+  double stt = 0.0, stm = 0.0;
+  for (const auto& [t, mib] : tail) {
+    stt += (t - mt) * (t - mt);
+    stm += (t - mt) * (mib - mm);
+  }
+  if (stt > 0.0) trend.second_half_slope_mib_per_min = stm / stt * 60.0;
+  return trend;
+}
+
 std::optional<double> MetricValue(const std::string& text, const std::string& name) {
   std::istringstream lines(text);
   std::string line;
@@ -546,10 +588,25 @@ int main(int argc, char** argv) {
     std::cerr << "slamd-load: GET /metrics failed\n";
     return 1;
   }
+  // Scans the assembler abandoned (gaps in the robot's data) are in the status, not /metrics.
+  const auto scans_discarded = [&probe]() -> std::optional<double> {
+    const auto status = probe.Get("/api/v1/status");
+    if (!status || status->status != 200) return std::nullopt;
+    const json parsed = json::parse(status->body, nullptr, false);
+    const json* value = &parsed;
+    for (const char* key : {"slam", "assembler", "scans_discarded"}) {
+      if (!value->is_object() || !value->contains(key)) return std::nullopt;
+      value = &(*value)[key];
+    }
+    if (!value->is_number()) return std::nullopt;
+    return value->get<double>();
+  };
+  const std::optional<double> discarded_before = scans_discarded();
 
   // RSS sampling.
   std::atomic<bool> stop{false};
   std::optional<double> rss_start, rss_end, rss_max;
+  std::vector<std::pair<double, double>> rss_series;  // (seconds since the start, MiB)
   std::mutex rss_mutex;
   std::thread rss_thread;
   if (pid > 0) {
@@ -559,8 +616,10 @@ int main(int argc, char** argv) {
       return 1;
     }
     rss_max = rss_start;
+    rss_series.emplace_back(0.0, *rss_start);
     rss_thread = std::thread([&] {
-      auto next_sample = Clock::now();
+      const auto first = Clock::now();
+      auto next_sample = first;
       while (!stop) {
         next_sample += std::chrono::seconds(1);
         while (!stop && Clock::now() < next_sample) {
@@ -571,6 +630,7 @@ int main(int argc, char** argv) {
         if (rss) {
           rss_end = rss;
           rss_max = std::max(*rss_max, *rss);
+          rss_series.emplace_back(SecondsBetween(first, Clock::now()), *rss);
         }
       }
     });
@@ -627,6 +687,11 @@ int main(int argc, char** argv) {
     return *after - *before;
   };
 
+  const std::optional<double> discarded_after = scans_discarded();
+  std::optional<double> missed_scans;
+  if (discarded_before && discarded_after) missed_scans = *discarded_after - *discarded_before;
+  const RssTrend trend = Trend(rss_series);
+
   Record rest;
   for (const auto& record : records) rest.Merge(record);
   Record tile_fetches;
@@ -672,10 +737,14 @@ int main(int argc, char** argv) {
       {"scans", optional_json(delta("slamd_scans_total"))},
       {"late_scans", optional_json(delta("slamd_late_scans_total"))},
       {"link_queue_drops", optional_json(delta("slamd_link_queue_drops_total"))},
+      {"missed_scans", optional_json(missed_scans)},
       {"rss_mib",
        {{"start", optional_json(rss_start)},
         {"end", optional_json(rss_end ? rss_end : rss_start)},
-        {"max", optional_json(rss_max)}}},
+        {"max", optional_json(rss_max)},
+        {"second_half_growth", optional_json(trend.second_half_growth_mib)},
+        {"second_half_slope_mib_per_min", optional_json(trend.second_half_slope_mib_per_min)},
+        {"every_10_s", trend.every_10_s}}},
   };
 
   std::ostream& table = as_json ? std::cerr : std::cout;
@@ -698,11 +767,17 @@ int main(int argc, char** argv) {
         << "  tile fetches       " << tile_fetches.latencies_ms.size() << ", errors "
         << tile_fetches.errors << ", p99 " << number(tile_latency.p99, 2) << " ms\n"
         << "  scans              " << number(report["scans"], 0) << ", late "
-        << number(report["late_scans"], 0) << ", link queue drops "
-        << number(report["link_queue_drops"], 0) << "\n"
+        << number(report["late_scans"], 0) << ", missed " << number(report["missed_scans"], 0)
+        << ", link queue drops " << number(report["link_queue_drops"], 0) << "\n"
         << "  RSS MiB            start " << number(report["rss_mib"]["start"], 1) << "  end "
         << number(report["rss_mib"]["end"], 1) << "  max " << number(report["rss_mib"]["max"], 1)
-        << "\n";
+        << "  second half: " << number(report["rss_mib"]["second_half_growth"], 2) << " MiB, "
+        << number(report["rss_mib"]["second_half_slope_mib_per_min"], 3) << " MiB/min\n";
+  if (!trend.every_10_s.empty()) {
+    table << "  RSS every 10 s    ";
+    for (const auto& value : trend.every_10_s) table << " " << number(value, 1);
+    table << "\n";
+  }
   table << "  statuses          ";
   for (const auto& [status, count] : rest.statuses) {
     table << " " << (status == 0 ? std::string("transport-failure") : std::to_string(status)) << ":"
