@@ -147,14 +147,12 @@ void ExpectStillServing(Http& http) {
   EXPECT_EQ(http.Get("/metrics").status, 200);
 }
 
-/// Resident memory of `pid` in MiB (VmRSS), or -1.
-double RssMib(pid_t pid) {
-  std::istringstream lines(ReadFile("/proc/" + std::to_string(pid) + "/status"));
-  std::string line;
-  while (std::getline(lines, line)) {
-    if (StartsWith(line, "VmRSS:")) return std::atof(line.c_str() + 6) / 1024.0;
-  }
-  return -1.0;
+/// Starts `slamd` replaying `log` at `speed` times real time with `budget` rays per scan.
+void StartOnLog(SlamdProcess& slamd, const fs::path& log, double speed, const std::string& budget) {
+  slamd.set_speed(speed);
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--source", "candump:" + log.string(), "--budget", budget}, &error))
+      << error;
 }
 
 /// Sleeps until `frame` is due: log time from `first_us`, divided by `speed`, after `start`.
@@ -172,12 +170,7 @@ TEST(SlamdFaults, LogEndingKeepsServingAndReportsTheLinkEnded) {
   const auto frames = ExperimentFrames();
   ASSERT_FALSE(frames.empty());
   SlamdProcess slamd;
-  slamd.set_speed(20.0);
-  std::string error;
-  ASSERT_TRUE(slamd.Start(
-      {"--source", "candump:" + (ExperimentDir() / "can.log").string(), "--budget", "8000"},
-      &error))
-      << error;
+  ASSERT_NO_FATAL_FAILURE(StartOnLog(slamd, ExperimentDir() / "can.log", 20.0, "8000"));
   Http http(slamd.host(), slamd.port());
   const json ended = WaitEndedAndSettled(http, 20.0);
   EXPECT_EQ(ended["link"].value("frames", uint64_t{0}), frames.size());
@@ -427,10 +420,7 @@ TEST(SlamdFaults, OdometryAndScannerStallsAreCountedAndTheSlamGoesOn) {
   const fs::path log = scratch.path() / "stalled.log";
   WriteLog(log, stalled);
   SlamdProcess slamd;
-  slamd.set_speed(20.0);
-  std::string error;
-  ASSERT_TRUE(slamd.Start({"--source", "candump:" + log.string(), "--budget", "8000"}, &error))
-      << error;
+  ASSERT_NO_FATAL_FAILURE(StartOnLog(slamd, log, 20.0, "8000"));
   Http http(slamd.host(), slamd.port());
   const json ended = WaitEndedAndSettled(http, 20.0);
   const json& assembler = ended["slam"]["assembler"];
@@ -458,10 +448,7 @@ TEST(SlamdFaults, ClockJumpsInALogNeitherStallNorDerailTheSlam) {
   const fs::path log = scratch.path() / "jumped.log";
   WriteLog(log, jumped);
   SlamdProcess slamd;
-  slamd.set_speed(20.0);
-  std::string error;
-  ASSERT_TRUE(slamd.Start({"--source", "candump:" + log.string(), "--budget", "8000"}, &error))
-      << error;
+  ASSERT_NO_FATAL_FAILURE(StartOnLog(slamd, log, 20.0, "8000"));
   Http http(slamd.host(), slamd.port());
   // 30 s of log at 20x: done in seconds, not after an hour.
   const json ended = WaitEndedAndSettled(http, 20.0);
@@ -486,12 +473,7 @@ TEST(SlamdFaults, SlamSlowerThanRealTimeDropsEventsCountedWithBoundedQueueAndMem
   SlamdProcess slamd;
   // The log at 40x with three million rays per scan: the SLAM takes several times the scan
   // period, so the link's queue fills.
-  slamd.set_speed(40.0);
-  std::string error;
-  ASSERT_TRUE(slamd.Start(
-      {"--source", "candump:" + (ExperimentDir() / "can.log").string(), "--budget", "3000000"},
-      &error))
-      << error;
+  ASSERT_NO_FATAL_FAILURE(StartOnLog(slamd, ExperimentDir() / "can.log", 40.0, "3000000"));
   Http http(slamd.host(), slamd.port());
   double rss_first = -1.0, rss_max = 0.0, slowest_health_s = 0.0;
   uint64_t queue_max = 0;

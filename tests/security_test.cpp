@@ -109,16 +109,6 @@ TEST_F(SecuredSlamd, OversizeHeadersAndUrisAreRefusedAndSlamdServesOn) {
   EXPECT_EQ(http().Get("/api/v1/health").status, 200);
 }
 
-/// Resident memory of `pid` in MiB (VmRSS), or -1.
-double RssMib(pid_t pid) {
-  std::istringstream lines(ReadFile("/proc/" + std::to_string(pid) + "/status"));
-  std::string line;
-  while (std::getline(lines, line)) {
-    if (StartsWith(line, "VmRSS:")) return std::atof(line.c_str() + 6) / 1024.0;
-  }
-  return -1.0;
-}
-
 TEST_F(SecuredSlamd, AFloodOfHeaderLinesIsCutAtTheRequestBudget) {
   // httplib bounds each header line but not their number: without slamd's per-request budget
   // (64 KiB of head plus the largest body) this grew slamd by 1.2 GB in 8 s.

@@ -800,6 +800,16 @@ inline std::optional<double> PollMetric(Http& http, const std::string& name, dou
 // Map helpers
 
 /// Polls GET /api/v1/map until it lists at least `min_tiles` tiles; the last index.
+/// Resident memory of `pid` in MiB (VmRSS), or -1.
+inline double RssMib(pid_t pid) {
+  std::istringstream lines(ReadFile("/proc/" + std::to_string(pid) + "/status"));
+  std::string line;
+  while (std::getline(lines, line)) {
+    if (StartsWith(line, "VmRSS:")) return std::atof(line.c_str() + 6) / 1024.0;
+  }
+  return -1.0;
+}
+
 inline json WaitForTiles(Http& http, size_t min_tiles, double timeout_s = 15.0) {
   const auto deadline = After(timeout_s);
   json map;
