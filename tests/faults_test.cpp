@@ -38,12 +38,12 @@ constexpr double kLogSeconds = 30.0;
 
 int NodeOf(const CanFrame& frame) { return static_cast<int>(frame.id & 0xFF); }
 
-/// A 30 s box-world experiment written by slam-sim into the test's temp dir (once per process).
+/// A 30 s box-world experiment written by slam-sim (once per process).
 const fs::path& ExperimentDir() {
+  // Written on first use, removed when the test process exits.
+  static const ScratchDir scratch("faults_experiment");
   static const fs::path dir = [] {
-    const fs::path path =
-        fs::path(::testing::TempDir()) / ("slamd_faults_experiment_" + std::to_string(::getpid()));
-    fs::remove_all(path);
+    const fs::path path = scratch.path() / "box-5";
     const std::string command = SlamSimBinary() + " --world box --duration " +
                                 std::to_string(static_cast<int>(kLogSeconds)) + " --seed 5 --out " +
                                 path.string() + " > /dev/null";
