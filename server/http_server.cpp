@@ -319,8 +319,58 @@ class BoundedStream final : public httplib::Stream {
   size_t begin_ = 0, end_ = 0;
 };
 
+/// A request in memory and its response (HttpServer::HandleRaw): reads from the request bytes,
+/// writes into a string until `cap` bytes, then reports itself unwritable (which ends an event
+/// stream at its next wake-up).
+class MemoryStream final : public httplib::Stream {
+ public:
+  MemoryStream(std::string_view request, size_t cap) : request_(request), cap_(cap) {}
+
+  bool is_readable() const override { return read_ < request_.size(); }
+  bool is_writable() const override { return response_.size() < cap_; }
+  ssize_t read(char* ptr, size_t size) override {
+    const size_t n = std::min(size, request_.size() - read_);
+    if (n == 0) return 0;
+    std::memcpy(ptr, request_.data() + read_, n);
+    read_ += n;
+    return static_cast<ssize_t>(n);
+  }
+  ssize_t write(const char* ptr, size_t size) override {
+    if (!is_writable()) return -1;
+    const size_t n = std::min(size, cap_ - response_.size());
+    response_.append(ptr, n);
+    return static_cast<ssize_t>(n);
+  }
+  void get_remote_ip_and_port(std::string& ip, int& port) const override {
+    ip = "127.0.0.1";
+    port = 40000;
+  }
+  void get_local_ip_and_port(std::string& ip, int& port) const override {
+    ip = "127.0.0.1";
+    port = 8080;
+  }
+  socket_t socket() const override { return INVALID_SOCKET; }
+
+  std::string& response() { return response_; }
+
+ private:
+  std::string_view request_;
+  size_t read_ = 0;
+  size_t cap_;
+  std::string response_;
+};
+
 class BoundedServer final : public httplib::Server {
  public:
+  /// One request through the parser, the pre-routing guard, routing, the handlers and the
+  /// logger, as on a connection that closes after it; the response bytes.
+  std::string ProcessInMemory(std::string_view request, size_t max_response_bytes) {
+    MemoryStream stream(request, max_response_bytes);
+    bool closed = false;
+    process_request(stream, /*close_connection=*/true, closed, nullptr);
+    return std::move(stream.response());
+  }
+
   /// httplib listens with a backlog of 5: when the 8 viewers of the load test opened their tile
   /// connections at once while the SLAM kept both cores busy, the kernel dropped SYNs
   /// (TcpExtListenOverflows) and those requests waited for the 1 s SYN retransmission. Linux
@@ -1222,6 +1272,10 @@ int HttpServer::Bind(std::string& error) {
 }
 
 void HttpServer::Run() { impl_->server.listen_after_bind(); }
+
+std::string HttpServer::HandleInMemory(std::string_view request, size_t max_response_bytes) {
+  return impl_->server.ProcessInMemory(request, max_response_bytes);
+}
 
 void HttpServer::Stop() {
   impl_->stopping = true;

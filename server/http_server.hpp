@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <string_view>
 
 #include "hw_link/link.hpp"
 #include "server/slam_service.hpp"
@@ -47,6 +48,12 @@ class HttpServer {
   void Run();
   /// Stops serving (from any thread); event streams end within half a second.
   void Stop();
+
+  /// Serves one raw HTTP/1.1 request held in memory, exactly as one arriving on a connection
+  /// that closes after it (parser, limits, token, routes, handlers), and returns the raw
+  /// response, cut at `max_response_bytes` (an event stream ends there). No Bind or Run needed;
+  /// safe beside Run. For the fuzzer (fuzz/fuzz_http.cpp) and tests.
+  std::string HandleInMemory(std::string_view request, size_t max_response_bytes = 1 << 20);
 
  private:
   struct Impl;

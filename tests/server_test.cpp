@@ -12,11 +12,11 @@
 #include "engine/io/atomic_file.hpp"
 #include "engine/random.hpp"
 #include "hw_link/transports.hpp"
+#include "scheduler/replay.hpp"
 #include "server/http_server.hpp"
 #include "server/slam_service.hpp"
 #include "server/state_store.hpp"
 #include "server/tune_jobs.hpp"
-#include "scheduler/replay.hpp"
 #include "tests/experiment_support.hpp"
 #include "tests/test_support.hpp"
 
@@ -35,7 +35,8 @@ SavedState SampleState(uint64_t version, uint64_t seed) {
     tile.index = {i - 1, 2 * i};
     tile.version = version - static_cast<uint64_t>(i);
     tile.cells.resize(kTileCells);
-    for (LogOdds& c : tile.cells) c = static_cast<LogOdds>(static_cast<int>(rng.Next() % 1001) - 500);
+    for (LogOdds& c : tile.cells)
+      c = static_cast<LogOdds>(static_cast<int>(rng.Next() % 1001) - 500);
     s.tiles.push_back(std::move(tile));
   }
   s.trajectory = {{0.5, {0, 0, 0}}, {1.0, {0.1, 0.2, 0.3}}, {1.5, {0.2, 0.3, -0.4}}};
@@ -157,8 +158,9 @@ TEST(StateStore, DamagedStateIsAnErrorNamingTheFile) {
   EXPECT_FALSE(loaded.state);
   EXPECT_NE(loaded.error.find("map-10.tiles"), std::string::npos) << loaded.error;
 
-  ASSERT_FALSE(io::WriteFileAtomic(dir.File("state.json"),
-                                   R"({"format": 1, "tiles_file": "../etc/passwd", "trajectory_file": "t.tum"})"));
+  ASSERT_FALSE(io::WriteFileAtomic(
+      dir.File("state.json"),
+      R"({"format": 1, "tiles_file": "../etc/passwd", "trajectory_file": "t.tum"})"));
   loaded = LoadState(dir.path().string());
   EXPECT_FALSE(loaded.state);
   EXPECT_NE(loaded.error.find("tiles_file"), std::string::npos) << loaded.error;
@@ -233,7 +235,8 @@ class SlamServiceTest : public ::testing::Test {
   }
 
   /// Waits (bounded) until the service has processed every scan of the log.
-  static std::shared_ptr<const SlamSnapshot> WaitForScans(const SlamService& service, int64_t scans) {
+  static std::shared_ptr<const SlamSnapshot> WaitForScans(const SlamService& service,
+                                                          int64_t scans) {
     auto snapshot = service.Snapshot();
     const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
     while (service.Counters().scans < scans && std::chrono::steady_clock::now() < deadline) {
@@ -284,8 +287,7 @@ TEST_F(SlamServiceTest, MapsTheLogAndPublishesSnapshots) {
   ReplayOptions replay;
   replay.budget = Options().budget;
   replay.config.parallel = false;
-  const ReplayResult expected =
-      Replay((*experiment_)->robot, (*experiment_)->scans, {}, replay);
+  const ReplayResult expected = Replay((*experiment_)->robot, (*experiment_)->scans, {}, replay);
   const OccupancyGrid grid = SnapshotGrid(*last, service.logodds_limit());
   ASSERT_EQ(grid.TileCount(), expected.map.TileCount());
   for (const TileRef& t : expected.map.Tiles()) {
@@ -374,6 +376,48 @@ TEST_F(SlamServiceTest, ResumesASavedMap) {
   const std::vector<TimedPose> trajectory = ScanEndTrajectory(*later);
   EXPECT_GT(trajectory.size(), loaded.state->trajectory.size());
   for (size_t i = 1; i < trajectory.size(); ++i) EXPECT_GT(trajectory[i].t, trajectory[i - 1].t);
+}
+
+TEST_F(SlamServiceTest, InMemoryRequestsTakeTheWholeServerPath) {
+  // HttpServer::HandleInMemory (the fuzzer's way in) goes through the parser, the guard, routing
+  // and the handlers, as a request on a connection does.
+  ASSERT_TRUE(experiment_->has_value());
+  auto link = MakeLink();
+  SlamService service(*link, nullptr, Options());
+  JobManager jobs("", "");
+  HttpOptions options;
+  options.token = "in-memory-token-0123";
+  HttpServer server(service, *link, jobs, options);
+  const auto status_of = [](const std::string& response) {
+    return response.rfind("HTTP/1.1 ", 0) == 0 ? std::stoi(response.substr(9, 3)) : -1;
+  };
+  const std::string health =
+      server.HandleInMemory("GET /api/v1/health HTTP/1.1\r\nHost: x\r\n\r\n");
+  EXPECT_EQ(status_of(health), 200) << health;
+  EXPECT_NE(health.find("{\"status\":\"ok\"}"), std::string::npos) << health;
+  const std::string json_body = R"({"rays_per_scan": 9000})";
+  const std::string patch =
+      "PATCH /api/v1/budget HTTP/1.1\r\nHost: x\r\nContent-Type: application/merge-patch+json\r\n"
+      "Content-Length: " +
+      std::to_string(json_body.size()) + "\r\n";
+  const std::string body = "\r\n" + json_body;
+  // The guard: no token, 401; then the handler: applied.
+  EXPECT_EQ(status_of(server.HandleInMemory(patch + body)), 401);
+  EXPECT_EQ(service.Budget().rays_per_scan, 8125);
+  const std::string applied =
+      server.HandleInMemory(patch + "Authorization: Bearer in-memory-token-0123\r\n" + body);
+  EXPECT_EQ(status_of(applied), 200) << applied;
+  EXPECT_EQ(service.Budget().rays_per_scan, 9000);
+  // The parser's limits: an oversize URI is 414, garbage is 400, and unknown routes are problems.
+  EXPECT_EQ(
+      status_of(server.HandleInMemory("GET /" + std::string(10000, 'a') + " HTTP/1.1\r\n\r\n")),
+      414);
+  EXPECT_EQ(status_of(server.HandleInMemory("\x01\x02 garbage\r\n\r\n")), 400);
+  const std::string unknown = server.HandleInMemory("GET /api/v1/nope HTTP/1.1\r\nHost: x\r\n\r\n");
+  EXPECT_EQ(status_of(unknown), 404);
+  EXPECT_NE(unknown.find("application/problem+json"), std::string::npos) << unknown;
+  // The response is cut at the cap.
+  EXPECT_LE(server.HandleInMemory("GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n", 100).size(), 100u);
 }
 
 }  // namespace
