@@ -60,9 +60,15 @@ std::string MediaType(const std::string& content_type) {
   return Lower(type);
 }
 
+/// JSON text of `body`; bytes that are not UTF-8 (a client's path or parameter echoed in an
+/// error, say) become U+FFFD instead of throwing.
+std::string Dump(const json& body) {
+  return body.dump(-1, ' ', false, json::error_handler_t::replace);
+}
+
 void SendJson(httplib::Response& res, const json& body, int status = 200) {
   res.status = status;
-  res.set_content(body.dump(), kJson);
+  res.set_content(Dump(body), kJson);
 }
 
 void SendProblem(httplib::Response& res, int status, const std::string& title,
@@ -74,7 +80,7 @@ void SendProblem(httplib::Response& res, int status, const std::string& title,
     body["errors"] = std::move(list);
   }
   res.status = status;
-  res.set_content(body.dump(), kProblem);
+  res.set_content(Dump(body), kProblem);
 }
 
 json PoseJson(const TimedPose& p) {
@@ -182,7 +188,7 @@ json PoseEventJson(const SlamSnapshot& s) {
 }
 
 std::string Event(const std::string& name, uint64_t id, const json& data) {
-  return "event: " + name + "\nid: " + std::to_string(id) + "\ndata: " + data.dump() + "\n\n";
+  return "event: " + name + "\nid: " + std::to_string(id) + "\ndata: " + Dump(data) + "\n\n";
 }
 
 struct TileKey {
@@ -1141,7 +1147,7 @@ void HttpServer::Impl::Setup() {
                   };
                   json j = {{"slam", rows(trajectory)}};
                   if (service.simulated()) j["ground_truth"] = rows(service.GroundTruth());
-                  body = j.dump();
+                  body = Dump(j);
                   type = kJson;
                   return true;
                 });

@@ -176,6 +176,18 @@ TEST_F(SecuredSlamd, NoPathLeadsOutOfTheWebRoot) {
   }
 }
 
+TEST_F(SecuredSlamd, BytesThatAreNotUtf8InPathsAndParametersGiveProblemsNot500) {
+  // Found by fuzz_http: an error echoing the client's bytes threw while making its JSON (500).
+  for (const std::string& target :
+       {std::string("/api/v1/trajectory?format=%ff%00"), std::string("/api/v1/no\xff\xfe"),
+        std::string("/api/v1/jobs/%c3%28"), std::string("/api/v1/map/tiles/\xe2\x28/1.png")}) {
+    const RawReply reply =
+        RawExchange(port(), "GET " + target + " HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+    EXPECT_TRUE(reply.status == 400 || reply.status == 404) << target << ": " << reply;
+    EXPECT_FALSE(json::parse(reply.body, nullptr, false).is_discarded()) << target << ": " << reply;
+  }
+}
+
 TEST(WebRoot, TheShippedPageHasNoSymbolicLinks) {
   // The static handler follows symbolic links inside the web root (notes/httplib-0.11.md,
   // point 10): the page slamd ships must have none, or a link could serve any file.
