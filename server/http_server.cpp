@@ -15,6 +15,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <set>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -1040,8 +1041,15 @@ void HttpServer::Impl::Setup() {
     return Guard(const_cast<Request&>(req), res);
   });
   server.set_logger([this](const Request& req, const Response& res) {
+    // The method as a label only when it is one of HTTP's: whatever else a client sends as a
+    // method (httplib answers 400) would grow the counters without bound and go into /metrics
+    // unescaped.
+    static const std::set<std::string> kMethods{"GET",   "HEAD",    "POST",   "PUT",
+                                                "PATCH", "DELETE",  "OPTIONS", "TRACE",
+                                                "CONNECT"};
+    const std::string method = kMethods.count(req.method) ? req.method : "other";
     const std::lock_guard lock(requests_mutex);
-    ++requests[{req.method, res.status}];
+    ++requests[{method, res.status}];
   });
   server.set_exception_handler([](const Request&, Response& res, std::exception_ptr ep) {
     std::string what = "unexpected error";

@@ -188,6 +188,34 @@ TEST_F(SecuredSlamd, BytesThatAreNotUtf8InPathsAndParametersGiveProblemsNot500) 
   }
 }
 
+TEST_F(SecuredSlamd, UnknownMethodsAreCountedAsOtherAndNeverBecomeLabels) {
+  // Found by fuzz_http's memory growth: every distinct method a client invented became a new
+  // counter (and a /metrics label, unescaped).
+  for (const std::string& method :
+       {std::string("FOO"), std::string("G\xffT"), std::string("B\"REW"),
+        std::string("X") + std::string(100, 'Y')}) {
+    const RawReply reply = RawExchange(
+        port(), method + " /api/v1/health HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+    EXPECT_EQ(reply.status, 400) << reply;
+  }
+  const Reply metrics = http().Get("/metrics");
+  ASSERT_EQ(metrics.status, 200);
+  std::istringstream lines(metrics.body);
+  std::string line;
+  std::set<std::string> methods;
+  while (std::getline(lines, line)) {
+    if (!StartsWith(line, "slamd_http_requests_total{method=\"")) continue;
+    const size_t from = line.find('"') + 1;
+    methods.insert(line.substr(from, line.find('"', from) - from));
+  }
+  for (const std::string& method : methods) {
+    EXPECT_TRUE(method == "other" || method == "GET" || method == "PATCH" || method == "PUT" ||
+                method == "POST" || method == "DELETE" || method == "HEAD" || method == "OPTIONS")
+        << method;
+  }
+  EXPECT_TRUE(methods.count("other")) << metrics.body;
+}
+
 TEST(WebRoot, TheShippedPageHasNoSymbolicLinks) {
   // The static handler follows symbolic links inside the web root (notes/httplib-0.11.md,
   // point 10): the page slamd ships must have none, or a link could serve any file.
