@@ -1142,7 +1142,8 @@ TEST(SlamdResetTest, ResetDropsTilesAndVersionsKeepGrowing) {
   }
   const auto tiles_event = stream.WaitFor("tiles", 5.0);
   ASSERT_TRUE(tiles_event.has_value());
-  for (const auto& tile : tiles_event->Json()["tiles"]) {
+  const json tiles_body = tiles_event->Json();  // a range-for would not keep a temporary alive
+  for (const auto& tile : tiles_body["tiles"]) {
     EXPECT_GT(tile["version"].get<int64_t>(), version_before);
   }
 }
