@@ -1,9 +1,36 @@
 #include "engine/occupancy_grid.hpp"
 
 #include <algorithm>
+#include <atomic>
+#include <memory>
 #include <vector>
 
+#if defined(__SANITIZE_THREAD__)  // GCC
+#define SLAM_THREAD_SANITIZER 1
+#elif defined(__has_feature)  // Clang
+#if __has_feature(thread_sanitizer)
+#define SLAM_THREAD_SANITIZER 1
+#endif
+#endif
+
 namespace slam {
+namespace {
+
+// use_count() is a relaxed load: reading 1 says that the other owners are gone, not that what
+// they did with the tile (another particle's thread copying it on write, a server thread reading
+// a snapshot) happens before our writes. Each of them let go with a release (the acq_rel
+// decrement of the count); this is the matching acquire.
+void AcquireSoleOwnership([[maybe_unused]] const std::shared_ptr<Tile>& slot) {
+#if defined(SLAM_THREAD_SANITIZER)
+  // ThreadSanitizer does not model fences: the same acquire through a read-modify-write of the
+  // count (an increment, then the acq_rel decrement).
+  std::shared_ptr<Tile>(slot).reset();
+#else
+  std::atomic_thread_fence(std::memory_order_acquire);
+#endif
+}
+
+}  // namespace
 
 OccupancyGrid::OccupancyGrid(const GridGeometry& geometry, int limit,
                              std::shared_ptr<VersionClock> clock)
@@ -38,6 +65,8 @@ Tile& OccupancyGrid::MutableTile(TileIndex t) {
     slot = std::make_shared<Tile>();
   } else if (slot.use_count() > 1) {
     slot = std::make_shared<Tile>(*slot);  // copy on write
+  } else {
+    AcquireSoleOwnership(slot);
   }
   slot->version = write_version_;
   slot->occupied_blocks.store(kUnknownSummary, std::memory_order_relaxed);  // being written (held alone)

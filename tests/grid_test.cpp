@@ -1,5 +1,8 @@
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <thread>
+
 #include "engine/cell_encoding.hpp"
 #include "engine/grid_geometry.hpp"
 #include "engine/occupancy_grid.hpp"
@@ -75,6 +78,30 @@ TEST(OccupancyGrid, CopiesShareTilesUntilWritten) {
   EXPECT_EQ(a.At({2, 2}), 0);  // the others are intact
   EXPECT_EQ(b.At({2, 2}), 0);
   EXPECT_EQ(c.At({1, 1}), 500);  // the copy kept the shared contents
+}
+
+// One particle's grid copies a shared tile on write in its own thread and lets go of it; the
+// other grid, now its only owner, writes in place. The copy must happen before that write
+// (ThreadSanitizer found that use_count() alone did not order them; scripts/sanitize tsan).
+TEST(OccupancyGrid, CopyOnWriteInAnotherThreadHappensBeforeTheLastOwnerWrites) {
+  for (int round = 0; round < 20; ++round) {
+    OccupancyGrid a(GridGeometry(0.01), 5000);
+    a.Add({1, 1}, 500);
+    OccupancyGrid b = a;
+    std::atomic<bool> copied{false};
+    std::thread other([&] {
+      b.Add({2, 2}, -300);  // copies the shared tile, then drops b's reference to it
+      copied.store(true, std::memory_order_relaxed);  // orders nothing: the grid must
+    });
+    while (!copied.load(std::memory_order_relaxed)) std::this_thread::yield();
+    a.Add({1, 1}, 100);  // a holds the tile alone now: written in place
+    other.join();
+    EXPECT_EQ(a.At({1, 1}), 600);
+    EXPECT_EQ(b.At({1, 1}), 500);
+    EXPECT_EQ(b.At({2, 2}), -300);
+    EXPECT_EQ(a.At({2, 2}), 0);
+    EXPECT_FALSE(b.SharesTileWith(a, {0, 0}));
+  }
 }
 
 TEST(OccupancyGrid, VersionsOnlyGrowAndIdentifyContents) {
