@@ -501,9 +501,14 @@ TEST(SlamdFaults, SlamSlowerThanRealTimeDropsEventsCountedWithBoundedQueueAndMem
   const json& decoder = status["link"]["decoder"];
   EXPECT_EQ(queued + drops,
             decoder.value("odometry", uint64_t{0}) + decoder.value("scanner", uint64_t{0}));
-  // Memory stays bounded while events are being dropped, and slamd stays responsive.
+  // Memory stays bounded while events are being dropped, and slamd stays responsive. (Under
+  // AddressSanitizer, which this test and the slamd it starts are built with together, the
+  // allocator keeps freed memory in quarantine and shadow: RSS says nothing there, and the
+  // Release run checks it.)
   ASSERT_GT(rss_first, 0.0);
+#if !defined(__SANITIZE_ADDRESS__)
   EXPECT_LT(rss_max - rss_first, 64.0) << "RSS grew from " << rss_first << " to " << rss_max;
+#endif
   EXPECT_LT(slowest_health_s, 1.0);
 }
 
