@@ -106,7 +106,7 @@ JobManager::JobManager(std::string experiments_dir, std::string output_dir)
     : experiments_dir_(std::move(experiments_dir)), output_dir_(std::move(output_dir)) {}
 
 JobManager::~JobManager() {
-  std::map<std::string, std::unique_ptr<Job>> jobs;
+  decltype(jobs_) jobs;
   {
     const std::lock_guard lock(mutex_);
     jobs.swap(jobs_);
@@ -135,31 +135,52 @@ int JobManager::running() const {
 
 std::optional<nlohmann::json> JobManager::Start(const TuneRequest& request, std::string& conflict) {
   std::vector<std::string> names = request.experiments.empty() ? Experiments() : request.experiments;
-  const std::lock_guard lock(mutex_);
-  for (const auto& [id, job] : jobs_) {
-    if (job->state == "running") {
-      conflict = "job " + id + " is running; cancel it (DELETE /api/v1/jobs/" + id + ") or wait";
+  // Threads of finished jobs are joined (and forgotten jobs freed) after the lock is released:
+  // a finishing job's thread may still be on its way out.
+  std::vector<std::thread> finished_threads;
+  std::vector<std::unique_ptr<Job>> forgotten;
+  nlohmann::json started;
+  {
+    const std::lock_guard lock(mutex_);
+    for (const auto& [id, job] : jobs_) {
+      if (job->state == "running") {
+        conflict = "job " + id + " is running; cancel it (DELETE /api/v1/jobs/" + id + ") or wait";
+        return std::nullopt;
+      }
+    }
+    if (names.empty()) {
+      conflict = "no experiments with ground truth under " + experiments_dir_;
       return std::nullopt;
     }
+    // No job is running: every kept job is finished. Keep the newest kKeptFinishedJobs - 1 and
+    // the one being started.
+    while (jobs_.size() >= kKeptFinishedJobs) {
+      forgotten.push_back(std::move(jobs_.begin()->second));
+      jobs_.erase(jobs_.begin());
+    }
+    for (auto& [id, job] : jobs_) {
+      if (job->thread.joinable()) finished_threads.push_back(std::move(job->thread));
+    }
+    auto job = std::make_unique<Job>();
+    job->id = std::to_string(next_id_++);
+    job->request = request;
+    job->experiments = std::move(names);
+    Job& ref = *job;
+    latest_ = job->id;
+    jobs_[job->id] = std::move(job);
+    ref.thread = std::thread([this, &ref] {
+      pthread_setname_np(pthread_self(), "tune-job");
+      LowerThisThreadPriority();
+      Run(ref);
+    });
+    started = ToJson(ref);
   }
-  if (names.empty()) {
-    conflict = "no experiments with ground truth under " + experiments_dir_;
-    return std::nullopt;
+  for (std::thread& thread : finished_threads) thread.join();
+  for (auto& job : forgotten) {
+    if (job->thread.joinable()) job->thread.join();
   }
-  auto job = std::make_unique<Job>();
-  job->id = std::to_string(next_id_++);
-  job->request = request;
-  job->experiments = std::move(names);
-  Job& ref = *job;
-  latest_ = job->id;
-  jobs_[job->id] = std::move(job);
-  ref.thread = std::thread([this, &ref] {
-    pthread_setname_np(pthread_self(), "tune-job");
-    LowerThisThreadPriority();
-    Run(ref);
-  });
   Touch();
-  return ToJson(ref);
+  return started;
 }
 
 void JobManager::Run(Job& job) {

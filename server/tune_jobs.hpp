@@ -47,12 +47,17 @@ class JobManager {
   std::vector<std::string> Experiments() const;
   bool configured() const { return !experiments_dir_.empty(); }
 
+  /// Finished jobs (done, cancelled, failed) kept for GET; starting a job forgets the oldest
+  /// beyond this, so that a client starting job after job cannot grow slamd's memory.
+  static constexpr size_t kKeptFinishedJobs = 16;
+
   /// Starts a job; nullopt with `conflict` set when one is already running.
   std::optional<nlohmann::json> Start(const TuneRequest& request, std::string& conflict);
   /// The job's JSON, if it exists.
   std::optional<nlohmann::json> Get(const std::string& id) const;
   /// Cancels a running job (returns 202) or forgets a finished one (200); 404 if unknown.
   int Delete(const std::string& id);
+  /// Every job kept, oldest first.
   nlohmann::json List() const;
   /// Increases whenever any job changes (for the event stream).
   uint64_t revision() const { return revision_.load(); }
@@ -74,6 +79,13 @@ class JobManager {
     std::thread thread;
   };
 
+  /// Orders ids (decimal numbers without leading zeros) as numbers: oldest job first.
+  struct ByNumber {
+    bool operator()(const std::string& a, const std::string& b) const {
+      return a.size() != b.size() ? a.size() < b.size() : a < b;
+    }
+  };
+
   void Run(Job& job);
   nlohmann::json ToJson(const Job& job) const;  // caller holds mutex_
   void Touch() { revision_.fetch_add(1); }
@@ -81,7 +93,7 @@ class JobManager {
   std::string experiments_dir_;
   std::string output_dir_;
   mutable std::mutex mutex_;
-  std::map<std::string, std::unique_ptr<Job>> jobs_;  // guarded by mutex_
+  std::map<std::string, std::unique_ptr<Job>, ByNumber> jobs_;  // guarded by mutex_
   uint64_t next_id_ = 1;                              // guarded by mutex_
   std::string latest_;                                // guarded by mutex_
   std::atomic<uint64_t> revision_{0};

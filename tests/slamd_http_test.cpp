@@ -1422,5 +1422,38 @@ TEST_F(JobsSlamd, SmallJobReportsProgressAndFinishes) {
   ExpectProblem(http().Get("/api/v1/jobs/" + id), 404);
 }
 
+TEST_F(JobsSlamd, OnlyTheSixteenNewestJobsAreKept) {
+  // A client starting job after job (each cancelled at once) must not grow slamd without bound:
+  // slamd keeps the 16 newest, oldest listed first.
+  constexpr int kStarted = 21;
+  constexpr size_t kKept = 16;
+  std::vector<std::string> ids;
+  for (int i = 0; i < kStarted; ++i) {
+    const Reply started = http().PostJson(
+        "/api/v1/jobs/tune",
+        R"({"population": 2, "generations": 1, "budget": 2000, "experiments": ["box-1"]})");
+    ASSERT_EQ(started.status, 202) << "job " << i << ": " << started;
+    ids.push_back(started.Json().value("id", ""));
+    ASSERT_FALSE(ids.back().empty());
+    http().Send("DELETE", "/api/v1/jobs/" + ids.back(), "", "");
+    const json job =
+        PollJob(ids.back(), 15.0, [](const json& j) { return j.value("state", "") != "running"; });
+    ASSERT_NE(job.value("state", ""), "running") << job.dump();
+  }
+  const json listed = GetJson(http(), "/api/v1/jobs");
+  ASSERT_TRUE(listed["jobs"].is_array()) << listed.dump();
+  std::vector<std::string> kept;
+  for (const auto& job : listed["jobs"]) kept.push_back(job.value("id", ""));
+  EXPECT_EQ(kept, std::vector<std::string>(ids.end() - kKept, ids.end()));
+  for (size_t i = 0; i + kKept < ids.size(); ++i) {
+    ExpectProblem(http().Get("/api/v1/jobs/" + ids[i]), 404);
+  }
+  EXPECT_EQ(GetJson(http(), "/api/v1/jobs/" + ids.back()).value("id", ""), ids.back());
+  // The latest job is still the status's job.
+  const json status = GetJson(http(), "/api/v1/status");
+  ASSERT_TRUE(status["job"].is_object()) << status.dump();
+  EXPECT_EQ(status["job"].value("id", ""), ids.back());
+}
+
 }  // namespace
 }  // namespace slamd_test
