@@ -873,6 +873,10 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
     SendProblem(res, 409, "Conflict", "slamd was started without --state-dir: nowhere to save");
     return;
   }
+  // The snapshot is taken under the lock: saves run one at a time, each of a snapshot at least
+  // as new as the one before (taken before the lock, a slower save of an older snapshot could
+  // land after a newer one and take the saved state back).
+  const std::lock_guard lock(save_mutex);
   const auto snapshot = service.Snapshot();
   const OccupancyGrid grid = SnapshotGrid(*snapshot, service.logodds_limit());
   SaveInputs in;
@@ -881,7 +885,6 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
   in.grid = &grid;
   in.version_base = snapshot->version_base;
   in.trajectory = ScanEndTrajectory(*snapshot);
-  const std::lock_guard lock(save_mutex);
   if (auto error = SaveState(options.state_dir, in)) {
     SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + *error);
     return;

@@ -540,24 +540,40 @@ TEST(SlamdFaults, KillDuringMapSavesLeavesALoadableStateThatARestartResumes) {
     if (round == 0) {
       ASSERT_EQ(http.PostJson("/api/v1/map/save", "{}").status, 200);
     }
-    // Saves back to back on a second connection; SIGKILL lands at a random moment among them.
+    // Saves back to back on two more connections; SIGKILL lands at a random moment among them.
+    // `acknowledged`: the version of the newest save slamd answered 200 to before the kill.
     std::atomic<bool> saving{true};
     std::atomic<int> saves{0};
-    std::thread saver([&] {
+    std::mutex acknowledged_mutex;
+    uint64_t acknowledged = 0;
+    const auto save_back_to_back = [&] {
       Http own(slamd.host(), slamd.port());
-      while (saving && own.PostJson("/api/v1/map/save", "{}").status == 200) ++saves;
-    });
+      while (saving) {
+        const Reply reply = own.PostJson("/api/v1/map/save", "{}");
+        if (reply.status != 200) break;
+        const uint64_t version = reply.Json().value("version", uint64_t{0});
+        const std::lock_guard lock(acknowledged_mutex);
+        acknowledged = std::max(acknowledged, version);
+        ++saves;
+      }
+    };
+    std::thread saver(save_back_to_back);
+    std::thread other_saver(save_back_to_back);
     while (saves < 2) std::this_thread::sleep_for(std::chrono::milliseconds(1));
     std::this_thread::sleep_for(std::chrono::microseconds(random() % 20'000));
     ::kill(slamd.pid(), SIGKILL);
     saving = false;
     saver.join();
+    other_saver.join();
     EXPECT_EQ(slamd.Stop(), 128 + SIGKILL);
 
     const slam::server::LoadOutcome loaded = slam::server::LoadState(state.path().string());
     ASSERT_TRUE(loaded.error.empty()) << "round " << round << ": " << loaded.error;
     ASSERT_TRUE(loaded.state.has_value()) << "round " << round;
     EXPECT_GE(loaded.state->version, loaded_version);
+    // No acknowledged save is lost: the state is that save or a newer one.
+    EXPECT_GE(loaded.state->version, acknowledged) << "round " << round;
+    EXPECT_GT(acknowledged, 0u) << "round " << round;
     EXPECT_FALSE(loaded.state->trajectory.empty());
     loaded_version = loaded.state->version;
     loaded_tiles = loaded.state->tiles.size();
