@@ -367,6 +367,12 @@ class MemoryStream final : public httplib::Stream {
   std::string response_;
 };
 
+/// Set by a handler of this thread that answered without reading the request's body: the
+/// connection cannot carry another request (the unread body would be parsed as the next one).
+/// httplib 0.11 closes a connection only when the request asks for it, whatever the response's
+/// Connection header says, so the connection loop looks at this after each request.
+thread_local bool t_close_connection = false;
+
 class BoundedServer final : public httplib::Server {
  public:
   /// One request through the parser, the pre-routing guard, routing, the handlers and the
@@ -402,8 +408,10 @@ class BoundedServer final : public httplib::Server {
       if (!stream.HasBuffered() && !AwaitRequest(sock)) break;
       stream.StartRequest(max_head_bytes + max_body_bytes, Clock::now() + request_deadline);
       bool closed = false;
+      t_close_connection = false;
       ok = process_request(stream, left == 1, closed, nullptr);
-      if (!ok || closed || stream.Exhausted()) break;  // the rest of a cut request is garbage
+      // The rest of a cut request is garbage; so is the unread body of a refused one.
+      if (!ok || closed || stream.Exhausted() || t_close_connection) break;
     }
     ::shutdown(sock, SHUT_RDWR);
     ::close(sock);
@@ -523,8 +531,10 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
   const bool bodied = req.method == "POST" || req.method == "PUT" || req.method == "PATCH";
   const auto refuse = [&](int status, const std::string& title, const std::string& detail) {
     SendProblem(res, status, title, detail);
-    // The body (if any) is not read: the connection cannot carry another request.
+    // The body (if any) is not read: the connection cannot carry another request. Both are
+    // needed: the header tells the client, the flag makes the connection loop close.
     res.set_header("Connection", "close");
+    t_close_connection = true;
     return R::Handled;
   };
   // Body limits before the body is read: the library's own limit does not bound chunked or
@@ -545,6 +555,11 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
     const unsigned long long length = std::strtoull(value.c_str(), &end, 10);
     if (value.empty() || *end != '\0' || value[0] == '-') {
       return refuse(400, "Bad Request", "bad Content-Length");
+    }
+    // httplib reads the body of POST, PUT, PATCH and DELETE only: another method's body would
+    // be parsed as the next request on the connection.
+    if (length > 0 && !bodied && req.method != "DELETE") {
+      return refuse(400, "Bad Request", "a " + req.method + " request may not have a body");
     }
     if (length > options.max_body_bytes) {
       return refuse(413, "Content Too Large",

@@ -216,6 +216,86 @@ TEST_F(SecuredSlamd, UnknownMethodsAreCountedAsOtherAndNeverBecomeLabels) {
   EXPECT_TRUE(methods.count("other")) << metrics.body;
 }
 
+/// slamd as it starts by default: loopback, no token (any local program, and any page in the
+/// user's browser that gets past the same-origin checks, may change it).
+class OpenSlamd : public SlamdSuite {
+ protected:
+  static void SetUpTestSuite() { StartShared({"--budget", "8000"}); }
+  static void TearDownTestSuite() { StopShared(); }
+};
+
+/// Sends `request` on a new connection and reads until slamd closes it (or `timeout_s`); the
+/// number of responses in what came back.
+int ResponsesUntilClosed(int port, const std::string& request, std::string& raw,
+                         double timeout_s = 5.0) {
+  const int fd = ConnectTo(port);
+  if (fd < 0) return -1;
+  SendAll(fd, request);
+  const auto deadline = After(timeout_s);
+  while (Clock::now() < deadline) {
+    if (ReadSome(fd, raw, std::chrono::duration<double>(deadline - Clock::now()).count()) <= 0) {
+      break;
+    }
+  }
+  ::close(fd);
+  int responses = 0;
+  for (size_t at = raw.find("HTTP/1.1 "); at != std::string::npos; at = raw.find("HTTP/1.1 ", at + 1)) {
+    ++responses;
+  }
+  return responses;
+}
+
+TEST_F(OpenSlamd, TheUnreadBodyOfARefusedRequestIsNeverServedAsARequest) {
+  // A page from another site may POST a text/plain body to slamd without a preflight. slamd
+  // refuses it (403) before reading its body; if the connection stayed open, that body would be
+  // parsed as the next request, which carries no Origin and would pass. The same for every
+  // refusal made before the body is read.
+  const std::string inner =
+      "PATCH /api/v1/budget HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+      "Content-Type: application/merge-patch+json\r\nContent-Length: 22\r\n\r\n"
+      R"({"rays_per_scan": 777})";
+  const auto head = [&](const std::string& first_lines) {
+    return first_lines + "Host: 127.0.0.1\r\n";
+  };
+  const std::string length = "Content-Length: " + std::to_string(inner.size()) + "\r\n\r\n";
+  const struct {
+    const char* what;
+    int status;
+    std::string request;
+  } cases[] = {
+      {"cross-origin POST", 403,
+       head("POST /api/v1/reset HTTP/1.1\r\n") + "Origin: http://evil.example\r\n" +
+           "Content-Type: text/plain\r\n" + length + inner},
+      {"body over the limit", 413,
+       head("POST /api/v1/map/save HTTP/1.1\r\n") +
+           "Content-Type: application/json\r\nContent-Length: 100000\r\n\r\n" + inner},
+      {"chunked body", 411,
+       head("POST /api/v1/map/save HTTP/1.1\r\n") +
+           "Content-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n" + inner},
+      {"compressed body", 415,
+       head("POST /api/v1/map/save HTTP/1.1\r\n") +
+           "Content-Type: application/json\r\nContent-Encoding: gzip\r\n" + length + inner},
+      {"GET with a body", 400, head("GET /api/v1/health HTTP/1.1\r\n") + length + inner},
+      {"HEAD with a body", 400, head("HEAD /api/v1/health HTTP/1.1\r\n") + length + inner},
+  };
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.what);
+    std::string raw;
+    EXPECT_EQ(ResponsesUntilClosed(port(), c.request, raw), 1) << raw;
+    EXPECT_TRUE(StartsWith(raw, "HTTP/1.1 " + std::to_string(c.status))) << raw.substr(0, 200);
+  }
+  EXPECT_EQ(GetJson(http(), "/api/v1/budget").value("rays_per_scan", 0), 8000) << "smuggled";
+  // The same inner request on its own does change the budget (the test's request is valid).
+  std::string raw;
+  EXPECT_EQ(ResponsesUntilClosed(port(), inner.substr(0, inner.find("\r\n\r\n")) +
+                                             "\r\nConnection: close\r\n\r\n" +
+                                             inner.substr(inner.find("\r\n\r\n") + 4),
+                                 raw),
+            1);
+  EXPECT_TRUE(StartsWith(raw, "HTTP/1.1 200")) << raw.substr(0, 300);
+  EXPECT_EQ(GetJson(http(), "/api/v1/budget").value("rays_per_scan", 0), 777);
+}
+
 TEST(WebRoot, TheShippedPageHasNoSymbolicLinks) {
   // The static handler follows symbolic links inside the web root (notes/httplib-0.11.md,
   // point 10): the page slamd ships must have none, or a link could serve any file.
