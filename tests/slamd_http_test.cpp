@@ -642,6 +642,28 @@ TEST_F(SharedSlamd, BodyOver64KiBIs413) {
   EXPECT_EQ(edge.status, 409) << edge;
 }
 
+TEST_F(SharedSlamd, DeeplyNestedBodiesAre400AndSlamdServesOn) {
+  // nlohmann-json copies and compares nested values recursively: 64 KiB of brackets nest 32 000
+  // deep, a stack frame or more each (under AddressSanitizer, more than a thread's stack).
+  const std::string arrays = std::string(32'000, '[') + std::string(32'000, ']');
+  std::string objects;
+  for (int i = 0; i < 6'000; ++i) objects += R"({"a":)";
+  objects += "1" + std::string(6'000, '}');
+  for (const std::string& body : {arrays, objects}) {
+    SCOPED_TRACE(body.substr(0, 8));
+    ExpectProblem(http().Send("PUT", kBudgetPath, body, "application/json"), 400);
+    ExpectProblem(http().MergePatch(kBudgetPath, body), 400);
+    ExpectProblem(http().MergePatch("/api/v1/params", body), 400);
+    ExpectProblem(http().PostJson("/api/v1/map/save", body), 400);
+  }
+  // 32 levels are still JSON slamd reads (and then refuses as a budget).
+  const std::string nested_32 = std::string(31, '[') + std::string(31, ']');
+  ExpectProblem(http().Send("PUT", kBudgetPath, R"({"mode": )" + nested_32 + "}",
+                            "application/json"),
+                422);
+  EXPECT_EQ(http().Get("/api/v1/health").status, 200);
+}
+
 TEST_F(SharedSlamd, ChunkedBodyIs411) {
   const std::string request =
       "POST /api/v1/map/save HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port()) +
@@ -1304,6 +1326,9 @@ TEST_F(JobsSlamd, BadTuneBodiesAre422Or400Or415) {
               {"/experiments/0"});
   Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"experiments": "box-1"})"),
               {"/experiments"});
+  // A name repeated would load that experiment again for each copy.
+  Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"experiments": ["box-1", "box-2", "box-1"]})"),
+              {"/experiments/2"});
   Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"population": 0, "seed": "s"})"),
               {"/population", "/seed"});
   Expect422At(http().PostJson("/api/v1/jobs/tune", "[]"), {""});
