@@ -604,7 +604,24 @@ bool HttpServer::Impl::ParseBody(const httplib::Request& req, httplib::Response&
                     (type.empty() ? std::string(" (no Content-Type given)") : ", not " + type));
     return false;
   }
-  out = json::parse(req.body, nullptr, false);
+  // Parsing is iterative, but copying and comparing nested values recurse in nlohmann-json: a
+  // 64 KiB body of brackets nests 32 000 deep, one stack frame (or more) per level. No body of
+  // slamd's nests deeper than a few levels.
+  constexpr int kMaxDepth = 32;
+  bool too_deep = false;
+  out = json::parse(
+      req.body,
+      [&](int depth, json::parse_event_t, json&) {
+        if (depth > kMaxDepth) too_deep = true;
+        return !too_deep;
+      },
+      false);
+  if (too_deep) {
+    out = json();
+    SendProblem(res, 400, "Bad Request",
+                "the body nests deeper than " + std::to_string(kMaxDepth) + " levels");
+    return false;
+  }
   if (out.is_discarded()) {
     SendProblem(res, 400, "Bad Request", "the body is not valid JSON");
     return false;

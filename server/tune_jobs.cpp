@@ -92,6 +92,10 @@ ConfigErrors ParseTuneRequest(const nlohmann::json& body, const std::vector<std:
         } else if (std::find(available.begin(), available.end(), name.get<std::string>()) ==
                    available.end()) {
           errors.push_back({pointer, "no experiment named \"" + name.get<std::string>() + "\"", 0});
+        } else if (std::find(request.experiments.begin(), request.experiments.end(),
+                             name.get<std::string>()) != request.experiments.end()) {
+          // Each name would be loaded again: thousands of copies fit in a body.
+          errors.push_back({pointer, "\"" + name.get<std::string>() + "\" is named twice", 0});
         } else {
           request.experiments.push_back(name.get<std::string>());
         }
