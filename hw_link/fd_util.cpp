@@ -99,4 +99,23 @@ OpenedFd Reopener::TryReopen(int64_t deadline_ns, const std::string& who,
   return opened;
 }
 
+void BatchClock::Stamp(std::vector<TimedFrame>& frames, size_t first, int64_t now_ns) {
+  if (first >= frames.size()) return;
+  const auto n = static_cast<int64_t>(frames.size() - first);
+  // Strictly after the previous batch's last frame, 1 ns a frame at the very least.
+  const int64_t end = std::max(now_ns, previous_ns_ == std::numeric_limits<int64_t>::min()
+                                           ? now_ns
+                                           : previous_ns_ + n);
+  const int64_t start =
+      previous_ns_ == std::numeric_limits<int64_t>::min() || end - previous_ns_ > kMaxSpanNs
+          ? end - kMaxSpanNs
+          : previous_ns_;
+  const int64_t span = end - start;
+  for (int64_t i = 0; i < n; ++i) {
+    const int64_t t_ns = start + span * (i + 1) / n;  // span <= kMaxSpanNs: no overflow
+    frames[first + static_cast<size_t>(i)].t = static_cast<double>(t_ns) * 1e-9;
+  }
+  previous_ns_ = end;
+}
+
 }  // namespace slam::hw

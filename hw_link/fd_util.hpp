@@ -4,9 +4,13 @@
 
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <string>
 #include <utility>
 #include <variant>
+#include <vector>
+
+#include "hw_link/can_frame.hpp"
 
 namespace slam::hw {
 
@@ -71,6 +75,23 @@ class Reopener {
   int64_t next_attempt_ns_ = 0;
   uint64_t attempts_ = 0;
   uint64_t reopens_ = 0;
+};
+
+/// Times for frames that arrive together (one UDP datagram, one read from a serial line): they
+/// were received at once but sent over the time since the previous batch. With the receive time
+/// for all, readings of one kind in a batch shared a time and the scan assembler dropped all but
+/// the first as out of order (a cannelloni sender batching 100 ms of frames lost five scanner
+/// samples of six). The frames of a batch are spread evenly over the time since the previous
+/// batch, at most kMaxSpanNs, the last one at the receive time; receive_ns stays the receive time.
+class BatchClock {
+ public:
+  static constexpr int64_t kMaxSpanNs = 200'000'000;
+
+  /// Sets `t` of frames[first..] (the batch received at `now_ns`, SteadyNowNs() time).
+  void Stamp(std::vector<TimedFrame>& frames, size_t first, int64_t now_ns);
+
+ private:
+  int64_t previous_ns_ = std::numeric_limits<int64_t>::min();
 };
 
 }  // namespace slam::hw

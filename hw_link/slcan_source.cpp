@@ -129,14 +129,15 @@ class SlcanSource final : public FrameSource {
     const int64_t now_ns = SteadyNowNs();
     parsed_.clear();
     parser_.Feed(bytes, parsed_);
+    const size_t first = out.size();
     for (const SlcanFrame& parsed : parsed_) {
       TimedFrame frame;
       frame.frame = parsed.frame;
       frame.receive_ns = now_ns;
-      frame.t = static_cast<double>(now_ns) * 1e-9;
       if (parsed.timestamp_ms) frame.source_t = *parsed.timestamp_ms * 1e-3;
       out.push_back(frame);
     }
+    clock_.Stamp(out, first, now_ns);
   }
 
   // Closes the device after a failure; a later Read reopens it.
@@ -164,6 +165,7 @@ class SlcanSource final : public FrameSource {
   SlcanParser parser_;
   SlcanCounters previous_;  // counters of the parsers before the last reopen
   std::vector<SlcanFrame> parsed_;
+  BatchClock clock_;
   std::array<char, kReadChunk> buffer_{};
   Reopener reopener_;
   uint64_t device_errors_ = 0;

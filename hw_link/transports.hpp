@@ -25,12 +25,14 @@ struct CandumpReplayOptions {
 OpenResult OpenCandumpReplay(const std::string& path, const CandumpReplayOptions& options = {});
 
 /// slcan adapter on a tty or pseudo-terminal: raw mode, sends "C", "S8", "O" on open; frame times
-/// are the monotonic receive time (the adapter's time stamp, if any, goes to source_t). On hang-up
-/// or read error it reports kError and reopens the device on later reads.
+/// are the monotonic receive time, the frames of one read spread over the time since the previous
+/// one (BatchClock; the adapter's time stamp, if any, goes to source_t). On hang-up or read error
+/// it reports kError and reopens the device on later reads.
 OpenResult OpenSlcan(const std::string& device);
 
 /// CAN frames in cannelloni datagrams on a UDP port (bound on `address`, "0.0.0.0" = any). Lost
-/// and reordered datagrams are counted by sequence number.
+/// and reordered datagrams are counted by sequence number. Frame times are the monotonic receive
+/// time, the frames of a datagram spread over the time since the previous one (BatchClock).
 OpenResult OpenUdp(uint16_t port, const std::string& address = "0.0.0.0");
 
 /// The port the UDP source is bound to (useful with port 0), or 0 for other sources.

@@ -71,14 +71,15 @@ class UdpSource final : public FrameSource {
       return;
     }
     sequence_.Observe(datagram->sequence);
+    const size_t first = out.size();
     for (const CanFrame& can_frame : datagram->frames) {
       TimedFrame frame;
       frame.frame = can_frame;
       frame.receive_ns = now_ns;
-      frame.t = static_cast<double>(now_ns) * 1e-9;
       out.push_back(frame);
       ++frames_;
     }
+    clock_.Stamp(out, first, now_ns);
   }
 
   UniqueFd fd_;
@@ -86,6 +87,7 @@ class UdpSource final : public FrameSource {
   uint16_t port_;
   std::array<uint8_t, kMaxDatagram> buffer_{};
   SequenceTracker sequence_;
+  BatchClock clock_;
   uint64_t datagrams_ = 0;
   uint64_t bad_datagrams_ = 0;
   uint64_t frames_ = 0;

@@ -462,7 +462,13 @@ TEST(SlcanSourceTest, ReceivesFramesSplitAnywhereOnAPseudoTerminal) {
       EXPECT_FALSE(received[i].source_t.has_value()) << i;
     }
     EXPECT_LE(received[i].receive_ns, now_ns);
-    EXPECT_DOUBLE_EQ(received[i].t, static_cast<double>(received[i].receive_ns) * 1e-9);
+    // The frames of one read are spread over the time since the previous read (BatchClock).
+    const double receive_s = static_cast<double>(received[i].receive_ns) * 1e-9;
+    EXPECT_LE(received[i].t, receive_s + 1e-9) << i;
+    EXPECT_GE(received[i].t, receive_s - static_cast<double>(BatchClock::kMaxSpanNs) * 1e-9) << i;
+    if (i > 0) {
+      EXPECT_GT(received[i].t, received[i - 1].t) << i;
+    }
   }
   const SourceCounters counters = source->Counters();
   EXPECT_EQ(Counter(counters, "bytes"), stream.size());
@@ -592,6 +598,73 @@ TEST(UdpSourceTest, ReceivesDatagramsAndCountsLossReorderingAndGarbage) {
   std::vector<TimedFrame> more;
   EXPECT_EQ(source->Read(more, milliseconds(10)).status, ReadStatus::kOk);
   EXPECT_TRUE(more.empty());
+}
+
+TEST(BatchClockTest, SpreadsABatchOverTheTimeSinceThePreviousOne) {
+  const auto times = [](const std::vector<TimedFrame>& frames, size_t first) {
+    std::vector<int64_t> ns;
+    for (size_t i = first; i < frames.size(); ++i) ns.push_back(std::llround(frames[i].t * 1e9));
+    return ns;
+  };
+  BatchClock clock;
+  std::vector<TimedFrame> frames(4);
+  // The first batch: over the longest span before its receive time.
+  clock.Stamp(frames, 0, 10'000'000'000);
+  EXPECT_EQ(times(frames, 0), (std::vector<int64_t>{9'850'000'000, 9'900'000'000, 9'950'000'000,
+                                                    10'000'000'000}));
+  // 100 ms later: over those 100 ms (a cannelloni sender's default batching).
+  frames.resize(6);
+  clock.Stamp(frames, 4, 10'100'000'000);
+  EXPECT_EQ(times(frames, 4), (std::vector<int64_t>{10'050'000'000, 10'100'000'000}));
+  // After a silence: over the longest span only.
+  frames.resize(7);
+  clock.Stamp(frames, 6, 15'000'000'000);
+  EXPECT_EQ(times(frames, 6), (std::vector<int64_t>{15'000'000'000}));
+  frames.resize(9);
+  clock.Stamp(frames, 7, 15'000'000'000 - BatchClock::kMaxSpanNs / 2);
+  // A receive time that does not move on (or goes back) still gives later times.
+  const std::vector<int64_t> late = times(frames, 7);
+  EXPECT_EQ(late, (std::vector<int64_t>{15'000'000'001, 15'000'000'002}));
+  // An empty batch changes nothing.
+  clock.Stamp(frames, frames.size(), 16'000'000'000);
+  frames.resize(10);
+  clock.Stamp(frames, 9, 16'000'000'000);
+  EXPECT_EQ(times(frames, 9), (std::vector<int64_t>{16'000'000'000}));
+}
+
+TEST(UdpSourceTest, FramesOfADatagramGetDistinctIncreasingTimes) {
+  // All frames of a datagram arrive at once; readings of one kind must still not share a time
+  // (the scan assembler keeps the first of equal times only).
+  auto source = Unwrap(OpenUdp(0, "127.0.0.1"));
+  ASSERT_NE(source, nullptr);
+  UniqueFd client(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0));
+  ASSERT_TRUE(client.valid());
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(BoundUdpPort(*source));
+  to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  std::vector<CanFrame> frames(12);
+  for (size_t k = 0; k < frames.size(); ++k) {
+    frames[k].id = static_cast<uint32_t>(0x100 + k);
+    frames[k].len = 1;
+    frames[k].data = {static_cast<uint8_t>(k)};
+  }
+  for (uint8_t sequence = 0; sequence < 2; ++sequence) {
+    const std::vector<uint8_t> bytes = EncodeCannelloni(sequence, frames);
+    ASSERT_EQ(::sendto(client.get(), bytes.data(), bytes.size(), 0,
+                       reinterpret_cast<const sockaddr*>(&to), sizeof to),
+              static_cast<ssize_t>(bytes.size()));
+    std::this_thread::sleep_for(std::chrono::milliseconds(30));
+  }
+  const std::vector<TimedFrame> received = ReadFrames(*source, 2 * frames.size());
+  ASSERT_EQ(received.size(), 2 * frames.size());
+  for (size_t i = 1; i < received.size(); ++i) {
+    EXPECT_GT(received[i].t, received[i - 1].t) << i;
+    EXPECT_LE(received[i].t, static_cast<double>(received[i].receive_ns) * 1e-9 + 1e-9) << i;
+  }
+  // Each datagram's last frame has its receive time.
+  EXPECT_NEAR(received[11].t, static_cast<double>(received[11].receive_ns) * 1e-9, 1e-9);
+  EXPECT_NEAR(received[23].t, static_cast<double>(received[23].receive_ns) * 1e-9, 1e-9);
 }
 
 TEST(UdpSourceTest, BadAddressOrBusyPortFailsWithAClearMessage) {
