@@ -20,9 +20,16 @@ Pose2 OdometryIntegrator::Add(const OdometryReading& reading) {
     const double left = static_cast<double>(CounterDelta(reading.left_ticks, last_->left_ticks));
     const double right = static_cast<double>(CounterDelta(reading.right_ticks, last_->right_ticks));
     const double trans = 0.5 * (left + right) / base_.ticks_per_m;
-    // Trapezoidal integration of the gyro's rate; out-of-order readings add no rotation.
-    const double rate_dps = 0.5 * (reading.gyro_raw + last_->gyro_raw) * base_.gyro_unit_dps;
-    const double dtheta = dt > 0 ? DegToRad(rate_dps) * dt : 0.0;
+    // Trapezoidal integration of the gyro's rate; out-of-order readings add no rotation. Across
+    // a gap (lost readings, or a log's clock jump, whose length is made up) two rates say nothing
+    // of the turn between them: the treels' ticks do, slip included.
+    double dtheta = 0.0;
+    if (dt > kMaxGyroStepS) {
+      dtheta = (right - left) / base_.ticks_per_m / base_.track_width_m;
+    } else if (dt > 0) {
+      const double rate_dps = 0.5 * (reading.gyro_raw + last_->gyro_raw) * base_.gyro_unit_dps;
+      dtheta = DegToRad(rate_dps) * dt;
+    }
     const double mid = pose_.theta + 0.5 * dtheta;
     pose_ = {pose_.x + trans * std::cos(mid), pose_.y + trans * std::sin(mid),
              NormalizeAngle(pose_.theta + dtheta)};

@@ -11,10 +11,15 @@ namespace slam {
 
 class OdometryIntegrator {
  public:
+  /// Readings further apart than this (the base sends 50 a second) are a gap: the rotation
+  /// between them comes from the encoders instead of the gyro.
+  static constexpr double kMaxGyroStepS = 0.25;
+
   explicit OdometryIntegrator(const BaseDescription& base) : base_(base) {}
 
   /// Integrates one reading (in time order) and returns the dead-reckoned pose at its time.
-  /// The first reading only sets the reference. Encoder counters may wrap.
+  /// The first reading only sets the reference. Encoder counters may wrap. Translation comes
+  /// from the encoders, rotation from the gyro (from the encoders across a gap).
   Pose2 Add(const OdometryReading& reading);
 
   /// The pose after the last reading (the origin before any).

@@ -26,6 +26,7 @@ std::vector<std::string> ScanAssemblerConfig::Validate() const {
   positive(max_sample_gap_s, "max_sample_gap_s");
   positive(max_odometry_gap_s, "max_odometry_gap_s");
   positive(max_odometry_wait_s, "max_odometry_wait_s");
+  if (max_scan_samples < 2) errors.push_back("/max_scan_samples: must be >= 2");
   return errors;
 }
 
@@ -132,6 +133,10 @@ void ScanAssembler::Group(const Pending& sample, const Pose2& odom, std::vector<
   const ScannerReading& r = sample.reading;
   if (sample.break_before || break_next_) DiscardScan();
   break_next_ = false;
+  if (current_ && static_cast<int64_t>(current_->samples.size()) >= config_.max_scan_samples) {
+    ++counters_.scans_too_long;
+    DiscardScan();
+  }
   if (previous_angle_) {
     int64_t delta = (int64_t{r.angle_raw} - *previous_angle_) & (kFullTurnRaw - 1);
     if (delta >= kHalfTurnRaw) delta -= kFullTurnRaw;
@@ -146,13 +151,16 @@ void ScanAssembler::Group(const Pending& sample, const Pose2& odom, std::vector<
     current_->index = static_cast<int64_t>(counters_.scans);
     ++counters_.scans;
     counters_.samples_in_scans += current_->samples.size();
+    last_end_ = TimedPose{current_->t_end, current_->odom_end};
     out.push_back(std::move(*current_));
     current_ = std::move(next);
   }
   if (!current_) {
+    // The first scan starts at its first sample; a scan after an abandoned one where the last
+    // delivered scan ended: the motion in between (the gap, the abandoned part) is the SLAM's.
     current_.emplace();
-    current_->t_begin = r.t;
-    current_->odom_begin = odom;
+    current_->t_begin = last_end_ ? last_end_->t : r.t;
+    current_->odom_begin = last_end_ ? last_end_->pose : odom;
   }
   half_turn_ = h;
   ScanSample s;

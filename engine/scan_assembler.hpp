@@ -31,6 +31,9 @@ struct ScanAssemblerConfig {
   double max_odometry_gap_s = 0.25;
   /// Samples waiting longer than this for the odometry to catch up are dropped.
   double max_odometry_wait_s = 0.5;
+  /// A half turn longer than this many samples (68 s at 60 Hz) is abandoned: the platform has
+  /// stopped turning (its samples would pile up without bound).
+  int64_t max_scan_samples = 4096;
 
   /// Problems as "/key: detail" lines; empty when valid.
   std::vector<std::string> Validate() const;
@@ -47,7 +50,8 @@ struct ScanAssemblerCounters {
   uint64_t odometry_gaps = 0;     // silences longer than max_odometry_gap_s
   uint64_t sample_gaps = 0;       // silences longer than max_sample_gap_s
   uint64_t samples_unposed = 0;   // samples no odometry brackets: dropped
-  uint64_t scans_discarded = 0;   // scans in progress abandoned at a gap
+  uint64_t scans_discarded = 0;   // scans in progress abandoned at a gap (or too long)
+  uint64_t scans_too_long = 0;    // of those, abandoned at max_scan_samples: platform stalled
 };
 
 class ScanAssembler {
@@ -55,7 +59,9 @@ class ScanAssembler {
   explicit ScanAssembler(const RobotDescription& robot, const ScanAssemblerConfig& config = {});
 
   /// Feeds one event; appends to `out` every scan it completes. A scan completes when the first
-  /// sample of the next half turn has been posed.
+  /// sample of the next half turn has been posed. Scans follow one another: each begins where
+  /// the previous one delivered ended (t_begin, odom_begin), also after a scan was abandoned at
+  /// a gap, so that the motion in the gap reaches the SLAM.
   void Add(const RobotEvent& event, std::vector<Scan>& out);
 
   /// The dead-reckoned pose at the last odometry reading, and its time (nothing before any).
@@ -85,6 +91,7 @@ class ScanAssembler {
 
   // Grouping of posed samples into half turns.
   std::optional<Scan> current_;
+  std::optional<TimedPose> last_end_;  // where the last scan delivered ended
   std::optional<uint16_t> previous_angle_;
   int64_t progress_ = 0;  // platform rotation since the reference sample, raw units
   int64_t half_turn_ = 0;

@@ -50,7 +50,8 @@ nlohmann::json AssemblerCountersToJson(const ScanAssemblerCounters& a) {
           {"sample_gaps", a.sample_gaps},
           {"odometry_gaps", a.odometry_gaps},
           {"samples_unposed", a.samples_unposed},
-          {"scans_discarded", a.scans_discarded}};
+          {"scans_discarded", a.scans_discarded},
+          {"scans_too_long", a.scans_too_long}};
 }
 
 }  // namespace slam::hw

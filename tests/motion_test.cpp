@@ -20,11 +20,32 @@ TEST(OdometryIntegrator, TranslationFromEncodersRotationFromGyro) {
   Pose2 p = odo.Add({0.5, 1, 2000, 2000, 0});
   EXPECT_NEAR(p.x, 0.1, 1e-12);
   EXPECT_NEAR(p.y, 0.0, 1e-12);
-  // Turning in place at 90 deg/s for 1 s: the encoders disagree, the gyro decides.
+  // Turning in place at 90 deg/s for 0.2 s: the encoders disagree, the gyro decides.
   odo.Add({0.6, 2, 2000, 2000, 9000});
-  p = odo.Add({1.6, 3, 1500, 2500, 9000});
+  p = odo.Add({0.8, 3, 1500, 2500, 9000});
   EXPECT_NEAR(p.x, 0.1, 1e-12);
-  EXPECT_NEAR(RadToDeg(p.theta), 90.0 * 1.0 + 0.5 * 90.0 * 0.1, 1e-9);  // trapezoid from 0.5 s
+  EXPECT_NEAR(RadToDeg(p.theta), 90.0 * 0.2 + 0.5 * 90.0 * 0.1, 1e-9);  // trapezoid from 0.5 s
+}
+
+TEST(OdometryIntegrator, AcrossAGapTheEncodersGiveTheRotation) {
+  // Readings 2 s apart (lost, or a log's clock jump made up the time): the two gyro rates say
+  // nothing of the turn between them; the treels' ticks do.
+  BaseDescription base;
+  base.ticks_per_m = 10000;
+  base.track_width_m = 0.15;
+  base.gyro_unit_dps = 0.01;
+  OdometryIntegrator odo(base);
+  odo.Add({0.0, 0, 0, 0, 9000});
+  // The left treel back 0.05 m, the right forward 0.05 m: a turn of 0.1 / 0.15 rad in place.
+  const Pose2 p = odo.Add({2.0, 1, -500, 500, 9000});
+  EXPECT_NEAR(p.x, 0.0, 1e-12);
+  EXPECT_NEAR(p.y, 0.0, 1e-12);
+  EXPECT_NEAR(p.theta, 0.1 / 0.15, 1e-12);
+  // Just within the step, the gyro still decides.
+  OdometryIntegrator near(base);
+  near.Add({0.0, 0, 0, 0, 9000});
+  const Pose2 q = near.Add({OdometryIntegrator::kMaxGyroStepS, 1, -500, 500, 9000});
+  EXPECT_NEAR(RadToDeg(q.theta), 90.0 * OdometryIntegrator::kMaxGyroStepS, 1e-9);
 }
 
 TEST(OdometryIntegrator, EncoderCountersWrapAround) {

@@ -56,6 +56,22 @@ std::vector<Scan> Assemble(ScanAssembler& assembler, const std::vector<RobotEven
   return scans;
 }
 
+// Every scan begins where the previous one ended, also after an abandoned one: the motion in a
+// gap reaches the SLAM (the robot drives straight at 0.1 m/s from x = 0 at t = 100 s).
+void ExpectMotionCarriedAcross(const std::vector<Scan>& scans) {
+  for (size_t k = 1; k < scans.size(); ++k) {
+    EXPECT_EQ(scans[k].t_begin, scans[k - 1].t_end) << k;
+    EXPECT_EQ(scans[k].odom_begin.x, scans[k - 1].odom_end.x) << k;
+    EXPECT_EQ(scans[k].odom_begin.y, scans[k - 1].odom_end.y) << k;
+    EXPECT_EQ(scans[k].odom_begin.theta, scans[k - 1].odom_end.theta) << k;
+  }
+  // The scans' motions add up to the distance driven from the first scan's start to the last
+  // one's end.
+  double driven = 0.0;
+  for (const Scan& scan : scans) driven += scan.odom_end.x - scan.odom_begin.x;
+  EXPECT_NEAR(driven, 0.1 * (scans.back().t_end - scans.front().t_begin), 4e-4);
+}
+
 TEST(ScanAssemblerTest, RegularStreamGivesContiguousHalfTurns) {
   const RobotDescription robot = testing::ShippedRobot();
   ScanAssembler assembler(robot);
@@ -142,8 +158,8 @@ TEST(ScanAssemblerTest, ScannerSilenceDiscardsTheScanInProgress) {
   // (the last sample of the 361 begins an incomplete one).
   ASSERT_EQ(scans.size(), 8u);
   EXPECT_EQ(scans[2].samples.front().t, 100.0 + 120 / 60.0);
-  EXPECT_EQ(scans[2].t_begin, scans[2].samples.front().t);  // a fresh start
   for (const Scan& scan : scans) EXPECT_EQ(scan.samples.size(), 40u);
+  ExpectMotionCarriedAcross(scans);
 }
 
 TEST(ScanAssemblerTest, OdometrySilenceDropsTheSamplesInIt) {
@@ -165,6 +181,27 @@ TEST(ScanAssemblerTest, OdometrySilenceDropsTheSamplesInIt) {
       EXPECT_NEAR(sample.odom.x, 0.1 * (sample.t - 100.0), 2e-4);
     }
   }
+  ExpectMotionCarriedAcross(scans);
+}
+
+TEST(ScanAssemblerTest, APlatformThatStopsTurningCannotPileUpSamples) {
+  const RobotDescription robot = testing::ShippedRobot();
+  Stream s = Straight(120.0, robot);
+  // The platform stops at its angle of t = 102 s and never turns again.
+  for (size_t i = 120; i < s.scanner.size(); ++i) s.scanner[i].angle_raw = s.scanner[120].angle_raw;
+  ScanAssemblerConfig config;
+  config.max_scan_samples = 1000;
+  ScanAssembler assembler(robot, config);
+  const auto scans = Assemble(assembler, Merge(s));
+  const auto& c = assembler.counters();
+  // 7081 stalled samples: abandoned 1000 at a time (counted), none delivered as a scan.
+  EXPECT_EQ(c.scans_too_long, 7u);
+  EXPECT_EQ(c.scans_discarded, 7u);
+  ASSERT_EQ(scans.size(), 3u);
+  for (const Scan& scan : scans) EXPECT_LE(scan.samples.size(), 40u);
+  EXPECT_TRUE(config.Validate().empty());
+  config.max_scan_samples = 1;
+  EXPECT_EQ(config.Validate().size(), 1u);
 }
 
 TEST(ScanAssemblerTest, OutOfOrderEventsAreDropped) {

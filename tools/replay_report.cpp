@@ -36,7 +36,7 @@ Json CountersJson(const hw::ExperimentCounters& c) {
         {"scans", a.scans}, {"out_of_order", a.out_of_order}, {"odometry_lost", a.odometry_lost},
         {"samples_lost", a.samples_lost}, {"odometry_gaps", a.odometry_gaps},
         {"sample_gaps", a.sample_gaps}, {"samples_unposed", a.samples_unposed},
-        {"scans_discarded", a.scans_discarded}}},
+        {"scans_discarded", a.scans_discarded}, {"scans_too_long", a.scans_too_long}}},
   };
 }
 
