@@ -439,6 +439,19 @@ bool IsLoopback(const std::string& address) {
   return false;
 }
 
+std::string HostName(const std::string& host_header) {
+  if (!host_header.empty() && host_header.front() == '[') {
+    const size_t close = host_header.find(']');
+    return close == std::string::npos ? host_header : host_header.substr(1, close - 1);
+  }
+  const size_t colon = host_header.find(':');
+  // More than one colon: an IPv6 address without brackets (no port can be told from it).
+  if (colon == std::string::npos || host_header.find(':', colon + 1) != std::string::npos) {
+    return host_header;
+  }
+  return host_header.substr(0, colon);
+}
+
 bool ConstantTimeEquals(const std::string& a, const std::string& b) {
   // Walk the longer length whatever the contents, so that the time reveals nothing but it.
   const size_t n = std::max(a.size(), b.size());
@@ -537,6 +550,19 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
     t_close_connection = true;
     return R::Handled;
   };
+  // Without a token slamd listens on loopback only, and answers only to loopback names: a page
+  // whose own name resolves to 127.0.0.1 (DNS rebinding) is same-origin with itself, so the
+  // Origin check below lets it through, but its requests name its host.
+  if (options.token.empty() && req.has_header("Host")) {
+    const std::string host = Lower(HostName(req.get_header_value("Host")));
+    if (!IsLoopback(host) && std::find(options.allowed_hosts.begin(), options.allowed_hosts.end(),
+                                       host) == options.allowed_hosts.end()) {
+      return refuse(403, "Forbidden",
+                    "slamd without a token answers only to loopback names (localhost, "
+                    "127.0.0.1, [::1]) and --allow-host names, not to '" +
+                        host + "'");
+    }
+  }
   // Body limits before the body is read: the library's own limit does not bound chunked or
   // compressed bodies (notes point 5), and a POST without a length would hang (point 6).
   if (req.has_header("Transfer-Encoding")) {

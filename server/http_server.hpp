@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <vector>
 #include <string_view>
 
 #include "hw_link/link.hpp"
@@ -27,10 +28,15 @@ struct HttpOptions {
   int max_streams = 16;     // concurrent event streams; 503 beyond
   size_t max_body_bytes = 64 * 1024;
   std::string source_spec;  // as given on the command line
+  /// Without a token, the Host names slamd answers besides loopback ones (a reverse proxy's).
+  std::vector<std::string> allowed_hosts;
 };
 
 /// True for 127.0.0.0/8, ::1 and "localhost".
 bool IsLoopback(const std::string& address);
+
+/// The host of a Host header value without its port: "[::1]:8080" -> "::1", "a:80" -> "a".
+std::string HostName(const std::string& host_header);
 
 /// Constant-time comparison (the time does not depend on where the strings differ).
 bool ConstantTimeEquals(const std::string& a, const std::string& b);

@@ -8,6 +8,7 @@
 #include <pthread.h>
 #include <signal.h>
 
+#include <cctype>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -15,6 +16,7 @@
 #include <sstream>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "engine/io/params_json.hpp"
 #include "engine/io/robot_json.hpp"
@@ -90,6 +92,10 @@ int main(int argc, char** argv) {
                  "recorded experiments with ground truth for tuning jobs");
   app.add_option("--token-file", token_file,
                  "file holding the bearer token that mutating routes require");
+  std::vector<std::string> allowed_hosts;
+  app.add_option("--allow-host", allowed_hosts,
+                 "without a token, also answer requests for this Host name (e.g. a reverse "
+                 "proxy's); only loopback names otherwise (repeatable)");
   app.add_option("--web-root", web_root, "folder of the web page")->capture_default_str();
   app.add_option("--speed", speed, "sim and candump sources: times real time")
       ->check(CLI::PositiveNumber)
@@ -125,6 +131,11 @@ int main(int argc, char** argv) {
 
   slam::server::HttpOptions http;
   http.bind = bind;
+  for (const std::string& name : allowed_hosts) {
+    std::string lower;
+    for (const char c : name) lower += static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    http.allowed_hosts.push_back(lower);
+  }
   http.port = port;
   http.web_root = web_root;
   http.state_dir = state_dir;

@@ -296,6 +296,47 @@ TEST_F(OpenSlamd, TheUnreadBodyOfARefusedRequestIsNeverServedAsARequest) {
   EXPECT_EQ(GetJson(http(), "/api/v1/budget").value("rays_per_scan", 0), 777);
 }
 
+/// GET /api/v1/status with this Host header (none when empty); the status code.
+int StatusWithHost(int port, const std::string& host) {
+  const std::string header = host.empty() ? "" : "Host: " + host + "\r\n";
+  return RawExchange(port, "GET /api/v1/status HTTP/1.1\r\n" + header + "Connection: close\r\n\r\n")
+      .status;
+}
+
+TEST_F(OpenSlamd, WithoutATokenOnlyLoopbackNamesAreAnswered) {
+  // DNS rebinding: a page at http://evil.example:PORT whose name is made to resolve to
+  // 127.0.0.1 is same-origin with itself, so its Origin matches its Host; the Host names it.
+  const std::string evil = "evil.example:" + std::to_string(port());
+  EXPECT_EQ(StatusWithHost(port(), evil), 403);
+  EXPECT_EQ(StatusWithHost(port(), "127.0.0.1.evil.example"), 403);
+  const Reply patch = http().MergePatch(kBudgetPath, R"({"rays_per_scan": 4321})",
+                                        {{"Host", evil}, {"Origin", "http://" + evil}});
+  ExpectProblem(patch, 403);
+  EXPECT_NE(GetJson(http(), kBudgetPath).value("rays_per_scan", 0), 4321);
+  // This machine's own names, with or without a port, and HTTP/1.0 without a Host.
+  for (const std::string& host :
+       {std::string("localhost"), "LocalHost:" + std::to_string(port()), std::string("127.0.0.1"),
+        "127.0.0.1:" + std::to_string(port()), std::string("[::1]:8080")}) {
+    EXPECT_EQ(StatusWithHost(port(), host), 200) << host;
+  }
+  EXPECT_EQ(RawExchange(port(), "GET /api/v1/health HTTP/1.0\r\n\r\n").status, 200);
+}
+
+TEST(AllowedHosts, AReverseProxysNameIsAnsweredWhenAllowed) {
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--allow-host", "Robot.Local", "--budget", "8000"}, &error)) << error;
+  EXPECT_EQ(StatusWithHost(slamd.port(), "robot.local"), 200);
+  EXPECT_EQ(StatusWithHost(slamd.port(), "ROBOT.local:8080"), 200);
+  EXPECT_EQ(StatusWithHost(slamd.port(), "localhost"), 200);
+  EXPECT_EQ(StatusWithHost(slamd.port(), "other.local"), 403);
+}
+
+TEST_F(SecuredSlamd, WithATokenAnyHostIsAnswered) {
+  // Beyond loopback slamd has a token and is reached by whatever name the network gives it.
+  EXPECT_EQ(StatusWithHost(port(), "robot.example:8080"), 200);
+}
+
 TEST(WebRoot, TheShippedPageHasNoSymbolicLinks) {
   // The static handler follows symbolic links inside the web root (notes/httplib-0.11.md,
   // point 10): the page slamd ships must have none, or a link could serve any file.

@@ -187,6 +187,19 @@ TEST(Security, LoopbackAddresses) {
   EXPECT_FALSE(IsLoopback("192.168.1.10"));
   EXPECT_FALSE(IsLoopback("::"));
   EXPECT_FALSE(IsLoopback("128.0.0.1"));
+  EXPECT_FALSE(IsLoopback("127.0.0.1.evil.example"));
+  EXPECT_FALSE(IsLoopback("localhost.evil.example"));
+}
+
+TEST(Security, HostNameOfAHostHeader) {
+  EXPECT_EQ(HostName("localhost:8080"), "localhost");
+  EXPECT_EQ(HostName("127.0.0.1"), "127.0.0.1");
+  EXPECT_EQ(HostName("[::1]:8080"), "::1");
+  EXPECT_EQ(HostName("[::1]"), "::1");
+  EXPECT_EQ(HostName("::1"), "::1");
+  EXPECT_EQ(HostName("evil.example:80"), "evil.example");
+  EXPECT_EQ(HostName(""), "");
+  EXPECT_EQ(HostName("[unclosed"), "[unclosed");
 }
 
 TEST(TuneRequest, DefaultsAndErrorsWithPointers) {
