@@ -107,7 +107,24 @@ ConfigErrors ParseTuneRequest(const nlohmann::json& body, const std::vector<std:
 }
 
 JobManager::JobManager(std::string experiments_dir, std::string output_dir)
-    : experiments_dir_(std::move(experiments_dir)), output_dir_(std::move(output_dir)) {}
+    : experiments_dir_(std::move(experiments_dir)), output_dir_(std::move(output_dir)) {
+  // Ids go on from the results an earlier run left in <output>/jobs/<id>/: a new job 1 would
+  // write over the old job 1's.
+  std::error_code error;
+  if (output_dir_.empty() || !fs::is_directory(fs::path(output_dir_) / "jobs", error)) return;
+  try {
+    for (const auto& entry : fs::directory_iterator(fs::path(output_dir_) / "jobs", error)) {
+      const std::string name = entry.path().filename().string();
+      if (name.empty() || name.size() > 18 ||
+          !std::all_of(name.begin(), name.end(), [](char c) { return c >= '0' && c <= '9'; })) {
+        continue;
+      }
+      next_id_ = std::max<uint64_t>(next_id_, std::stoull(name) + 1);
+    }
+  } catch (const fs::filesystem_error&) {
+    // An unreadable folder: ids start from those found so far.
+  }
+}
 
 JobManager::~JobManager() {
   decltype(jobs_) jobs;

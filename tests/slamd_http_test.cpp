@@ -1447,6 +1447,31 @@ TEST_F(JobsSlamd, SmallJobReportsProgressAndFinishes) {
   ExpectProblem(http().Get("/api/v1/jobs/" + id), 404);
 }
 
+TEST_F(JobsSlamd, JobIdsGoOnFromAnEarlierRunsResults) {
+  // Results of an earlier run's jobs stay in --state-dir/jobs/<id>/: a new job must not take
+  // one of their ids (it would write over their results).
+  ScratchDir state("jobs_state");
+  fs::create_directories(state.path() / "jobs" / "1");
+  fs::create_directories(state.path() / "jobs" / "7");
+  fs::create_directories(state.path() / "jobs" / "notes");
+  WriteFile(state.path() / "jobs" / "7" / "results.json", "{\"earlier\": true}\n");
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--experiments", experiments_->path().string(), "--state-dir",
+                           state.path().string(), "--budget", "8000"},
+                          &error))
+      << error;
+  Http own(slamd.host(), slamd.port());
+  const Reply started = own.PostJson(
+      "/api/v1/jobs/tune",
+      R"({"population": 2, "generations": 1, "budget": 2000, "experiments": ["box-1"]})");
+  ASSERT_EQ(started.status, 202) << started;
+  const std::string id = started.Json().value("id", "");
+  EXPECT_EQ(id, "8");
+  own.Send("DELETE", "/api/v1/jobs/" + id, "", "");
+  EXPECT_EQ(ReadFile(state.path() / "jobs" / "7" / "results.json"), "{\"earlier\": true}\n");
+}
+
 TEST_F(JobsSlamd, OnlyTheSixteenNewestJobsAreKept) {
   // A client starting job after job (each cancelled at once) must not grow slamd without bound:
   // slamd keeps the 16 newest, oldest listed first.
