@@ -539,6 +539,9 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
   if (auto it = req.headers.find("Accept-Encoding"); it != req.headers.end()) {
     if (Lower(it->second).find("br") != std::string::npos) it->second = "gzip";
   }
+  // The trajectory is made once per snapshot (ServeExport) but httplib would compress its TUM
+  // text again for every request, at a cost growing with the run: it goes out as it is.
+  if (req.path == "/api/v1/trajectory") req.headers.erase("Accept-Encoding");
   const bool mutating = req.method == "POST" || req.method == "PUT" || req.method == "PATCH" ||
                         req.method == "DELETE";
   const bool bodied = req.method == "POST" || req.method == "PUT" || req.method == "PATCH";

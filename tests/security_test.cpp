@@ -364,6 +364,20 @@ TEST_F(SecuredSlamd, BrotliIsNeverUsedWhateverTheClientOffers) {
   }
 }
 
+TEST_F(SecuredSlamd, TheTrajectoryIsNeverCompressedPerRequest) {
+  // Made once per snapshot, it would still be compressed again for every request that accepts
+  // gzip (text/plain is compressible), at a cost that grows with the run.
+  for (const char* route : {"/api/v1/trajectory?format=tum", "/api/v1/trajectory"}) {
+    const Reply reply = http().Get(route, {{"Accept-Encoding", "gzip, deflate, br"}});
+    EXPECT_EQ(reply.status, 200) << route;
+    EXPECT_EQ(reply.Header("Content-Encoding"), "") << route;
+  }
+  // Other text still is (the page's script, say).
+  const Reply page = http().Get("/index.html", {{"Accept-Encoding", "gzip"}});
+  EXPECT_EQ(page.status, 200);
+  EXPECT_EQ(page.Header("Content-Encoding"), "gzip");
+}
+
 TEST(ExpensiveRoutes, EachExportIsMadeOncePerSnapshotHoweverManyAsk) {
   // A finished run (the map no longer changes): 12 clients ask for every whole-map export and
   // the trajectory at once, three times each.
