@@ -170,6 +170,11 @@ void Link::Run() {
     } catch (const std::exception& e) {  // e.g. std::bad_alloc: report it like a source error
       outcome = {ReadStatus::kError, std::string("link: ") + e.what()};
     }
+    // A burst (a flood of datagrams, say) must not keep its memory for the rest of the run.
+    if (frames.capacity() > 16 * kFramesReserve) {
+      frames = std::vector<TimedFrame>();
+      frames.reserve(kFramesReserve);
+    }
 
     LinkState next = LinkState::kRunning;
     if (outcome.status == ReadStatus::kEnd) next = LinkState::kEnded;

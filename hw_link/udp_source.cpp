@@ -21,6 +21,9 @@ namespace {
 constexpr size_t kMaxDatagram = 65536;        // larger than any UDP payload
 constexpr int kReceiveBufferBytes = 1 << 20;  // absorbs bursts while the link is busy
 constexpr size_t kMaxDatagramsPerRead = 256;
+// A datagram of 64 KiB holds up to 13 000 frames without data: a read stops taking datagrams
+// beyond this many frames, so that what one read holds stays a few megabytes.
+constexpr size_t kMaxFramesPerRead = 16384;
 
 class UdpSource final : public FrameSource {
  public:
@@ -34,7 +37,8 @@ class UdpSource final : public FrameSource {
       const int revents = PollReadable(fd_.get(), deadline_ns);
       if (revents < 0) return {ReadStatus::kError, Describe() + ": poll: " + ErrnoText(errno)};
       if (revents == 0) return {};
-      for (size_t count = 0; count < kMaxDatagramsPerRead; ++count) {
+      for (size_t count = 0; count < kMaxDatagramsPerRead && out.size() - before < kMaxFramesPerRead;
+           ++count) {
         const ssize_t n = ::recv(fd_.get(), buffer_.data(), buffer_.size(), MSG_DONTWAIT);
         if (n < 0) {
           if (errno == EINTR) continue;

@@ -667,6 +667,33 @@ TEST(UdpSourceTest, FramesOfADatagramGetDistinctIncreasingTimes) {
   EXPECT_NEAR(received[23].t, static_cast<double>(received[23].receive_ns) * 1e-9, 1e-9);
 }
 
+TEST(UdpSourceTest, AReadTakesBoundedFramesAndTheRestComeNext) {
+  // Datagrams of 10 000 frames without data: one read stops taking datagrams past 16 384 frames
+  // (what a read holds stays a few megabytes), and nothing is lost.
+  auto source = Unwrap(OpenUdp(0, "127.0.0.1"));
+  ASSERT_NE(source, nullptr);
+  UniqueFd client(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0));
+  ASSERT_TRUE(client.valid());
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(BoundUdpPort(*source));
+  to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  std::vector<CanFrame> frames(10'000);
+  for (size_t k = 0; k < frames.size(); ++k) frames[k].id = static_cast<uint32_t>(k & 0x7FF);
+  for (uint8_t sequence = 0; sequence < 4; ++sequence) {
+    const std::vector<uint8_t> bytes = EncodeCannelloni(sequence, frames);
+    ASSERT_EQ(::sendto(client.get(), bytes.data(), bytes.size(), 0,
+                       reinterpret_cast<const sockaddr*>(&to), sizeof to),
+              static_cast<ssize_t>(bytes.size()));
+  }
+  std::vector<TimedFrame> first;
+  ASSERT_EQ(source->Read(first, milliseconds(1000)).status, ReadStatus::kOk);
+  EXPECT_EQ(first.size(), 20'000u);  // two datagrams: the first left it under 16 384
+  const std::vector<TimedFrame> rest = ReadFrames(*source, 20'000);
+  EXPECT_EQ(rest.size(), 20'000u);
+  EXPECT_EQ(Counter(source->Counters(), "frames"), 40'000u);
+}
+
 TEST(UdpSourceTest, BadAddressOrBusyPortFailsWithAClearMessage) {
   EXPECT_NE(ErrorOf(OpenUdp(0, "not-an-address")).find("not-an-address"), std::string::npos);
   auto first = Unwrap(OpenUdp(0, "127.0.0.1"));
