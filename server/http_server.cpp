@@ -484,6 +484,14 @@ struct HttpServer::Impl {
   uint64_t params_revision = 1;
 
   std::mutex save_mutex;  // one save at a time
+  // The last save that succeeded (guarded by save_mutex): when it was started and its answer.
+  // A request that waited for a save started after it arrived shares that save's answer.
+  struct LastSave {
+    bool valid = false;
+    Clock::time_point started;
+    json answer;
+  } last_save;
+  std::atomic<uint64_t> saves_made{0};
 
   // Whole-map exports and the trajectory cost time in proportion to the map and the run: each
   // kind is made at most once per published snapshot, one at a time; requests that come while
@@ -937,7 +945,17 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
   // The snapshot is taken under the lock: saves run one at a time, each of a snapshot at least
   // as new as the one before (taken before the lock, a slower save of an older snapshot could
   // land after a newer one and take the saved state back).
+  const Clock::time_point arrived = Clock::now();
   const std::lock_guard lock(save_mutex);
+  // A save started after this request arrived saved a snapshot at least as new as the one this
+  // request would save: its answer is this request's. Requests piling up on the lock thus make
+  // one more save between them, not one each (each holds a server thread while it waits).
+  if (last_save.valid && last_save.started >= arrived) {
+    SendJson(res, last_save.answer);
+    return;
+  }
+  last_save.valid = false;
+  last_save.started = Clock::now();
   const auto snapshot = service.Snapshot();
   const OccupancyGrid grid = SnapshotGrid(*snapshot, service.logodds_limit());
   SaveInputs in;
@@ -950,9 +968,12 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
     SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + *error);
     return;
   }
-  SendJson(res, {{"path", std::filesystem::absolute(options.state_dir).string()},
-                 {"version", snapshot->map_version},
-                 {"tiles", snapshot->tiles.size()}});
+  saves_made.fetch_add(1);
+  last_save.answer = {{"path", std::filesystem::absolute(options.state_dir).string()},
+                      {"version", snapshot->map_version},
+                      {"tiles", snapshot->tiles.size()}};
+  last_save.valid = true;
+  SendJson(res, last_save.answer);
 }
 
 void HttpServer::Impl::HandleReset(httplib::Response& res) {
@@ -1070,6 +1091,8 @@ std::string HttpServer::Impl::MetricsText() {
   metric("event_streams_rejected_total", "counter", "Event streams refused (cap reached).",
          streams_rejected.load());
   metric("jobs_running", "gauge", "Tuning jobs running.", jobs.running());
+  metric("map_saves_total", "counter",
+         "Saves of the map written (requests waiting for a save share it).", saves_made.load());
   o << "# HELP slamd_exports_made_total Whole-map and trajectory exports made (each at most once "
        "per snapshot and kind).\n# TYPE slamd_exports_made_total counter\n";
   for (const auto& [kind, e] : exports) {

@@ -737,7 +737,8 @@ TEST_F(SharedSlamd, MetricsAreTextFormatWithEveryDocumentedName) {
                            "http_requests_total",
                            "event_stream_clients",
                            "event_streams_rejected_total",
-                           "jobs_running"}) {
+                           "jobs_running",
+                           "map_saves_total"}) {
     EXPECT_TRUE(Metric(samples, std::string("slamd_") + name).has_value()) << name;
   }
   for (const char* suffix : {"_bucket", "_sum", "_count"}) {
@@ -1172,6 +1173,41 @@ TEST(SlamdResetTest, ResetDropsTilesAndVersionsKeepGrowing) {
 
 // ---------------------------------------------------------------------------------------------
 // Save and resume
+
+TEST(SlamdStateDirTest, SavesRequestedTogetherShareASave) {
+  // Each save waiting for the lock held a server thread for its own whole save: 16 at once
+  // made 16 saves one after another. Those that waited share a save started after they came.
+  ScratchDir state("state_together");
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--state-dir", state.path().string(), "--budget", "8000"}, &error))
+      << error;
+  Http http(slamd.host(), slamd.port());
+  WaitForTiles(http, 2);
+  constexpr int kClients = 16;
+  std::atomic<int> ok{0};
+  std::atomic<int> ready{0};
+  std::vector<std::thread> clients;
+  for (int c = 0; c < kClients; ++c) {
+    clients.emplace_back([&] {
+      Http own(slamd.host(), slamd.port());
+      ASSERT_EQ(own.Get("/api/v1/health").status, 200);  // connected before the burst
+      ++ready;
+      while (ready < kClients) std::this_thread::yield();
+      const Reply reply = own.PostJson("/api/v1/map/save", "{}");
+      if (reply.status == 200 && reply.Json()["version"].is_number_integer()) ++ok;
+    });
+  }
+  for (auto& t : clients) t.join();
+  EXPECT_EQ(ok.load(), kClients);
+  const double together = Metric(GetMetrics(http), "slamd_map_saves_total").value_or(-1.0);
+  EXPECT_GE(together, 1.0);
+  EXPECT_LE(together, kClients / 2.0) << "saves requested together were each made";
+  std::cout << "saves written for " << kClients << " requests at once: " << together << "\n";
+  // A save asked for afterwards is made.
+  ASSERT_EQ(http.PostJson("/api/v1/map/save", "{}").status, 200);
+  EXPECT_EQ(Metric(GetMetrics(http), "slamd_map_saves_total").value_or(-1.0), together + 1.0);
+}
 
 TEST(SlamdStateDirTest, SaveWritesTheFilesAndARestartResumes) {
   ScratchDir state("state");
