@@ -23,9 +23,10 @@ namespace {
 
 constexpr int64_t kMicrosPerSecond = 1'000'000;
 constexpr int kFractionDigits = 6;
-// Largest whole-second count whose microseconds (plus 999999) still fit in int64.
-constexpr int64_t kMaxSeconds =
-    (std::numeric_limits<int64_t>::max() - (kMicrosPerSecond - 1)) / kMicrosPerSecond;
+// Largest whole-second count accepted: 2^40 s (34 800 years), far beyond any clock, and far
+// enough below int64 microseconds that the replay's timeline (each frame moves it on by at most
+// a second) cannot overflow: that would take 8e12 frames.
+constexpr int64_t kMaxSeconds = int64_t{1} << 40;
 constexpr size_t kStandardIdDigits = 3;
 constexpr size_t kExtendedIdDigits = 8;
 
