@@ -35,7 +35,8 @@ struct CandumpLine {
 CandumpLine ParseCandumpLine(std::string_view line);
 
 /// Formats a frame as a candump -l line without the newline, e.g.
-/// "(1700000000.000123) can0 102#2000010000402C01". Precondition: time_us >= 0 (times past 2^40 s do not parse back).
+/// "(1700000000.000123) can0 102#2000010000402C01". Precondition: time_us >= 0 (times past
+/// 2^40 s do not parse back).
 std::string FormatCandumpLine(int64_t time_us, std::string_view interface, const CanFrame& frame);
 
 }  // namespace slam::hw
