@@ -103,9 +103,8 @@ void BatchClock::Stamp(std::vector<TimedFrame>& frames, size_t first, int64_t no
   if (first >= frames.size()) return;
   const auto n = static_cast<int64_t>(frames.size() - first);
   // Strictly after the previous batch's last frame, 1 ns a frame at the very least.
-  const int64_t end = std::max(now_ns, previous_ns_ == std::numeric_limits<int64_t>::min()
-                                           ? now_ns
-                                           : previous_ns_ + n);
+  const int64_t end = std::max(
+      now_ns, previous_ns_ == std::numeric_limits<int64_t>::min() ? now_ns : previous_ns_ + n);
   const int64_t start =
       previous_ns_ == std::numeric_limits<int64_t>::min() || end - previous_ns_ > kMaxSpanNs
           ? end - kMaxSpanNs

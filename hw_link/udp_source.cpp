@@ -37,8 +37,8 @@ class UdpSource final : public FrameSource {
       const int revents = PollReadable(fd_.get(), deadline_ns);
       if (revents < 0) return {ReadStatus::kError, Describe() + ": poll: " + ErrnoText(errno)};
       if (revents == 0) return {};
-      for (size_t count = 0; count < kMaxDatagramsPerRead && out.size() - before < kMaxFramesPerRead;
-           ++count) {
+      for (size_t count = 0;
+           count < kMaxDatagramsPerRead && out.size() - before < kMaxFramesPerRead; ++count) {
         const ssize_t n = ::recv(fd_.get(), buffer_.data(), buffer_.size(), MSG_DONTWAIT);
         if (n < 0) {
           if (errno == EINTR) continue;

@@ -4,10 +4,10 @@
 //   slamd                                   virtual marXbot in the "rooms" arena, page on :8080
 //   slamd --source slcan:/dev/ttyACM0 --state-dir /var/lib/slamd
 
-#include <CLI/CLI.hpp>
 #include <pthread.h>
 #include <signal.h>
 
+#include <CLI/CLI.hpp>
 #include <cctype>
 #include <cstdio>
 #include <filesystem>
@@ -43,7 +43,8 @@ int Fail(const std::string& message, int code = 2) {
 
 /// The installed page, else the source tree's.
 std::string DefaultWebRoot() {
-  for (const std::string& candidate : {std::string(SLAMD_WEB_ROOT), std::string(SLAM_SOURCE_DIR) + "/web"}) {
+  for (const std::string& candidate :
+       {std::string(SLAMD_WEB_ROOT), std::string(SLAM_SOURCE_DIR) + "/web"}) {
     if (!candidate.empty() && fs::exists(fs::path(candidate) / "index.html")) return candidate;
   }
   return {};
@@ -72,7 +73,8 @@ int main(int argc, char** argv) {
                  "slcan:DEVICE, udp:PORT, udp:ADDRESS:PORT or socketcan:IFACE")
       ->capture_default_str();
   app.add_option("--robot", robot_path, "robot description (robot.json)")->capture_default_str();
-  app.add_option("--params", params_path, "SLAM parameters (JSON, e.g. a slam-tune params/<budget>.json)");
+  app.add_option("--params", params_path,
+                 "SLAM parameters (JSON, e.g. a slam-tune params/<budget>.json)");
   app.add_option("--bind", bind, "address to listen on; beyond loopback a --token-file is required")
       ->capture_default_str();
   app.add_option("--port", port, "TCP port (0: any free port, printed at start)")
@@ -133,7 +135,8 @@ int main(int argc, char** argv) {
   http.bind = bind;
   for (const std::string& name : allowed_hosts) {
     std::string lower;
-    for (const char c : name) lower += static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    for (const char c : name)
+      lower += static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
     http.allowed_hosts.push_back(lower);
   }
   http.port = port;
@@ -185,7 +188,8 @@ int main(int argc, char** argv) {
   auto opened = slam::hw::OpenSourceSpec(source, robot.value(), source_options);
   if (auto* error = std::get_if<std::string>(&opened)) return Fail(*error, 1);
   auto frame_source = std::move(std::get<std::unique_ptr<slam::hw::FrameSource>>(opened));
-  const auto* virtual_robot = dynamic_cast<const slam::hw::VirtualMarxbotSource*>(frame_source.get());
+  const auto* virtual_robot =
+      dynamic_cast<const slam::hw::VirtualMarxbotSource*>(frame_source.get());
 
   // Signals go to one thread that stops the server; every other thread blocks them.
   sigset_t signals;
@@ -223,7 +227,8 @@ int main(int argc, char** argv) {
   if (!quiet) {
     status_thread = std::thread([&] {
       while (!done) {
-        for (int i = 0; i < 50 && !done; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+        for (int i = 0; i < 50 && !done; ++i)
+          std::this_thread::sleep_for(std::chrono::milliseconds(100));
         if (done) break;
         const auto c = service.Counters();
         const auto l = link.Status();

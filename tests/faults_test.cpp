@@ -307,8 +307,8 @@ class UdpSender {
 struct UdpFaults {
   int lose_every = 0;  // every Nth datagram starts a burst of `burst` lost ones (0: never)
   int burst = 0;
-  int garbage_every = 0;  // a garbage datagram before every Nth (0: never)
-  int corrupt_every = 0;  // every Nth frame goes to an unknown node (0: never)
+  int garbage_every = 0;      // a garbage datagram before every Nth (0: never)
+  int corrupt_every = 0;      // every Nth frame goes to an unknown node (0: never)
   int64_t batch_us = 10'000;  // log time in a datagram (cannelloni batches by time)
   size_t batch_frames = 16;   // and frames in a datagram at most
 };

@@ -239,7 +239,8 @@ int ResponsesUntilClosed(int port, const std::string& request, std::string& raw,
   }
   ::close(fd);
   int responses = 0;
-  for (size_t at = raw.find("HTTP/1.1 "); at != std::string::npos; at = raw.find("HTTP/1.1 ", at + 1)) {
+  for (size_t at = raw.find("HTTP/1.1 "); at != std::string::npos;
+       at = raw.find("HTTP/1.1 ", at + 1)) {
     ++responses;
   }
   return responses;
@@ -287,9 +288,10 @@ TEST_F(OpenSlamd, TheUnreadBodyOfARefusedRequestIsNeverServedAsARequest) {
   EXPECT_EQ(GetJson(http(), "/api/v1/budget").value("rays_per_scan", 0), 8000) << "smuggled";
   // The same inner request on its own does change the budget (the test's request is valid).
   std::string raw;
-  EXPECT_EQ(ResponsesUntilClosed(port(), inner.substr(0, inner.find("\r\n\r\n")) +
-                                             "\r\nConnection: close\r\n\r\n" +
-                                             inner.substr(inner.find("\r\n\r\n") + 4),
+  EXPECT_EQ(ResponsesUntilClosed(port(),
+                                 inner.substr(0, inner.find("\r\n\r\n")) +
+                                     "\r\nConnection: close\r\n\r\n" +
+                                     inner.substr(inner.find("\r\n\r\n") + 4),
                                  raw),
             1);
   EXPECT_TRUE(StartsWith(raw, "HTTP/1.1 200")) << raw.substr(0, 300);
@@ -444,7 +446,8 @@ TEST(ExpensiveRoutes, EachExportIsMadeOncePerSnapshotHoweverManyAsk) {
       const double total =
           Metric(metrics, "slamd_exports_made_total", {{"kind", kind}}).value_or(0.0);
       const double made =
-          total - Metric(metrics_before, "slamd_exports_made_total", {{"kind", kind}}).value_or(0.0);
+          total -
+          Metric(metrics_before, "slamd_exports_made_total", {{"kind", kind}}).value_or(0.0);
       EXPECT_LE(made, 1.0) << kind;
       EXPECT_GE(total, 1.0) << kind;
     }

@@ -94,7 +94,8 @@ TEST_F(SharedSlamd, StatusHasTheDocumentedShape) {
   EXPECT_TRUE(status["job"].is_null());
   // How matching rays are cast on this processor (replay_test checks which one).
   const std::set<std::string> kernels = {"avx512", "avx2", "portable"};
-  EXPECT_TRUE(kernels.count(status["features"].value("ray_kernel", "?"))) << status["features"].dump();
+  EXPECT_TRUE(kernels.count(status["features"].value("ray_kernel", "?")))
+      << status["features"].dump();
 }
 
 TEST_F(SharedSlamd, ServesThePageFromTheWebRoot) {
@@ -658,9 +659,8 @@ TEST_F(SharedSlamd, DeeplyNestedBodiesAre400AndSlamdServesOn) {
   }
   // 32 levels are still JSON slamd reads (and then refuses as a budget).
   const std::string nested_32 = std::string(31, '[') + std::string(31, ']');
-  ExpectProblem(http().Send("PUT", kBudgetPath, R"({"mode": )" + nested_32 + "}",
-                            "application/json"),
-                422);
+  ExpectProblem(
+      http().Send("PUT", kBudgetPath, R"({"mode": )" + nested_32 + "}", "application/json"), 422);
   EXPECT_EQ(http().Get("/api/v1/health").status, 200);
 }
 
@@ -783,14 +783,16 @@ TEST_F(SharedSlamd, MetricsCountHttpRequestsByMethodAndCode) {
   ASSERT_EQ(http().MergePatch(kBudgetPath, R"({"bogus": 1})").status, 422);
   // slamd counts a request once its answer is written, so the last counts may land just after
   // the client has its answer: read /metrics until they are all in (bounded), then compare.
-  const auto count = [](const std::vector<MetricSample>& metrics, const char* method, const char* code) {
+  const auto count = [](const std::vector<MetricSample>& metrics, const char* method,
+                        const char* code) {
     return Metric(metrics, "slamd_http_requests_total", {{"method", method}, {"code", code}})
         .value_or(0.0);
   };
   auto after = GetMetrics(http());
   int reads = 1;
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(3);
-  while ((count(after, "GET", "200") - get_200 < 5.0 || count(after, "GET", "404") - get_404 < 3.0 ||
+  while ((count(after, "GET", "200") - get_200 < 5.0 ||
+          count(after, "GET", "404") - get_404 < 3.0 ||
           count(after, "PATCH", "422") - patch_422 < 1.0) &&
          std::chrono::steady_clock::now() < deadline) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
@@ -1363,8 +1365,9 @@ TEST_F(JobsSlamd, BadTuneBodiesAre422Or400Or415) {
   Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"experiments": "box-1"})"),
               {"/experiments"});
   // A name repeated would load that experiment again for each copy.
-  Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"experiments": ["box-1", "box-2", "box-1"]})"),
-              {"/experiments/2"});
+  Expect422At(
+      http().PostJson("/api/v1/jobs/tune", R"({"experiments": ["box-1", "box-2", "box-1"]})"),
+      {"/experiments/2"});
   Expect422At(http().PostJson("/api/v1/jobs/tune", R"({"population": 0, "seed": "s"})"),
               {"/population", "/seed"});
   Expect422At(http().PostJson("/api/v1/jobs/tune", "[]"), {""});

@@ -610,8 +610,8 @@ TEST(BatchClockTest, SpreadsABatchOverTheTimeSinceThePreviousOne) {
   std::vector<TimedFrame> frames(4);
   // The first batch: over the longest span before its receive time.
   clock.Stamp(frames, 0, 10'000'000'000);
-  EXPECT_EQ(times(frames, 0), (std::vector<int64_t>{9'850'000'000, 9'900'000'000, 9'950'000'000,
-                                                    10'000'000'000}));
+  EXPECT_EQ(times(frames, 0),
+            (std::vector<int64_t>{9'850'000'000, 9'900'000'000, 9'950'000'000, 10'000'000'000}));
   // 100 ms later: over those 100 ms (a cannelloni sender's default batching).
   frames.resize(6);
   clock.Stamp(frames, 4, 10'100'000'000);
