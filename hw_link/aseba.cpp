@@ -130,4 +130,12 @@ std::optional<AsebaMessage> AsebaReassembler::Push(const CanFrame& frame, double
   return std::nullopt;
 }
 
+void AsebaReassembler::Gap() {
+  for (Partial& partial : partial_) {
+    if (!partial.active) continue;
+    partial.active = false;
+    ++counters_.abandoned;
+  }
+}
+
 }  // namespace slam::hw

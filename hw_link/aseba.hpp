@@ -55,7 +55,7 @@ struct ReassemblyCounters {
   uint64_t middle_without_start = 0;  // fragment with no message in progress: dropped
   uint64_t stop_without_start = 0;
   uint64_t oversize = 0;   // messages abandoned for growing beyond kAsebaMaxMessageBytes
-  uint64_t abandoned = 0;  // messages in progress cut off by a new start or a single frame
+  uint64_t abandoned = 0;  // messages in progress cut off by a new start, a single frame or a gap
 
   /// Frames or messages rejected for any reason.
   uint64_t Rejected() const {
@@ -70,6 +70,11 @@ class AsebaReassembler {
  public:
   /// Feeds one frame received at time t; returns the message this frame completes, if any.
   std::optional<AsebaMessage> Push(const CanFrame& frame, double t);
+
+  /// Frames were lost: every message in progress is abandoned (counted), so that none is
+  /// finished with a later message's frames (the stop of one and the start of the next lost,
+  /// the first message's start and the second's stop would make a message of the right size).
+  void Gap();
 
   const ReassemblyCounters& counters() const { return counters_; }
 

@@ -38,6 +38,9 @@ struct TimedFrame {
   int64_t receive_ns = 0;
   /// The log's or the device's own timestamp, when the transport has one (seconds).
   std::optional<double> source_t;
+  /// The transport knows frames were lost just before this one (a datagram missing from the
+  /// sequence, a device reopened, a garbled log line): messages in progress cannot be finished.
+  bool after_gap = false;
 };
 
 /// The frame in candump's compact form, e.g. "102#2000010000402C01", "1F334455#R", "123##1AB".

@@ -141,21 +141,22 @@ std::variant<CannelloniDatagram, std::string> DecodeCannelloni(std::span<const u
   return out;
 }
 
-void SequenceTracker::Observe(uint8_t sequence) {
+bool SequenceTracker::Observe(uint8_t sequence) {
   ++counters_.datagrams;
   if (!started_) {
     started_ = true;
     expected_ = static_cast<uint8_t>(sequence + 1);
-    return;
+    return true;
   }
   // Forward distance from the last number seen (expected_ - 1): 1..127 is new.
   const auto skipped = static_cast<uint8_t>(sequence - expected_);
   if (skipped <= 126) {
     counters_.lost += skipped;
     expected_ = static_cast<uint8_t>(sequence + 1);
-  } else {
-    ++counters_.reordered;
+    return skipped == 0;
   }
+  ++counters_.reordered;
+  return false;
 }
 
 }  // namespace slam::hw

@@ -40,7 +40,9 @@ struct SequenceCounters {
 /// datagram and leaves the expected number unchanged.
 class SequenceTracker {
  public:
-  void Observe(uint8_t sequence);
+  /// Counts one datagram; false when it does not directly follow the previous one (datagrams
+  /// were lost before it, or it comes late).
+  bool Observe(uint8_t sequence);
   const SequenceCounters& counters() const { return counters_; }
 
  private:

@@ -23,6 +23,7 @@ class FrameDecoder {
   std::optional<RobotEvent> Push(const TimedFrame& frame) {
     if (frames_++ == 0) first_time_ = frame.t;
     last_time_ = frame.t;
+    if (frame.after_gap) reassembler_.Gap();
     const auto message = reassembler_.Push(frame.frame, frame.t);
     if (!message) return std::nullopt;
     return decoder_.Decode(*message);

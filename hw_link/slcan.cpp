@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstddef>
+#include <utility>
 
 // Decisions beyond the header's contract:
 // - '\r' and '\n' end a line, but a '\n' right after a '\r' (also across Feed calls) is part of
@@ -104,13 +105,18 @@ void SlcanParser::Feed(std::string_view bytes, std::vector<SlcanFrame>& out) {
         ++counters_.acks;
       } else if (auto frame = ParseFrameLine(line_)) {
         ++counters_.frames;
+        frame->after_bad_line = std::exchange(bad_since_frame_, false);
         out.push_back(*frame);
       } else {
         ++counters_.bad_lines;
+        bad_since_frame_ = true;
       }
       line_.clear();
     } else if (c == '\a') {
-      if (!line_.empty()) ++counters_.bad_lines;  // an unfinished line: cut off
+      if (!line_.empty()) {  // an unfinished line: cut off
+        ++counters_.bad_lines;
+        bad_since_frame_ = true;
+      }
       line_.clear();
       overlong_ = false;
       ++counters_.nacks;
@@ -118,6 +124,7 @@ void SlcanParser::Feed(std::string_view bytes, std::vector<SlcanFrame>& out) {
       // skipping the rest of a line already counted as too long
     } else if (line_.size() == kMaxLineLength) {
       ++counters_.bad_lines;
+      bad_since_frame_ = true;
       line_.clear();
       overlong_ = true;
     } else {

@@ -21,6 +21,7 @@ namespace slam::hw {
 struct SlcanFrame {
   CanFrame frame;
   std::optional<uint16_t> timestamp_ms;  // adapter time (0..59999) when time stamps are on
+  bool after_bad_line = false;  // a line the parser could not read came before it (a lost frame?)
 
   friend bool operator==(const SlcanFrame&, const SlcanFrame&) = default;
 };
@@ -45,6 +46,7 @@ class SlcanParser {
  private:
   std::string line_;
   bool overlong_ = false;
+  bool bad_since_frame_ = false;  // a bad line since the last frame
   bool after_cr_ = false;  // the last byte was '\r': a '\n' right after it ends nothing
   SlcanCounters counters_;
 };

@@ -17,6 +17,7 @@
 #include <cerrno>
 #include <chrono>
 #include <thread>
+#include <utility>
 #include <variant>
 
 #include "hw_link/fd_util.hpp"
@@ -135,6 +136,7 @@ class SlcanSource final : public FrameSource {
       frame.frame = parsed.frame;
       frame.receive_ns = now_ns;
       if (parsed.timestamp_ms) frame.source_t = *parsed.timestamp_ms * 1e-3;
+      frame.after_gap = parsed.after_bad_line || std::exchange(reopened_, false);
       out.push_back(frame);
     }
     clock_.Stamp(out, first, now_ns);
@@ -157,6 +159,7 @@ class SlcanSource final : public FrameSource {
     fd_ = std::move(std::get<UniqueFd>(opened));
     previous_ += parser_.counters();
     parser_ = SlcanParser{};  // a line cut by the hang-up must not glue onto the new stream
+    reopened_ = true;         // nor a message cut by it: the next frame comes after a gap
     return {};
   }
 
@@ -166,6 +169,7 @@ class SlcanSource final : public FrameSource {
   SlcanCounters previous_;  // counters of the parsers before the last reopen
   std::vector<SlcanFrame> parsed_;
   BatchClock clock_;
+  bool reopened_ = false;  // the device was reopened since the last frame
   std::array<char, kReadChunk> buffer_{};
   Reopener reopener_;
   uint64_t device_errors_ = 0;

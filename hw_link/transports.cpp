@@ -14,6 +14,7 @@
 #include <optional>
 #include <string_view>
 #include <thread>
+#include <utility>
 
 #include "hw_link/candump.hpp"
 #include "hw_link/fd_util.hpp"
@@ -167,6 +168,7 @@ class CandumpReplay final : public FrameSource {
           pending.frame.frame = parsed.frame;
           pending.frame.t = static_cast<double>(pending.time_us) * 1e-6;
           pending.frame.source_t = static_cast<double>(parsed.time_us) * 1e-6;  // as logged
+          pending.frame.after_gap = std::exchange(bad_since_frame_, false);
           return pending;
         }
       }
@@ -190,6 +192,7 @@ class CandumpReplay final : public FrameSource {
 
   void NoteBadLine(const std::string& reason) {
     ++bad_;
+    bad_since_frame_ = true;
     if (first_bad_line_ == 0) first_bad_line_ = lines_read_;
     if (errors_.size() < kKeptErrors) {
       errors_.push_back("bad line " + std::to_string(lines_read_) + ": " + reason);
@@ -270,6 +273,7 @@ class CandumpReplay final : public FrameSource {
   uint64_t frames_ = 0;
   uint64_t ignored_ = 0;
   uint64_t bad_ = 0;
+  bool bad_since_frame_ = false;  // a bad line since the last frame: it may have been one
   uint64_t first_bad_line_ = 0;  // 1-based; 0 = none
   std::vector<std::string> errors_;
   std::optional<int64_t> last_logged_us_;

@@ -74,7 +74,7 @@ class UdpSource final : public FrameSource {
       ++bad_datagrams_;
       return;
     }
-    sequence_.Observe(datagram->sequence);
+    const bool in_sequence = sequence_.Observe(datagram->sequence);
     const size_t first = out.size();
     for (const CanFrame& can_frame : datagram->frames) {
       TimedFrame frame;
@@ -84,6 +84,7 @@ class UdpSource final : public FrameSource {
       ++frames_;
     }
     clock_.Stamp(out, first, now_ns);
+    if (!in_sequence && out.size() > first) out[first].after_gap = true;
   }
 
   UniqueFd fd_;

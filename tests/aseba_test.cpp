@@ -194,6 +194,35 @@ TEST_F(AsebaAnomalyTest, SingleFrameInTheMiddleOfAMessage) {
   ExpectNextMessageIntact();
 }
 
+TEST_F(AsebaAnomalyTest, AGapAbandonsMessagesInProgressInsteadOfGluingThem) {
+  // Two-frame messages from two senders; the stop of the first message of sender 2 and the
+  // start of its second are lost. Without the gap, its first start and second stop make one
+  // message of the right size, of two messages' halves.
+  const std::vector<uint8_t> a(12, 0xAA), b(12, 0xBB);
+  const auto first = FragmentAseba(2, 0x20, a);
+  const auto second = FragmentAseba(2, 0x20, b);
+  const auto other = FragmentAseba(1, 0x10, a);
+  ASSERT_EQ(first.size(), 2u);
+  {
+    AsebaReassembler glued;
+    glued.Push(first[0], 0.0);
+    const auto m = glued.Push(second[1], 0.0);
+    ASSERT_TRUE(m);  // what happens without being told of the gap
+    EXPECT_NE(m->payload, a);
+    EXPECT_NE(m->payload, b);
+  }
+  r_.Push(first[0], 0.0);
+  r_.Push(other[0], 0.0);
+  r_.Gap();
+  EXPECT_FALSE(r_.Push(second[1], 0.0));
+  EXPECT_FALSE(r_.Push(other[1], 0.0));
+  EXPECT_EQ(r_.counters().abandoned, 2u);  // both senders' messages in progress
+  EXPECT_EQ(r_.counters().stop_without_start, 2u);
+  r_.Gap();  // nothing in progress: nothing more abandoned
+  EXPECT_EQ(r_.counters().abandoned, 2u);
+  ExpectNextMessageIntact();
+}
+
 TEST_F(AsebaAnomalyTest, StartInTheMiddleOfAMessageRestarts) {
   r_.Push(long_[0], 0.0);
   EXPECT_EQ(r_.counters().abandoned, 0u);

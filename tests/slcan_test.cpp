@@ -76,6 +76,17 @@ TEST(SlcanTest, BellCutsAnUnfinishedLine) {
   ASSERT_EQ(r.frames.size(), 1u);
   EXPECT_EQ(r.counters.nacks, 1u);
   EXPECT_EQ(r.counters.bad_lines, 1u);
+  EXPECT_TRUE(r.frames[0].after_bad_line);  // the cut line may have been a frame
+}
+
+TEST(SlcanTest, TheFrameAfterABadLineSaysSo) {
+  const auto r = FeedWhole("t1230\rgarbage\rt1230\rt1230\r" + std::string(100, 't') + "\rt1230\r");
+  ASSERT_EQ(r.frames.size(), 4u);
+  EXPECT_EQ(r.counters.bad_lines, 2u);
+  EXPECT_FALSE(r.frames[0].after_bad_line);
+  EXPECT_TRUE(r.frames[1].after_bad_line);
+  EXPECT_FALSE(r.frames[2].after_bad_line);
+  EXPECT_TRUE(r.frames[3].after_bad_line);  // an overlong line
 }
 
 TEST(SlcanTest, LineFeedEndsLinesButCrLfIsOneLineEnd) {

@@ -160,6 +160,8 @@ TEST(CandumpReplayTest, ReplaysFramesInOrderWithTheLogsTimesAndCountsBadLines) {
     ASSERT_TRUE(replayed[i].source_t.has_value());
     EXPECT_DOUBLE_EQ(*replayed[i].source_t, replayed[i].t);
     EXPECT_GT(replayed[i].receive_ns, 0);
+    // The frame after a bad line (which may have been a frame) says so; not after a comment.
+    EXPECT_EQ(replayed[i].after_gap, i == 6 || i == 10 || i == 14) << i;
   }
   const SourceCounters counters = source->Counters();
   EXPECT_EQ(Counter(counters, "frames"), frames.size());
@@ -533,9 +535,15 @@ TEST(SlcanSourceTest, ReportsAHangUpAndReopensTheDeviceWhenItComesBack) {
   const std::string line = FormatSlcanFrame(frame);
   ASSERT_EQ(::write(second->master.get(), line.data(), line.size()),
             static_cast<ssize_t>(line.size()));
-  const std::vector<TimedFrame> received = ReadFrames(*source, 1);
-  ASSERT_EQ(received.size(), 1u);
+  ASSERT_EQ(::write(second->master.get(), line.data(), line.size()),
+            static_cast<ssize_t>(line.size()));
+  const std::vector<TimedFrame> received = ReadFrames(*source, 2);
+  ASSERT_EQ(received.size(), 2u);
   EXPECT_EQ(received[0].frame, frame);
+  EXPECT_EQ(received[1].frame, frame);
+  // Frames were lost while the adapter was away: the first one after says so.
+  EXPECT_TRUE(received[0].after_gap);
+  EXPECT_FALSE(received[1].after_gap);
   EXPECT_TRUE(frames.empty());
 }
 
@@ -587,6 +595,14 @@ TEST(UdpSourceTest, ReceivesDatagramsAndCountsLossReorderingAndGarbage) {
   const std::vector<TimedFrame> received = ReadFrames(*source, sent.size());
   ASSERT_EQ(received.size(), sent.size());
   for (size_t i = 0; i < sent.size(); ++i) EXPECT_EQ(received[i].frame, sent[i]) << i;
+  // The first frame of a datagram that does not follow the previous one comes after a gap
+  // (datagrams 3 = seq 5 after the loss, 5 = the duplicate 6, 6 = the late 4); no other frame.
+  for (size_t i = 0; i < received.size(); ++i) {
+    const size_t datagram = i / 2;
+    const bool first = i % 2 == 0;
+    EXPECT_EQ(received[i].after_gap, first && (datagram == 3 || datagram == 5 || datagram == 6))
+        << i;
+  }
   const SourceCounters counters = source->Counters();
   EXPECT_EQ(Counter(counters, "datagrams"), sequence.size() + 1);
   EXPECT_EQ(Counter(counters, "bad_datagrams"), 1u);
