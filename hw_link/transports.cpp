@@ -274,7 +274,7 @@ class CandumpReplay final : public FrameSource {
   uint64_t ignored_ = 0;
   uint64_t bad_ = 0;
   bool bad_since_frame_ = false;  // a bad line since the last frame: it may have been one
-  uint64_t first_bad_line_ = 0;  // 1-based; 0 = none
+  uint64_t first_bad_line_ = 0;   // 1-based; 0 = none
   std::vector<std::string> errors_;
   std::optional<int64_t> last_logged_us_;
   int64_t last_out_us_ = 0;  // the previous frame's time with the jumps taken out

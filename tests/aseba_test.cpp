@@ -6,7 +6,6 @@
 #include <random>
 #include <vector>
 
-
 #include "can_test_support.hpp"
 
 namespace slam::hw {
@@ -14,7 +13,6 @@ namespace {
 
 using testing::Frame;
 using testing::Remote;
-
 
 // The worked example of notes/can-aseba.md: node 2, event 0x0020, words
 // [1, 0x4000, 300, 512, 280, 490, 6500].

@@ -15,7 +15,6 @@ namespace {
 using testing::Frame;
 using testing::Remote;
 
-
 struct Result {
   std::vector<SlcanFrame> frames;
   SlcanCounters counters;
