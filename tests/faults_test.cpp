@@ -350,17 +350,32 @@ std::array<int, 3> SendUdp(UdpSender& sender, const std::vector<LoggedFrame>& fr
   return made;
 }
 
+/// Starts `slamd` on cannelloni datagrams to a free loopback port; that port (0, with the test
+/// failed, if it did not start).
+int StartOnUdp(SlamdProcess& slamd) {
+  std::string error;
+  if (!slamd.Start({"--source", "udp:127.0.0.1:0", "--budget", "8000"}, &error)) {
+    ADD_FAILURE() << error;
+    return 0;
+  }
+  Http http(slamd.host(), slamd.port());
+  const std::string source = Status(http)["link"].value("source", "");
+  const std::string prefix = "udp:127.0.0.1:";
+  if (!StartsWith(source, prefix)) {
+    ADD_FAILURE() << "source " << source;
+    return 0;
+  }
+  return std::atoi(source.c_str() + prefix.size());
+}
+
 TEST(SlamdFaults, UdpSilenceIsReportedAndBurstsOfLostAndCorruptFramesAreCountedAndSurvived) {
   const auto frames = ExperimentFrames();
   ASSERT_FALSE(frames.empty());
   SlamdProcess slamd;
-  std::string error;
-  ASSERT_TRUE(slamd.Start({"--source", "udp:127.0.0.1:0", "--budget", "8000"}, &error)) << error;
+  const int udp_port = StartOnUdp(slamd);
+  ASSERT_GT(udp_port, 0);
   Http http(slamd.host(), slamd.port());
-  const std::string source = Status(http)["link"].value("source", "");
-  const std::string prefix = "udp:127.0.0.1:";
-  ASSERT_TRUE(StartsWith(source, prefix)) << source;
-  UdpSender sender(std::atoi(source.c_str() + prefix.size()));
+  UdpSender sender(udp_port);
 
   // 10 s of robot traffic at 4x: mapping.
   const size_t third = frames.size() / 3;
@@ -404,19 +419,16 @@ TEST(SlamdFaults, UdpSilenceIsReportedAndBurstsOfLostAndCorruptFramesAreCountedA
 }
 
 TEST(SlamdFaults, DatagramsOfABatchingSenderLoseNoReadings) {
-  // cannelloni sends the frames of up to 100 ms (its default timeout) in one datagram: six
-  // scanner samples and five odometry readings received at once. Given one time, all but the
-  // first of each kind were dropped as out of order.
+  // cannelloni sends the frames of up to its buffer timeout in one datagram; at 100 ms, six
+  // scanner samples and five odometry readings are received at once. Given one time, all but
+  // the first of each kind were dropped as out of order.
   const auto frames = ExperimentFrames();
   ASSERT_FALSE(frames.empty());
   SlamdProcess slamd;
-  std::string error;
-  ASSERT_TRUE(slamd.Start({"--source", "udp:127.0.0.1:0", "--budget", "8000"}, &error)) << error;
+  const int udp_port = StartOnUdp(slamd);
+  ASSERT_GT(udp_port, 0);
   Http http(slamd.host(), slamd.port());
-  const std::string source = Status(http)["link"].value("source", "");
-  const std::string prefix = "udp:127.0.0.1:";
-  ASSERT_TRUE(StartsWith(source, prefix)) << source;
-  UdpSender sender(std::atoi(source.c_str() + prefix.size()));
+  UdpSender sender(udp_port);
 
   const size_t third = frames.size() / 3;
   SendUdp(sender, frames, 0, third, 4.0, {.batch_us = 100'000, .batch_frames = 1000});

@@ -648,17 +648,34 @@ TEST(BatchClockTest, SpreadsABatchOverTheTimeSinceThePreviousOne) {
   EXPECT_EQ(times(frames, 9), (std::vector<int64_t>{16'000'000'000}));
 }
 
+/// A UDP socket that sends datagrams to a port on loopback.
+class LoopbackUdpClient {
+ public:
+  explicit LoopbackUdpClient(uint16_t port) : fd_(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0)) {
+    to_.sin_family = AF_INET;
+    to_.sin_port = htons(port);
+    to_.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  }
+  bool valid() const { return fd_.valid(); }
+  /// Sends `bytes` as one datagram; true when all of them went.
+  bool Send(const std::vector<uint8_t>& bytes) const {
+    return ::sendto(fd_.get(), bytes.data(), bytes.size(), 0,
+                    reinterpret_cast<const sockaddr*>(&to_),
+                    sizeof to_) == static_cast<ssize_t>(bytes.size());
+  }
+
+ private:
+  UniqueFd fd_;
+  sockaddr_in to_{};
+};
+
 TEST(UdpSourceTest, FramesOfADatagramGetDistinctIncreasingTimes) {
   // All frames of a datagram arrive at once; readings of one kind must still not share a time
   // (the scan assembler keeps the first of equal times only).
   auto source = Unwrap(OpenUdp(0, "127.0.0.1"));
   ASSERT_NE(source, nullptr);
-  UniqueFd client(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0));
+  const LoopbackUdpClient client(BoundUdpPort(*source));
   ASSERT_TRUE(client.valid());
-  sockaddr_in to{};
-  to.sin_family = AF_INET;
-  to.sin_port = htons(BoundUdpPort(*source));
-  to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
   std::vector<CanFrame> frames(12);
   for (size_t k = 0; k < frames.size(); ++k) {
     frames[k].id = static_cast<uint32_t>(0x100 + k);
@@ -667,9 +684,7 @@ TEST(UdpSourceTest, FramesOfADatagramGetDistinctIncreasingTimes) {
   }
   for (uint8_t sequence = 0; sequence < 2; ++sequence) {
     const std::vector<uint8_t> bytes = EncodeCannelloni(sequence, frames);
-    ASSERT_EQ(::sendto(client.get(), bytes.data(), bytes.size(), 0,
-                       reinterpret_cast<const sockaddr*>(&to), sizeof to),
-              static_cast<ssize_t>(bytes.size()));
+    ASSERT_TRUE(client.Send(bytes));
     std::this_thread::sleep_for(std::chrono::milliseconds(30));
   }
   const std::vector<TimedFrame> received = ReadFrames(*source, 2 * frames.size());
@@ -688,19 +703,13 @@ TEST(UdpSourceTest, AReadTakesBoundedFramesAndTheRestComeNext) {
   // (what a read holds stays a few megabytes), and nothing is lost.
   auto source = Unwrap(OpenUdp(0, "127.0.0.1"));
   ASSERT_NE(source, nullptr);
-  UniqueFd client(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0));
+  const LoopbackUdpClient client(BoundUdpPort(*source));
   ASSERT_TRUE(client.valid());
-  sockaddr_in to{};
-  to.sin_family = AF_INET;
-  to.sin_port = htons(BoundUdpPort(*source));
-  to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
   std::vector<CanFrame> frames(10'000);
   for (size_t k = 0; k < frames.size(); ++k) frames[k].id = static_cast<uint32_t>(k & 0x7FF);
   for (uint8_t sequence = 0; sequence < 4; ++sequence) {
     const std::vector<uint8_t> bytes = EncodeCannelloni(sequence, frames);
-    ASSERT_EQ(::sendto(client.get(), bytes.data(), bytes.size(), 0,
-                       reinterpret_cast<const sockaddr*>(&to), sizeof to),
-              static_cast<ssize_t>(bytes.size()));
+    ASSERT_TRUE(client.Send(bytes));
   }
   std::vector<TimedFrame> first;
   ASSERT_EQ(source->Read(first, milliseconds(1000)).status, ReadStatus::kOk);
