@@ -1,9 +1,10 @@
 #pragma once
 // All world <-> cell <-> tile arithmetic of the occupancy grid lives here.
 //
-// The grid is unbounded: cell (i, j) covers [i*r, (i+1)*r) x [j*r, (j+1)*r) in metres, r being
-// the resolution, with cell (0, 0) touching the world origin. Cells are grouped in square tiles of
-// kTileSize x kTileSize; tile (u, v) holds cells i in [u*kTileSize, (u+1)*kTileSize).
+// Cell (i, j) covers [i*r, (i+1)*r) x [j*r, (j+1)*r) in metres, r being the resolution, with
+// cell (0, 0) touching the world origin. Cells are grouped in square tiles of kTileSize x
+// kTileSize; tile (u, v) holds cells i in [u*kTileSize, (u+1)*kTileSize). The map is bounded:
+// only tiles within kMapTileBound of the origin (where mapping starts) are ever written.
 
 #include <cmath>
 #include <cstdint>
@@ -16,6 +17,12 @@ namespace slam {
 inline constexpr int kTileSizeLog2 = 6;
 inline constexpr int kTileSize = 1 << kTileSizeLog2;  // 64 cells
 inline constexpr int kTileCells = kTileSize * kTileSize;
+
+/// Tiles (u, v) with -kMapTileBound <= u, v < kMapTileBound make the map: a square of
+/// 2 * 128 * 64 cells a side, 164 m at 1 cm cells, centred on where mapping starts. Nothing is
+/// written beyond it, so that no input (odometry gone wild, a crafted saved map) can make a grid
+/// or an export of it grow without bound: a grid's tile table is at most 256 x 256 entries (1 MiB).
+inline constexpr int32_t kMapTileBound = 128;
 
 /// Integer coordinates of a cell.
 struct CellIndex {
@@ -30,6 +37,12 @@ struct TileIndex {
   int32_t y = 0;
   friend bool operator==(const TileIndex&, const TileIndex&) = default;
 };
+
+/// Whether tile `t` is inside the map's bound (kMapTileBound).
+inline bool InMapBound(TileIndex t) {
+  return t.x >= -kMapTileBound && t.x < kMapTileBound && t.y >= -kMapTileBound &&
+         t.y < kMapTileBound;
+}
 
 /// Resolution and the conversions between metres, cells and tiles.
 class GridGeometry {

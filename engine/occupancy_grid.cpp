@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <atomic>
 #include <memory>
+#include <stdexcept>
+#include <string>
 #include <vector>
 
 #if defined(__SANITIZE_THREAD__)  // GCC
@@ -58,6 +60,11 @@ OccupancyGrid& OccupancyGrid::operator=(const OccupancyGrid& other) {
 void OccupancyGrid::BeginWrite() { write_version_ = clock_->fetch_add(1) + 1; }
 
 Tile& OccupancyGrid::MutableTile(TileIndex t) {
+  if (!InMapBound(t)) {
+    throw std::out_of_range("tile (" + std::to_string(t.x) + ", " + std::to_string(t.y) +
+                            ") is outside the map's bound of " + std::to_string(kMapTileBound) +
+                            " tiles around the origin");
+  }
   EnsureCovers(t);
   auto& slot = slots_[static_cast<size_t>((t.y - origin_.y) * width_ + (t.x - origin_.x))];
   if (write_version_ == 0) BeginWrite();

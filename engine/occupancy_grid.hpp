@@ -127,13 +127,18 @@ class OccupancyGrid {
   void BeginWrite();
 
   /// The tile at `t` ready for writing: created if missing, copied if shared, its version
-  /// stamped with the current write epoch. Grows the grid as needed.
+  /// stamped with the current write epoch. Grows the grid as needed. Throws std::out_of_range
+  /// when `t` is outside the map's bound (InMapBound); writers skip such tiles first.
   Tile& MutableTile(TileIndex t);
 
-  /// Adds `delta` (encoded units) to a cell, clamped to the grid's limit.
-  void Add(CellIndex c, int delta) {
-    LogOdds& cell = MutableTile(GridGeometry::TileOf(c)).cells[static_cast<size_t>(GridGeometry::OffsetInTile(c))];
+  /// Adds `delta` (encoded units) to a cell, clamped to the grid's limit; nothing outside the
+  /// map's bound. Returns whether the cell is inside it.
+  bool Add(CellIndex c, int delta) {
+    const TileIndex t = GridGeometry::TileOf(c);
+    if (!InMapBound(t)) return false;
+    LogOdds& cell = MutableTile(t).cells[static_cast<size_t>(GridGeometry::OffsetInTile(c))];
     cell = AddLogOdds(cell, delta, limit_);
+    return true;
   }
 
   /// Recomputes the empty-space summary and clearance of every tile written since its last

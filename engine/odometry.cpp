@@ -1,5 +1,6 @@
 #include "engine/odometry.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 
@@ -13,6 +14,15 @@ int64_t CounterDelta(int32_t now, int32_t before) {
 }
 
 }  // namespace
+
+bool OdometryIntegrator::Plausible(const OdometryReading& reading) const {
+  if (!last_) return true;
+  const double window_s = std::clamp(reading.t - last_->t, 0.0, kMaxJumpWindowS) + kJumpSlackS;
+  const double max_ticks = base_.max_speed_m_s * window_s * base_.ticks_per_m;
+  const auto left = static_cast<double>(CounterDelta(reading.left_ticks, last_->left_ticks));
+  const auto right = static_cast<double>(CounterDelta(reading.right_ticks, last_->right_ticks));
+  return std::abs(left) <= max_ticks && std::abs(right) <= max_ticks;
+}
 
 Pose2 OdometryIntegrator::Add(const OdometryReading& reading) {
   if (last_) {

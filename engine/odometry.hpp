@@ -22,6 +22,19 @@ class OdometryIntegrator {
   /// from the encoders, rotation from the gyro (from the encoders across a gap).
   Pose2 Add(const OdometryReading& reading);
 
+  /// Whether `reading` (after the last one in time) moves each treel no further than the
+  /// robot can (BaseDescription::max_speed_m_s) in the time since the last reading, counted
+  /// at most kMaxJumpWindowS (a log's clock jump makes time up) plus kJumpSlackS (readings of
+  /// one batch get times closer together than they were sent). True before any reading.
+  bool Plausible(const OdometryReading& reading) const;
+  static constexpr double kMaxJumpWindowS = 10.0;
+  static constexpr double kJumpSlackS = 0.25;
+
+  /// Takes `reading` as the new reference without moving: the pose stays where it was. For a
+  /// reading that is not Plausible (the counters restarted, or were corrupted): what happened
+  /// since the last reading is unknown, and no motion is better than an impossible one.
+  void Rebase(const OdometryReading& reading) { last_ = reading; }
+
   /// The pose after the last reading (the origin before any).
   const Pose2& pose() const { return pose_; }
   /// Time of the last reading, if any.

@@ -471,6 +471,7 @@ int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle, const 
                   if (delta == 0) return true;
                   const TileIndex t = GridGeometry::TileOf(c);
                   if (cached == nullptr || !(t == cached_index)) {
+                    if (!InMapBound(t)) return true;  // never written: the map is bounded
                     cached_index = t;
                     cached = &grid.MutableTile(t);
                   }

@@ -8,6 +8,7 @@ namespace slam {
 namespace {
 
 constexpr int kMaxNode = 255;      // Aseba node ids fit the low 8 bits of the CAN id
+constexpr double kMaxRobotSpeedMS = 20.0;  // far beyond any robot this SLAM is for
 constexpr int kMaxEvent = 0x7FFF;  // Aseba user message types
 constexpr int kMaxRaw = 1023;      // 10-bit ADC
 
@@ -134,6 +135,12 @@ ConfigErrors Validate(const RobotDescription& robot) {
   check.Positive("/base/track_width_m", base.track_width_m);
   check.Positive("/base/ticks_per_m", base.ticks_per_m);
   check.Positive("/base/gyro_unit_dps", base.gyro_unit_dps);
+  check.Positive("/base/max_speed_m_s", base.max_speed_m_s);
+  if (base.max_speed_m_s > kMaxRobotSpeedMS) {
+    check.Fail("/base/max_speed_m_s", Num(base.max_speed_m_s) +
+                                          " m/s is not a small robot's speed (at most " +
+                                          Num(kMaxRobotSpeedMS) + ")");
+  }
 
   const ScannerDescription& scanner = robot.scanner;
   check.IntIn("/scanner/node", scanner.node, 0, kMaxNode);

@@ -22,6 +22,10 @@ struct BaseDescription {
   double track_width_m = 0.15;
   double ticks_per_m = 11375.0;
   double gyro_unit_dps = 0.01;  // degrees per second per gyro unit
+  /// The fastest either treel can move. Odometry implying more (a spoofed or corrupted
+  /// message, encoder counters that restarted) is refused by the scan assembler; generous by
+  /// default, since it only has to tell the impossible from the possible.
+  double max_speed_m_s = 2.0;
 };
 
 struct ScannerSensor {

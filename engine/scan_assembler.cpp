@@ -53,6 +53,18 @@ void ScanAssembler::AddOdometry(const OdometryReading& reading, std::vector<Scan
       return;
     }
     counters_.odometry_lost += Missing(last_odometry_->seq, reading.seq);
+    if (!integrator_.Plausible(reading)) {
+      // Nothing is known of the motion up to it: samples waiting for it are lost, the pose
+      // holds, and the reading is the reference for the next.
+      ++counters_.odometry_jumps;
+      while (!pending_.empty() && pending_.front().reading.t < reading.t) DropPending(true);
+      odometry_.clear();
+      integrator_.Rebase(reading);
+      last_odometry_ = reading;
+      odometry_.push_back({reading.t, integrator_.pose()});
+      PosePending(out);
+      return;
+    }
     if (reading.t - last_odometry_->t > config_.max_odometry_gap_s) {
       // Nothing can be posed inside the silence: samples waiting in it are lost.
       ++counters_.odometry_gaps;

@@ -10,6 +10,9 @@
 // - silences longer than the configured gaps (scanner or odometry): the scan in progress is
 //   discarded, and grouping restarts at the next sample;
 // - events whose time is not after the previous one of their kind: dropped;
+// - odometry that moves a treel further than the robot can (OdometryIntegrator::Plausible: a
+//   spoofed or corrupted message, counters that restarted): refused as motion, taken as the new
+//   reference; like a silence, the scan in progress is discarded;
 // - samples that no odometry brackets (before the first reading, or odometry stalled): dropped.
 
 #include <cstdint>
@@ -48,6 +51,7 @@ struct ScanAssemblerCounters {
   uint64_t odometry_lost = 0;     // readings missing from the sequence numbers
   uint64_t samples_lost = 0;
   uint64_t odometry_gaps = 0;     // silences longer than max_odometry_gap_s
+  uint64_t odometry_jumps = 0;    // readings moving further than the robot can: refused
   uint64_t sample_gaps = 0;       // silences longer than max_sample_gap_s
   uint64_t samples_unposed = 0;   // samples no odometry brackets: dropped
   uint64_t scans_discarded = 0;   // scans in progress abandoned at a gap (or too long)

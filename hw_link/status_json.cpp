@@ -49,6 +49,7 @@ nlohmann::json AssemblerCountersToJson(const ScanAssemblerCounters& a) {
           {"odometry_lost", a.odometry_lost},
           {"sample_gaps", a.sample_gaps},
           {"odometry_gaps", a.odometry_gaps},
+          {"odometry_jumps", a.odometry_jumps},
           {"samples_unposed", a.samples_unposed},
           {"scans_discarded", a.scans_discarded},
           {"scans_too_long", a.scans_too_long}};

@@ -114,6 +114,13 @@ bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error
     error = "bad resolution";
     return false;
   }
+  // Map versions only grow, by one per scan at most: a version this large is not a saved run's
+  // (and would wrap the resumed map's versions).
+  constexpr uint64_t kMaxVersion = uint64_t{1} << 62;
+  if (state.version >= kMaxVersion) {
+    error = "map version " + std::to_string(state.version) + " is out of range (at most 2^62)";
+    return false;
+  }
   constexpr size_t kTileBytes = 2 * sizeof(int32_t) + sizeof(uint64_t) + kTileCells * sizeof(LogOdds);
   if (count != in.remaining() / kTileBytes || in.remaining() % kTileBytes != 0) {
     error = "tile count does not match the file size";
@@ -127,6 +134,12 @@ bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error
     in.Get(tile.index.x);
     in.Get(tile.index.y);
     in.Get(tile.version);
+    if (!InMapBound(tile.index)) {
+      error = "tile " + std::to_string(i) + " at (" + std::to_string(tile.index.x) + ", " +
+              std::to_string(tile.index.y) + ") is outside the map's bound (tiles -" +
+              std::to_string(kMapTileBound) + " to " + std::to_string(kMapTileBound - 1) + ")";
+      return false;
+    }
     for (LogOdds& cell : tile.cells) in.Get(cell);
     state.tiles.push_back(std::move(tile));
   }

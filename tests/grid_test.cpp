@@ -1,11 +1,14 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <limits>
+#include <stdexcept>
 #include <thread>
 
 #include "engine/cell_encoding.hpp"
 #include "engine/grid_geometry.hpp"
 #include "engine/occupancy_grid.hpp"
+#include "engine/ray_cast.hpp"
 
 namespace slam {
 namespace {
@@ -44,7 +47,7 @@ TEST(OccupancyGrid, UnknownUntilWrittenAndGrowsInEveryDirection) {
   OccupancyGrid grid(GridGeometry(0.01), 5000);
   EXPECT_EQ(grid.At({5, 5}), 0);
   EXPECT_EQ(grid.TileCount(), 0);
-  const CellIndex cells[] = {{0, 0}, {-1, -1}, {1000, -2000}, {-70000, 3}, {63, 64}};
+  const CellIndex cells[] = {{0, 0}, {-1, -1}, {1000, -2000}, {-8000, 3}, {63, 64}};
   int delta = 100;
   for (const CellIndex& c : cells) grid.Add(c, delta += 10);
   delta = 100;
@@ -52,6 +55,34 @@ TEST(OccupancyGrid, UnknownUntilWrittenAndGrowsInEveryDirection) {
   EXPECT_EQ(grid.At({1, 0}), 0);
   EXPECT_EQ(grid.TileCount(), 5);
   EXPECT_EQ(grid.Tiles().size(), 5u);
+}
+
+TEST(OccupancyGrid, NothingIsWrittenBeyondTheMapsBound) {
+  // Odometry gone wild or a crafted saved map once made the tile table cover both a cell near
+  // the origin and one kilometres away (gigabytes): cells beyond the bound are not written.
+  OccupancyGrid grid(GridGeometry(0.01), 5000);
+  const int32_t edge = kMapTileBound * kTileSize;  // the first cell beyond the bound
+  EXPECT_TRUE(grid.Add({edge - 1, -edge}, 100));
+  EXPECT_FALSE(grid.Add({edge, 0}, 100));
+  EXPECT_FALSE(grid.Add({0, -edge - 1}, 100));
+  EXPECT_FALSE(
+      grid.Add({std::numeric_limits<int32_t>::min(), std::numeric_limits<int32_t>::max()}, 100));
+  EXPECT_EQ(grid.At({edge, 0}), 0);
+  EXPECT_EQ(grid.TileCount(), 1);
+  EXPECT_THROW(grid.MutableTile({kMapTileBound, 0}), std::out_of_range);
+  EXPECT_THROW(grid.MutableTile({0, -kMapTileBound - 1}), std::out_of_range);
+  EXPECT_EQ(grid.TileCount(), 1);
+  // An update ray from inside to far beyond the bound writes only the cells inside it.
+  OccupancyGrid rays(GridGeometry(0.01), 5000);
+  UpdateProfile profile;
+  profile.step_m = 0.01;
+  profile.delta.assign(400, -10);               // 4 m of free space
+  const double x0 = (edge - 100 + 0.5) * 0.01;  // 1 m before the bound, mid-cell
+  const int changed = ApplyUpdateRay(rays, {x0, 0.005}, 0.0, profile);
+  EXPECT_EQ(changed, 100);
+  EXPECT_EQ(rays.At({edge - 1, 0}), -10);
+  EXPECT_EQ(rays.At({edge, 0}), 0);
+  for (const TileRef& ref : rays.Tiles()) EXPECT_TRUE(InMapBound(ref.index));
 }
 
 TEST(OccupancyGrid, ClampsToItsLimit) {

@@ -209,6 +209,23 @@ TEST(RobotJson, SigmaIsOptional) {
   EXPECT_EQ(robot.value().sensor_types.at("long").sigma_m, SensorTypeDescription{}.sigma_m);
 }
 
+TEST(RobotJson, MaxSpeedIsOptionalBoundedAndWrittenWhenGiven) {
+  const Result<RobotDescription> plain = RobotFromJson(DefaultRobotJson());
+  ASSERT_TRUE(plain.ok()) << plain.Message();
+  EXPECT_EQ(plain.value().base.max_speed_m_s, BaseDescription{}.max_speed_m_s);
+  EXPECT_FALSE(RobotToJson(plain.value())["base"].contains("max_speed_m_s"));
+
+  const Result<RobotDescription> slow = RobotWith("/base/max_speed_m_s", 0.3);
+  ASSERT_TRUE(slow.ok()) << slow.Message();
+  EXPECT_EQ(slow.value().base.max_speed_m_s, 0.3);
+  EXPECT_EQ(RobotToJson(slow.value())["base"]["max_speed_m_s"], 0.3);
+  for (const double bad : {0.0, -1.0, 25.0, 1e6}) {
+    EXPECT_EQ(Pointers(RobotWith("/base/max_speed_m_s", bad).errors()),
+              std::vector<std::string>{"/base/max_speed_m_s"})
+        << bad;
+  }
+}
+
 TEST(RobotJson, UnknownKeysAreReportedWithTheirPointer) {
   Json json = DefaultRobotJson();
   json["base"]["tick_per_m"] = 11375;

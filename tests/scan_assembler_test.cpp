@@ -91,7 +91,7 @@ TEST(ScanAssemblerTest, RegularStreamGivesContiguousHalfTurns) {
   EXPECT_EQ(c.scans, 15u);
   EXPECT_EQ(c.samples_in_scans, 600u);
   EXPECT_EQ(c.out_of_order + c.samples_lost + c.odometry_lost + c.sample_gaps + c.odometry_gaps +
-                c.samples_unposed + c.scans_discarded,
+                c.odometry_jumps + c.samples_unposed + c.scans_discarded,
             0u);
 }
 
@@ -182,6 +182,99 @@ TEST(ScanAssemblerTest, OdometrySilenceDropsTheSamplesInIt) {
     }
   }
   ExpectMotionCarriedAcross(scans);
+}
+
+// The distance the scans' odometry covers, and the largest |x| of any sample.
+struct Covered {
+  double driven = 0.0;
+  double max_abs_x = 0.0;
+};
+Covered CoveredBy(const std::vector<Scan>& scans) {
+  Covered covered;
+  for (const Scan& scan : scans) {
+    covered.driven += scan.odom_end.x - scan.odom_begin.x;
+    for (const ScanSample& sample : scan.samples) {
+      covered.max_abs_x = std::max(covered.max_abs_x, std::abs(sample.odom.x));
+    }
+  }
+  return covered;
+}
+
+TEST(ScanAssemblerTest, AnImpossibleOdometryJumpIsRefusedAndThePoseHolds) {
+  // One spoofed reading (random counters, as a forged datagram carries) at t = 104 s: on its own
+  // it would move the robot 40 km in 20 ms, and the map would try to cover both poses.
+  const RobotDescription robot = testing::ShippedRobot();
+  Stream s = Straight(10.0, robot);
+  s.odometry[200].left_ticks = 471'000'000;
+  s.odometry[200].right_ticks = -1'093'000'000;
+  ScanAssembler assembler(robot);
+  const auto scans = Assemble(assembler, Merge(s));
+  const auto& c = assembler.counters();
+  // The forged reading and the genuine one after it (a jump back from the forged counters).
+  EXPECT_EQ(c.odometry_jumps, 2u);
+  EXPECT_GE(c.scans_discarded, 1u);
+  ASSERT_GE(scans.size(), 12u);
+  EXPECT_GT(scans.back().t_end, 109.0);  // mapping goes on after it
+  const Covered covered = CoveredBy(scans);
+  EXPECT_LT(covered.max_abs_x, 1.01);
+  // Only the motion of the two refused readings (40 ms at 0.1 m/s) is missing.
+  EXPECT_NEAR(covered.driven, 0.1 * (scans.back().t_end - scans.front().t_begin) - 0.004, 4e-4);
+  for (size_t k = 1; k < scans.size(); ++k)
+    EXPECT_EQ(scans[k].odom_begin.x, scans[k - 1].odom_end.x);
+}
+
+TEST(ScanAssemblerTest, EncoderCountersThatRestartAreTheNewReference) {
+  // The base restarts at t = 105 s: its counters begin again at 0 (and would otherwise move the
+  // robot back to where it started, or by whatever the counters held).
+  const RobotDescription robot = testing::ShippedRobot();
+  Stream s = Straight(10.0, robot);
+  const int32_t before_restart = s.odometry[250].left_ticks;
+  for (size_t i = 250; i < s.odometry.size(); ++i) {
+    s.odometry[i].left_ticks = s.odometry[i].right_ticks =
+        s.odometry[i].left_ticks - before_restart - 1'000'000;
+  }
+  ScanAssembler assembler(robot);
+  const auto scans = Assemble(assembler, Merge(s));
+  EXPECT_EQ(assembler.counters().odometry_jumps, 1u);
+  EXPECT_GT(scans.back().t_end, 109.0);
+  const Covered covered = CoveredBy(scans);
+  EXPECT_LT(covered.max_abs_x, 1.01);
+  EXPECT_NEAR(covered.driven, 0.1 * (scans.back().t_end - scans.front().t_begin) - 0.002, 4e-4);
+}
+
+TEST(ScanAssemblerTest, ARobotAtItsTopSpeedIsNotRefused) {
+  // Readings 20 ms apart at 95 % of max_speed_m_s, and one 9 s silence at that speed: possible,
+  // so taken (the silence as a gap).
+  RobotDescription robot = testing::ShippedRobot();
+  robot.base.max_speed_m_s = 0.5;
+  OdometryIntegrator integrator(robot.base);
+  OdometryReading r;
+  r.t = 10.0;
+  integrator.Add(r);
+  const auto ticks_in = [&](double seconds) {
+    return static_cast<int32_t>(0.95 * robot.base.max_speed_m_s * seconds * robot.base.ticks_per_m);
+  };
+  r.t += 0.02;
+  r.left_ticks = r.right_ticks = ticks_in(0.02);
+  EXPECT_TRUE(integrator.Plausible(r));
+  integrator.Add(r);
+  r.t += 9.0;
+  r.left_ticks = r.right_ticks = r.left_ticks + ticks_in(9.0);
+  EXPECT_TRUE(integrator.Plausible(r));
+  r.right_ticks += ticks_in(1.0);  // one treel a metre further than it can go
+  EXPECT_FALSE(integrator.Plausible(r));
+  // A clock jump does not make a jump possible: at most 10 s of motion count.
+  r.t += 3600.0;
+  r.left_ticks = r.right_ticks = ticks_in(3600.0);
+  EXPECT_FALSE(integrator.Plausible(r));
+  // Rebase takes the reading as the reference without moving.
+  const Pose2 before = integrator.pose();
+  integrator.Rebase(r);
+  EXPECT_EQ(integrator.pose().x, before.x);
+  r.t += 0.02;
+  r.left_ticks = r.right_ticks = r.left_ticks + ticks_in(0.02);
+  EXPECT_TRUE(integrator.Plausible(r));
+  EXPECT_NEAR(integrator.Add(r).x - before.x, 0.95 * 0.5 * 0.02, 1e-4);
 }
 
 TEST(ScanAssemblerTest, APlatformThatStopsTurningCannotPileUpSamples) {

@@ -7,6 +7,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <thread>
 
 #include "engine/io/atomic_file.hpp"
@@ -144,6 +145,36 @@ TEST(StateStore, ACrashBeforeTheCommitLeavesThePreviousState) {
   const LoadOutcome loaded = LoadState(dir.path().string());
   ASSERT_TRUE(loaded.error.empty()) << loaded.error;
   EXPECT_EQ(loaded.state->version, 10u);
+}
+
+TEST(StateStore, TilesBeyondTheMapsBoundAndWrappingVersionsAreRefused) {
+  // A crafted tiles file (valid checksum) with a tile near INT32_MIN made the resumed grid's
+  // tile table cover it and the origin: std::bad_alloc at start, naming no file. A version of
+  // 2^64 - 1 wrapped the resumed map's versions.
+  SavedState far = SampleState(42, 3);
+  far.tiles[1].index = {std::numeric_limits<int32_t>::min() + 5, 0};
+  SavedState back;
+  std::string error;
+  EXPECT_FALSE(DecodeTiles(EncodeTiles(far), back, error));
+  EXPECT_NE(error.find("tile 1 at (-2147483643, 0) is outside the map's bound"), std::string::npos)
+      << error;
+  far.tiles[1].index = {0, kMapTileBound};
+  EXPECT_FALSE(DecodeTiles(EncodeTiles(far), back, error));
+  far.tiles[1].index = {kMapTileBound - 1, -kMapTileBound};  // the bound's last tiles are fine
+  EXPECT_TRUE(DecodeTiles(EncodeTiles(far), back, error)) << error;
+
+  SavedState wrapping = SampleState(std::numeric_limits<uint64_t>::max(), 4);
+  EXPECT_FALSE(DecodeTiles(EncodeTiles(wrapping), back, error));
+  EXPECT_NE(error.find("map version 18446744073709551615 is out of range"), std::string::npos)
+      << error;
+
+  // Through LoadState, the error names the file.
+  TempDir dir("state_far");
+  Save(dir.path().string(), SampleState(10, 8));
+  ASSERT_FALSE(io::WriteFileAtomic(dir.File("map-10.tiles"), EncodeTiles(wrapping)));
+  const LoadOutcome loaded = LoadState(dir.path().string());
+  EXPECT_FALSE(loaded.state);
+  EXPECT_NE(loaded.error.find("map-10.tiles: map version"), std::string::npos) << loaded.error;
 }
 
 TEST(StateStore, DamagedStateIsAnErrorNamingTheFile) {

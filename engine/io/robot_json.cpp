@@ -33,6 +33,7 @@ void ReadBase(const Json& json, const std::string& pointer, BaseDescription& bas
   object.Read("track_width_m", base.track_width_m, true);
   object.Read("ticks_per_m", base.ticks_per_m, true);
   object.Read("gyro_unit_dps", base.gyro_unit_dps, true);
+  object.Read("max_speed_m_s", base.max_speed_m_s, false);
   object.Finish();
 }
 
@@ -146,7 +147,7 @@ nlohmann::json RobotToJson(const RobotDescription& robot) {
   }
   const BaseDescription& base = robot.base;
   const ScannerDescription& scanner = robot.scanner;
-  return {
+  Json json = {
       {"name", robot.name},
       {"base",
        {{"node", base.node},
@@ -162,6 +163,12 @@ nlohmann::json RobotToJson(const RobotDescription& robot) {
         {"sensors", std::move(sensors)}}},
       {"sensor_types", std::move(types)},
   };
+  // Optional: written only when it differs from the default, so that descriptions without it
+  // read and write back unchanged.
+  if (base.max_speed_m_s != BaseDescription{}.max_speed_m_s) {
+    json["base"]["max_speed_m_s"] = base.max_speed_m_s;
+  }
+  return json;
 }
 
 }  // namespace slam::io
