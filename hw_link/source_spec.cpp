@@ -11,7 +11,7 @@ namespace slam::hw {
 namespace {
 
 constexpr const char* kForms =
-    "sim:WORLD, candump:FILE, slcan:DEVICE, udp:PORT, udp:ADDRESS:PORT or socketcan:IFACE";
+    "sim:WORLD, candump:FILE, slcan:DEVICE, udp:[ADDRESS:]PORT[,from=SENDER] or socketcan:IFACE";
 
 bool ParsePort(const std::string& text, uint16_t& port) {
   unsigned value = 0;
@@ -59,17 +59,29 @@ OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& robot
   if (kind == "slcan") return OpenSlcan(value);
   if (kind == "socketcan") return OpenSocketCan(value);
   if (kind == "udp") {
-    std::string address = "0.0.0.0";
+    // udp:[ADDRESS:]PORT[,from=SENDER]: loopback unless an address is given.
+    std::string address = "127.0.0.1";
+    std::string sender;
     std::string port_text = value;
-    if (const size_t c = value.rfind(':'); c != std::string::npos) {
-      address = value.substr(0, c);
-      port_text = value.substr(c + 1);
+    if (const size_t comma = value.find(','); comma != std::string::npos) {
+      const std::string option = value.substr(comma + 1);
+      if (option.rfind("from=", 0) != 0 || option.size() == 5) {
+        return "source '" + spec + "': unknown UDP option '" + option +
+               "' (expected from=SENDER, the one IPv4 address datagrams are taken from)";
+      }
+      sender = option.substr(5);
+      port_text = value.substr(0, comma);
+    }
+    const std::string where = port_text;
+    if (const size_t c = where.rfind(':'); c != std::string::npos) {
+      address = where.substr(0, c);
+      port_text = where.substr(c + 1);
     }
     uint16_t port = 0;
     if (!ParsePort(port_text, port)) {
       return "source '" + spec + "': '" + port_text + "' is not a UDP port (0..65535)";
     }
-    return OpenUdp(port, address);
+    return OpenUdp(port, address, sender);
   }
   return "source '" + spec + "': unknown kind '" + kind + "'; expected " + kForms;
 }

@@ -30,10 +30,15 @@ OpenResult OpenCandumpReplay(const std::string& path, const CandumpReplayOptions
 /// it reports kError and reopens the device on later reads.
 OpenResult OpenSlcan(const std::string& device);
 
-/// CAN frames in cannelloni datagrams on a UDP port (bound on `address`, "0.0.0.0" = any). Lost
-/// and reordered datagrams are counted by sequence number. Frame times are the monotonic receive
-/// time, the frames of a datagram spread over the time since the previous one (BatchClock).
-OpenResult OpenUdp(uint16_t port, const std::string& address = "0.0.0.0");
+/// CAN frames in cannelloni datagrams on a UDP port, bound on `address` (loopback unless the
+/// robot's bridge is elsewhere; "0.0.0.0" = every address). With `sender` (an IPv4 address),
+/// datagrams from any other address are dropped before they are read, and counted
+/// (foreign_datagrams): anyone who can reach the port could otherwise drive the robot's pose.
+/// Lost and reordered datagrams are counted by sequence number. Frame times are the monotonic
+/// receive time, the frames of a datagram spread over the time since the previous one
+/// (BatchClock).
+OpenResult OpenUdp(uint16_t port, const std::string& address = "127.0.0.1",
+                   const std::string& sender = "");
 
 /// The port the UDP source is bound to (useful with port 0), or 0 for other sources.
 uint16_t BoundUdpPort(const FrameSource& source);

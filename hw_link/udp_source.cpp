@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <array>
 #include <cerrno>
+#include <optional>
 #include <span>
 #include <variant>
 
@@ -27,8 +28,13 @@ constexpr size_t kMaxFramesPerRead = 16384;
 
 class UdpSource final : public FrameSource {
  public:
-  UdpSource(UniqueFd fd, std::string address, uint16_t port)
-      : fd_(std::move(fd)), address_(std::move(address)), port_(port) {}
+  UdpSource(UniqueFd fd, std::string address, uint16_t port, std::optional<in_addr> sender,
+            std::string sender_text)
+      : fd_(std::move(fd)),
+        address_(std::move(address)),
+        port_(port),
+        sender_(sender),
+        sender_text_(std::move(sender_text)) {}
 
   ReadOutcome Read(std::vector<TimedFrame>& out, std::chrono::milliseconds timeout) override {
     const int64_t deadline_ns = SteadyNowNs() + std::max<int64_t>(0, timeout.count()) * 1'000'000;
@@ -39,11 +45,18 @@ class UdpSource final : public FrameSource {
       if (revents == 0) return {};
       for (size_t count = 0;
            count < kMaxDatagramsPerRead && out.size() - before < kMaxFramesPerRead; ++count) {
-        const ssize_t n = ::recv(fd_.get(), buffer_.data(), buffer_.size(), MSG_DONTWAIT);
+        sockaddr_in from{};
+        socklen_t from_size = sizeof from;
+        const ssize_t n = ::recvfrom(fd_.get(), buffer_.data(), buffer_.size(), MSG_DONTWAIT,
+                                     reinterpret_cast<sockaddr*>(&from), &from_size);
         if (n < 0) {
           if (errno == EINTR) continue;
           if (errno == EAGAIN || errno == EWOULDBLOCK) break;
           return {ReadStatus::kError, Describe() + ": recv: " + ErrnoText(errno)};
+        }
+        if (sender_ && (from.sin_family != AF_INET || from.sin_addr.s_addr != sender_->s_addr)) {
+          ++foreign_datagrams_;
+          continue;
         }
         Deliver(std::span<const uint8_t>(buffer_.data(), static_cast<size_t>(n)), out);
       }
@@ -51,11 +64,16 @@ class UdpSource final : public FrameSource {
     }
   }
 
-  std::string Describe() const override { return "udp:" + address_ + ":" + std::to_string(port_); }
+  std::string Describe() const override {
+    std::string text = "udp:" + address_ + ":" + std::to_string(port_);
+    if (sender_) text += ",from=" + sender_text_;
+    return text;
+  }
 
   SourceCounters Counters() const override {
     return {{"datagrams", datagrams_},
             {"bad_datagrams", bad_datagrams_},
+            {"foreign_datagrams", foreign_datagrams_},
             {"frames", frames_},
             {"lost", sequence_.counters().lost},
             {"reordered", sequence_.counters().reordered}};
@@ -90,22 +108,33 @@ class UdpSource final : public FrameSource {
   UniqueFd fd_;
   std::string address_;
   uint16_t port_;
+  std::optional<in_addr> sender_;  // the only address datagrams are taken from, if any
+  std::string sender_text_;
   std::array<uint8_t, kMaxDatagram> buffer_{};
   SequenceTracker sequence_;
   BatchClock clock_;
   uint64_t datagrams_ = 0;
   uint64_t bad_datagrams_ = 0;
+  uint64_t foreign_datagrams_ = 0;
   uint64_t frames_ = 0;
 };
 
 }  // namespace
 
-OpenResult OpenUdp(uint16_t port, const std::string& address) {
+OpenResult OpenUdp(uint16_t port, const std::string& address, const std::string& sender) {
   sockaddr_in addr{};
   addr.sin_family = AF_INET;
   addr.sin_port = htons(port);
   if (::inet_pton(AF_INET, address.c_str(), &addr.sin_addr) != 1) {
     return "invalid IPv4 address '" + address + "' for the UDP source";
+  }
+  std::optional<in_addr> sender_addr;
+  if (!sender.empty()) {
+    in_addr parsed{};
+    if (::inet_pton(AF_INET, sender.c_str(), &parsed) != 1) {
+      return "invalid IPv4 sender address '" + sender + "' for the UDP source";
+    }
+    sender_addr = parsed;
   }
   const std::string where = address + ":" + std::to_string(port);
   UniqueFd fd(::socket(AF_INET, SOCK_DGRAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0));
@@ -125,7 +154,8 @@ OpenResult OpenUdp(uint16_t port, const std::string& address) {
     const int err = errno;
     return "cannot read the address of UDP " + where + ": " + ErrnoText(err);
   }
-  return std::make_unique<UdpSource>(std::move(fd), address, ntohs(bound.sin_port));
+  return std::make_unique<UdpSource>(std::move(fd), address, ntohs(bound.sin_port), sender_addr,
+                                     sender);
 }
 
 uint16_t BoundUdpPort(const FrameSource& source) {

@@ -68,9 +68,11 @@ int main(int argc, char** argv) {
   uint64_t seed = 1;
   int max_streams = 16;
   bool quiet = false;
-  app.add_option("--source", source,
-                 "sim:WORLD (box, rooms, cluttered or a world.json), candump:FILE, "
-                 "slcan:DEVICE, udp:PORT, udp:ADDRESS:PORT or socketcan:IFACE")
+  app.add_option(
+         "--source", source,
+         "sim:WORLD (box, rooms, cluttered or a world.json), candump:FILE, "
+         "slcan:DEVICE, udp:[ADDRESS:]PORT[,from=SENDER] (loopback unless ADDRESS is given) "
+         "or socketcan:IFACE")
       ->capture_default_str();
   app.add_option("--robot", robot_path, "robot description (robot.json)")->capture_default_str();
   app.add_option("--params", params_path,

@@ -27,6 +27,21 @@ TEST(SourceSpecTest, OpensTheVirtualMarxbotAndUdp) {
   EXPECT_GT(BoundUdpPort(*std::get<std::unique_ptr<FrameSource>>(udp)), 0);
 }
 
+TEST(SourceSpecTest, UdpListensOnLoopbackUnlessToldAndCanNameItsSender) {
+  // udp:PORT once listened on every address: anyone on the network could send odometry.
+  const RobotDescription robot = testing::ShippedRobot();
+  const OpenResult plain = OpenSourceSpec("udp:0", robot);
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(plain)) << ErrorOf(plain);
+  const FrameSource& source = *std::get<std::unique_ptr<FrameSource>>(plain);
+  EXPECT_EQ(source.Describe(), "udp:127.0.0.1:" + std::to_string(BoundUdpPort(source)));
+
+  const OpenResult any = OpenSourceSpec("udp:0.0.0.0:0,from=192.168.1.7", robot);
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(any)) << ErrorOf(any);
+  const FrameSource& restricted = *std::get<std::unique_ptr<FrameSource>>(any);
+  EXPECT_EQ(restricted.Describe(),
+            "udp:0.0.0.0:" + std::to_string(BoundUdpPort(restricted)) + ",from=192.168.1.7");
+}
+
 TEST(SourceSpecTest, BadSpecsGiveClearErrors) {
   const RobotDescription robot = testing::ShippedRobot();
   const struct {
@@ -38,6 +53,9 @@ TEST(SourceSpecTest, BadSpecsGiveClearErrors) {
       {"tcp:1234", "unknown kind 'tcp'"},
       {"udp:70000", "'70000' is not a UDP port"},
       {"udp:12ab", "'12ab' is not a UDP port"},
+      {"udp:0,to=1.2.3.4", "unknown UDP option 'to=1.2.3.4'"},
+      {"udp:0,from=", "unknown UDP option 'from='"},
+      {"udp:127.0.0.1:0,from=robot", "invalid IPv4 sender address 'robot'"},
       {"sim:/nonexistent/world.json", "/nonexistent/world.json"},
       {"candump:/nonexistent/can.log", "/nonexistent/can.log"},
   };

@@ -669,6 +669,61 @@ class LoopbackUdpClient {
   sockaddr_in to_{};
 };
 
+TEST(UdpSourceTest, DatagramsFromAnyOtherSenderAreCountedAndDropped) {
+  // Sources restricted to 127.0.0.2; datagrams from 127.0.0.3 (a spoofer) are never decoded:
+  // neither their frames nor their sequence numbers reach the link.
+  auto source = Unwrap(OpenUdp(0, "127.0.0.1", "127.0.0.2"));
+  ASSERT_NE(source, nullptr);
+  const uint16_t port = BoundUdpPort(*source);
+  const auto client_from = [&](const char* address) {
+    UniqueFd fd(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0));
+    sockaddr_in local{};
+    local.sin_family = AF_INET;
+    ::inet_pton(AF_INET, address, &local.sin_addr);
+    EXPECT_EQ(::bind(fd.get(), reinterpret_cast<const sockaddr*>(&local), sizeof local), 0)
+        << address;
+    return fd;
+  };
+  const UniqueFd robot = client_from("127.0.0.2");
+  const UniqueFd spoofer = client_from("127.0.0.3");
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(port);
+  to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  const auto send = [&](const UniqueFd& fd, const std::vector<uint8_t>& bytes) {
+    ASSERT_EQ(::sendto(fd.get(), bytes.data(), bytes.size(), 0,
+                       reinterpret_cast<const sockaddr*>(&to), sizeof to),
+              static_cast<ssize_t>(bytes.size()));
+  };
+  CanFrame frame;
+  frame.id = 0x101;
+  frame.len = 2;
+  frame.data = {1, 2};
+  const std::vector<CanFrame> two = {frame, frame}, one = {frame};
+  for (uint8_t i = 0; i < 50; ++i)
+    send(spoofer, EncodeCannelloni(static_cast<uint8_t>(200 + i), two));
+  send(spoofer, {'x'});
+  for (uint8_t i = 0; i < 3; ++i) send(robot, EncodeCannelloni(i, one));
+  const std::vector<TimedFrame> received = ReadFrames(*source, 3);
+  ASSERT_EQ(received.size(), 3u);
+  for (const TimedFrame& f : received) EXPECT_EQ(f.frame, frame);
+  const SourceCounters counters = source->Counters();
+  const auto counter = [&](const std::string& name) {
+    for (const auto& [key, value] : counters) {
+      if (key == name) return value;
+    }
+    ADD_FAILURE() << "no counter " << name;
+    return uint64_t{0};
+  };
+  EXPECT_EQ(counter("foreign_datagrams"), 51u);
+  EXPECT_EQ(counter("datagrams"), 3u);
+  EXPECT_EQ(counter("bad_datagrams"), 0u);
+  EXPECT_EQ(counter("lost"), 0u);
+  EXPECT_EQ(counter("frames"), 3u);
+  EXPECT_NE(ErrorOf(OpenUdp(0, "127.0.0.1", "robot")).find("invalid IPv4 sender address 'robot'"),
+            std::string::npos);
+}
+
 TEST(UdpSourceTest, FramesOfADatagramGetDistinctIncreasingTimes) {
   // All frames of a datagram arrive at once; readings of one kind must still not share a time
   // (the scan assembler keeps the first of equal times only).

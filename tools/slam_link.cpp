@@ -57,8 +57,8 @@ int main(int argc, char** argv) {
   bool events = false;
   bool as_fast = false;
   app.add_option("--source", spec,
-                 "sim:WORLD, candump:FILE, slcan:DEVICE, udp:PORT, udp:ADDRESS:PORT or "
-                 "socketcan:IFACE")
+                 "sim:WORLD, candump:FILE, slcan:DEVICE, udp:[ADDRESS:]PORT[,from=SENDER] "
+                 "(loopback unless ADDRESS is given) or socketcan:IFACE")
       ->required();
   app.add_option("--robot", robot_path, "robot description")->capture_default_str();
   app.add_option("--seconds", seconds, "stop after this many seconds (0: never)")
