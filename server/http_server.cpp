@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cctype>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -222,7 +223,13 @@ class BoundedStream final : public httplib::Stream {
     budget_ = bytes;
     deadline_ = deadline;
     exhausted_ = false;
+    head_.clear();
+    head_done_ = false;
   }
+  /// The request's head as received (request line and header lines, up to the blank line;
+  /// what has arrived so far while it is incomplete): the request guard checks its framing,
+  /// which httplib's parser does not show as it was sent.
+  const std::string& head() const { return head_; }
   /// True once a read was refused for the budget or the deadline.
   bool Exhausted() const { return exhausted_; }
   /// Bytes already received and not yet read (a pipelined request).
@@ -253,6 +260,14 @@ class BoundedStream final : public httplib::Stream {
     std::memcpy(ptr, buffer_ + begin_, n);
     begin_ += n;
     budget_ -= n;
+    if (!head_done_) {
+      const size_t from = head_.size() >= 3 ? head_.size() - 3 : 0;
+      head_.append(ptr, n);
+      if (const size_t end = head_.find("\r\n\r\n", from); end != std::string::npos) {
+        head_.resize(end + 2);
+        head_done_ = true;
+      }
+    }
     return static_cast<ssize_t>(n);
   }
 
@@ -324,6 +339,8 @@ class BoundedStream final : public httplib::Stream {
   bool exhausted_ = false;
   char buffer_[4096];
   size_t begin_ = 0, end_ = 0;
+  std::string head_;
+  bool head_done_ = false;
 };
 
 /// A request in memory and its response (HttpServer::HandleRaw): reads from the request bytes,
@@ -373,6 +390,10 @@ class MemoryStream final : public httplib::Stream {
 /// Connection header says, so the connection loop looks at this after each request.
 thread_local bool t_close_connection = false;
 
+/// The head of the request this thread is processing, as received (BoundedStream::head, or the
+/// in-memory request), for the request guard; nullptr when unknown.
+thread_local const std::string* t_request_head = nullptr;
+
 class BoundedServer final : public httplib::Server {
  public:
   /// One request through the parser, the pre-routing guard, routing, the handlers and the
@@ -380,7 +401,11 @@ class BoundedServer final : public httplib::Server {
   std::string ProcessInMemory(std::string_view request, size_t max_response_bytes) {
     MemoryStream stream(request, max_response_bytes);
     bool closed = false;
+    const size_t end = request.find("\r\n\r\n");
+    const std::string head(request.substr(0, end == std::string_view::npos ? request.size() : end + 2));
+    t_request_head = &head;
     process_request(stream, /*close_connection=*/true, closed, nullptr);
+    t_request_head = nullptr;
     return std::move(stream.response());
   }
 
@@ -409,7 +434,9 @@ class BoundedServer final : public httplib::Server {
       stream.StartRequest(max_head_bytes + max_body_bytes, Clock::now() + request_deadline);
       bool closed = false;
       t_close_connection = false;
+      t_request_head = &stream.head();
       ok = process_request(stream, left == 1, closed, nullptr);
+      t_request_head = nullptr;
       // The rest of a cut request is garbage; so is the unread body of a refused one.
       if (!ok || closed || stream.Exhausted() || t_close_connection) break;
     }
@@ -450,6 +477,47 @@ std::string HostName(const std::string& host_header) {
     return host_header;
   }
   return host_header.substr(0, colon);
+}
+
+std::optional<std::string> AmbiguousFraming(std::string_view head) {
+  const auto lower = [](std::string_view text) {
+    std::string out(text);
+    for (char& c : out) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    return out;
+  };
+  const auto is_token_char = [](char c) {
+    return std::isalnum(static_cast<unsigned char>(c)) != 0 ||
+           std::string_view("!#$%&'*+-.^_`|~").find(c) != std::string_view::npos;
+  };
+  size_t line_end = head.find("\r\n");
+  if (line_end == std::string_view::npos) return std::nullopt;  // the parser judges it
+  const std::string_view request_line = head.substr(0, line_end);
+  const bool http11 = request_line.ends_with(" HTTP/1.1");
+  int content_lengths = 0, hosts = 0;
+  for (size_t at = line_end + 2; at < head.size(); at = line_end + 2) {
+    line_end = head.find("\r\n", at);
+    if (line_end == std::string_view::npos) line_end = head.size();
+    const std::string_view line = head.substr(at, line_end - at);
+    if (line.empty()) break;
+    if (line.front() == ' ' || line.front() == '\t') {
+      return "a header line folded onto the previous one (obsolete line folding)";
+    }
+    const size_t colon = line.find(':');
+    if (colon == std::string_view::npos) return "a header line without a colon";
+    const std::string_view name = line.substr(0, colon);
+    if (name.empty() || !std::all_of(name.begin(), name.end(), is_token_char)) {
+      return "the header name '" + std::string(name.substr(0, 64)) +
+             "' is not a token (no whitespace before the colon)";
+    }
+    const std::string key = lower(name);
+    content_lengths += key == "content-length";
+    hosts += key == "host";
+  }
+  if (content_lengths > 1) return "more than one Content-Length";
+  if (http11 && hosts != 1) {
+    return hosts == 0 ? "a request of HTTP version 1.1 needs a Host header" : "more than one Host header";
+  }
+  return std::nullopt;
 }
 
 bool ConstantTimeEquals(const std::string& a, const std::string& b) {
@@ -547,6 +615,15 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
   if (auto it = req.headers.find("Accept-Encoding"); it != req.headers.end()) {
     if (Lower(it->second).find("br") != std::string::npos) it->second = "gzip";
   }
+  // Ranges: httplib builds a multipart answer to many ranges whole in memory (4000 ranges in an
+  // 8 KB header made 600 MB of one 150 KB file), and answers a range of a handler's response
+  // with 200 and a truncated body. The page's files honour one range; more than one, or a range
+  // of anything else, is ignored and the whole answer sent (a server may, RFC 9110 14.2).
+  if (!req.ranges.empty() &&
+      (req.ranges.size() > 1 || req.path.rfind("/api/", 0) == 0 || req.path == "/metrics")) {
+    req.ranges.clear();
+    req.headers.erase("Range");
+  }
   // The trajectory is made once per snapshot (ServeExport) but httplib would compress its TUM
   // text again for every request, at a cost growing with the run: it goes out as it is.
   if (req.path == "/api/v1/trajectory") req.headers.erase("Accept-Encoding");
@@ -561,6 +638,13 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
     t_close_connection = true;
     return R::Handled;
   };
+  // A request whose framing parsers may read differently: 400, and the connection closes (what
+  // follows on it may be a request hidden in this one).
+  if (t_request_head != nullptr) {
+    if (const auto problem = AmbiguousFraming(*t_request_head)) {
+      return refuse(400, "Bad Request", *problem);
+    }
+  }
   // Without a token slamd listens on loopback only, and answers only to loopback names: a page
   // whose own name resolves to 127.0.0.1 (DNS rebinding) is same-origin with itself, so the
   // Origin check below lets it through, but its requests name its host.
@@ -1135,6 +1219,10 @@ void HttpServer::Impl::Setup() {
                                                 "PATCH", "DELETE",  "OPTIONS", "TRACE",
                                                 "CONNECT"};
     const std::string method = kMethods.count(req.method) ? req.method : "other";
+    // A request the library could not parse (a malformed request line or header) is answered
+    // 400 without reaching the guard; what follows it on the connection is not a request to
+    // trust: it closes (1000 CRLFs once got 1000 answers on one connection).
+    if (res.status == 400) t_close_connection = true;
     const std::lock_guard lock(requests_mutex);
     ++requests[{method, res.status}];
   });

@@ -9,7 +9,9 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 #include <string_view>
 
@@ -37,6 +39,14 @@ bool IsLoopback(const std::string& address);
 
 /// The host of a Host header value without its port: "[::1]:8080" -> "::1", "a:80" -> "a".
 std::string HostName(const std::string& host_header);
+
+/// What makes a request head (request line and header lines as received, CRLF-separated, up to
+/// the blank line) ambiguous to read, or nothing (RFC 9112): a header line folded onto the
+/// previous one, a header line without a colon, a field name that is not a token (whitespace
+/// before the colon: "Transfer-Encoding : chunked" is one header to one parser and none to
+/// another), more than one Content-Length, an HTTP/1.1 request without exactly one Host. Two
+/// parsers reading such a request differently is how a request is smuggled inside another.
+std::optional<std::string> AmbiguousFraming(std::string_view head);
 
 /// Constant-time comparison (the time does not depend on where the strings differ).
 bool ConstantTimeEquals(const std::string& a, const std::string& b);

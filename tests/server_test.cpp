@@ -222,6 +222,25 @@ TEST(Security, LoopbackAddresses) {
   EXPECT_FALSE(IsLoopback("localhost.evil.example"));
 }
 
+TEST(Security, AmbiguousFramingOfARequestHead) {
+  const std::string line = "GET / HTTP/1.1\r\n";
+  EXPECT_EQ(AmbiguousFraming(line + "Host: a\r\nContent-Length: 3\r\n\r\n"), std::nullopt);
+  EXPECT_EQ(AmbiguousFraming("GET / HTTP/1.0\r\n\r\n"), std::nullopt);
+  EXPECT_EQ(AmbiguousFraming(line + "hOsT: a\r\nX-A_b.c~1: \t v \r\n\r\n"), std::nullopt);
+  EXPECT_EQ(AmbiguousFraming("incomplete"), std::nullopt);  // the parser's to refuse
+  const auto problem = [](const std::string& head) { return AmbiguousFraming(head).value_or(""); };
+  EXPECT_EQ(problem(line + "Host: a\r\ncontent-length: 1\r\nContent-Length: 1\r\n\r\n"),
+            "more than one Content-Length");
+  EXPECT_NE(problem(line + "Host: a\r\nTransfer-Encoding : chunked\r\n\r\n").find("not a token"),
+            std::string::npos);
+  EXPECT_NE(problem(line + "Host: a\r\nX: 1\r\n\t2\r\n\r\n").find("folded"), std::string::npos);
+  EXPECT_NE(problem(line + "Host: a\r\nX-A b: 1\r\n\r\n").find("not a token"), std::string::npos);
+  EXPECT_NE(problem(line + "Host: a\r\n: 1\r\n\r\n").find("not a token"), std::string::npos);
+  EXPECT_EQ(problem(line + "Host: a\r\nno colon\r\n\r\n"), "a header line without a colon");
+  EXPECT_EQ(problem(line + "\r\n"), "a request of HTTP version 1.1 needs a Host header");
+  EXPECT_EQ(problem(line + "Host: a\r\nHost: b\r\n\r\n"), "more than one Host header");
+}
+
 TEST(Security, HostNameOfAHostHeader) {
   EXPECT_EQ(HostName("localhost:8080"), "localhost");
   EXPECT_EQ(HostName("127.0.0.1"), "127.0.0.1");
