@@ -4,6 +4,7 @@
 #include "hw_link/transports.hpp"
 
 #include <fcntl.h>
+#include <poll.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -35,6 +36,11 @@ constexpr double kMaxOffsetNs = 1e18;        // paced: ~30 years, keeps the cast
 // through or a stretch of frames out of order.
 constexpr int64_t kMaxGapUs = 5'000'000;
 constexpr int64_t kJumpGapUs = 1'000'000;
+// A pipe or terminal that goes quiet, or a file without line ends (/dev/zero), must not hold a
+// Read: it waits at most this long for bytes, and reads at most this many chunks per call, so
+// that the link thread sees a stop request within a second.
+constexpr int kWaitForBytesMs = 100;
+constexpr int kMaxChunksPerCall = 64;
 
 // Splits a file into lines ('\n'-terminated; the last line may lack it), reading it in chunks.
 class LineReader {
@@ -42,10 +48,12 @@ class LineReader {
   explicit LineReader(UniqueFd fd) : fd_(std::move(fd)) {}
 
   // The next line without its '\n' (valid until the next call), or nothing at the end of the
-  // file or on a read error (see error()). An over-long line comes back truncated with
-  // `overlong` set.
+  // file, on a read error (see error()), or when no line was complete after waiting
+  // kWaitForBytesMs for bytes or reading kMaxChunksPerCall chunks (ended() tells which). An
+  // over-long line comes back truncated with `overlong` set.
   std::optional<std::string_view> Next(bool& overlong) {
     overlong = false;
+    int chunks = 0;
     while (true) {
       const size_t newline = buffer_.find('\n', scan_from_);
       if (newline != std::string::npos) {
@@ -75,15 +83,24 @@ class LineReader {
         start_ = scan_from_ = buffer_.size();
         return line;
       }
-      Fill();
+      if (chunks++ == kMaxChunksPerCall || !Fill()) return std::nullopt;  // not yet
     }
   }
 
+  // True once the file has ended (or failed): nothing more will come.
+  bool ended() const { return eof_; }
   int error() const { return error_; }
 
  private:
-  // Drops consumed bytes and appends the next chunk of the file.
-  void Fill() {
+  // Drops consumed bytes and appends the next chunk of the file. False when no byte came within
+  // kWaitForBytesMs (a quiet pipe or terminal: the descriptor is non-blocking).
+  bool Fill() {
+    pollfd p{fd_.get(), POLLIN, 0};
+    int ready;
+    do {
+      ready = ::poll(&p, 1, kWaitForBytesMs);
+    } while (ready < 0 && errno == EINTR);
+    if (ready == 0) return false;
     buffer_.erase(0, start_);
     scan_from_ -= start_;
     start_ = 0;
@@ -94,10 +111,12 @@ class LineReader {
       n = ::read(fd_.get(), buffer_.data() + old_size, kReadChunk);
     } while (n < 0 && errno == EINTR);
     buffer_.resize(old_size + (n > 0 ? static_cast<size_t>(n) : 0));
+    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) return false;
     if (n <= 0) {
       eof_ = true;
       if (n < 0) error_ = errno;
     }
+    return true;
   }
 
   UniqueFd fd_;
@@ -145,7 +164,7 @@ class CandumpReplay final : public FrameSource {
       bool overlong = false;
       const std::optional<std::string_view> line = lines_.Next(overlong);
       if (!line) {
-        ended_ = true;
+        ended_ = lines_.ended();  // otherwise nothing yet: the next Read goes on
         return std::nullopt;
       }
       ++lines_read_;
@@ -301,6 +320,9 @@ OpenResult OpenCandumpReplay(const std::string& path, const CandumpReplayOptions
   if (::fstat(fd.get(), &info) == 0 && S_ISDIR(info.st_mode)) {
     return "cannot open candump log '" + path + "': " + ErrnoText(EISDIR);
   }
+  // A pipe or terminal may go quiet: reads wait in poll() with a timeout instead (LineReader).
+  const int flags = ::fcntl(fd.get(), F_GETFL);
+  if (flags >= 0) ::fcntl(fd.get(), F_SETFL, flags | O_NONBLOCK);
   return std::make_unique<CandumpReplay>(path, std::move(fd), options);
 }
 

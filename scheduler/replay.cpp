@@ -49,7 +49,13 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   plans.reserve(scans.size());
   const auto wall_start = std::chrono::steady_clock::now();
   const double cpu_start = CpuSeconds(options.config.parallel);
+  size_t done = 0;
+  bool cancelled = false;
   for (size_t k = 0; k < scans.size(); ++k) {
+    if (options.cancel != nullptr && options.cancel->load(std::memory_order_relaxed)) {
+      cancelled = true;
+      break;
+    }
     const Scan& scan = scans[k];
     const double scan_cpu_start = CpuSeconds(options.config.parallel);
     ScanSummary summary = engine.Summarize(scan);
@@ -61,6 +67,7 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
     rays_total += report.rays.total();
     rays_max = std::max(rays_max, report.rays.total());
     resamplings += report.resampled ? 1 : 0;
+    done = k + 1;
     if (options.progress) options.progress(k + 1, scans.size());
   }
   const double cpu_s = CpuSeconds(options.config.parallel) - cpu_start;
@@ -70,7 +77,8 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   ReplayResult result(engine.Best().map);
   result.trajectory = engine.Trajectory();
   if (!ground_truth.empty()) result.quality = EvaluateTrajectory(result.trajectory, ground_truth);
-  result.scans = static_cast<int64_t>(scans.size());
+  result.scans = static_cast<int64_t>(done);
+  result.cancelled = cancelled;
   result.rays_total = rays_total;
   result.rays_per_scan_max = rays_max;
   result.resamplings = resamplings;

@@ -5,6 +5,7 @@
 // (CPU-share mode depends on measured time by design).
 
 #include <cstdint>
+#include <atomic>
 #include <functional>
 #include <optional>
 #include <utility>
@@ -29,13 +30,18 @@ struct ReplayOptions {
   bool refine = true;           // false: phase B off, odometry-only mapping
   /// Called after every scan with (scans done, scans in all); may be empty.
   std::function<void(size_t, size_t)> progress;
+  /// When it becomes true, the replay stops after the scan in progress (a cancelled tuning job
+  /// at a large budget must not finish a whole experiment first): the result covers the scans
+  /// done and says `cancelled`. May be null.
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 struct ReplayResult {
   std::vector<TimedPose> trajectory;  // best particle's, from the first scan's start
   OccupancyGrid map;                  // best particle's
   std::optional<TrajectoryQuality> quality;  // against the ground truth, when there is one
-  int64_t scans = 0;
+  int64_t scans = 0;  // scans replayed (fewer than given when cancelled)
+  bool cancelled = false;
   int64_t rays_total = 0;
   int64_t rays_per_scan_max = 0;
   int64_t resamplings = 0;

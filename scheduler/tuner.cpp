@@ -39,9 +39,10 @@ TuningState NewTuningState(const TuningSettings& settings, const std::vector<Tun
 }
 
 double Fitness(const std::vector<TuningExperiment>& experiments, const SlamParams& params,
-               int64_t budget, const TuningSettings& settings) {
+               int64_t budget, const TuningSettings& settings, const std::atomic<bool>* cancel) {
   double sum = 0.0;
   for (const TuningExperiment& e : experiments) {
+    if (cancel != nullptr && cancel->load()) break;
     ReplayOptions options;
     options.params = params;
     options.config.seed = settings.evolution.seed;
@@ -49,6 +50,7 @@ double Fitness(const std::vector<TuningExperiment>& experiments, const SlamParam
     options.budget.rays_per_scan = budget;
     options.budget.policy = settings.policy;
     options.budget.max_particles = settings.max_particles;
+    options.cancel = cancel;
     const ReplayResult run = Replay(*e.robot, *e.scans, *e.ground_truth, options);
     sum += run.quality ? run.quality->e : 0.0;
   }
@@ -95,7 +97,8 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
         tbb::parallel_for(size_t{0}, e.size(), [&](size_t k) {
           if (cancelled()) return;
           const TuningExperiment& experiment = experiments[k % n_exp];
-          e[k] = Fitness({experiment}, population[pending[k / n_exp]].params, run.budget, settings);
+          e[k] = Fitness({experiment}, population[pending[k / n_exp]].params, run.budget, settings,
+                         callbacks.cancel);
           if (callbacks.progress) {
             const std::lock_guard lock(progress_mutex);
             done_work += item_work * static_cast<double>(experiment.scans->size());

@@ -63,8 +63,11 @@ TuningState NewTuningState(const TuningSettings& settings, const std::vector<Tun
 /// Fitness of one parameter set at one budget: the mean of e over the experiments, each replayed
 /// on this thread with the settings' policy and seed. Preconditions: params valid, every
 /// experiment has ground truth.
+/// With `cancel` set to true during the call, it returns soon (between two scans) with a
+/// meaningless value.
 double Fitness(const std::vector<TuningExperiment>& experiments, const SlamParams& params,
-               int64_t budget, const TuningSettings& settings);
+               int64_t budget, const TuningSettings& settings,
+               const std::atomic<bool>* cancel = nullptr);
 
 struct TuningCallbacks {
   /// After every finished generation of a budget (to save the state); may be empty.

@@ -6,6 +6,7 @@
 
 #include <pthread.h>
 #include <signal.h>
+#include <string.h>
 
 #include <CLI/CLI.hpp>
 #include <cctype>
@@ -193,12 +194,15 @@ int main(int argc, char** argv) {
   const auto* virtual_robot =
       dynamic_cast<const slam::hw::VirtualMarxbotSource*>(frame_source.get());
 
-  // Signals go to one thread that stops the server; every other thread blocks them.
+  // Signals go to one thread that stops the server cleanly; every other thread blocks them.
+  // SIGHUP (the terminal went away) and SIGQUIT stop it cleanly too, instead of killing it
+  // mid-write; SIGUSR1 and SIGUSR2 mean nothing to slamd and are ignored.
   sigset_t signals;
   sigemptyset(&signals);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGTERM);
+  for (const int s : {SIGINT, SIGTERM, SIGHUP, SIGQUIT}) sigaddset(&signals, s);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  ::signal(SIGUSR1, SIG_IGN);
+  ::signal(SIGUSR2, SIG_IGN);
 
   slam::hw::Link link(std::move(frame_source), robot.value());
   slam::server::SlamService service(link, virtual_robot, service_options);
@@ -223,7 +227,10 @@ int main(int argc, char** argv) {
   std::thread signal_thread([&] {
     int received = 0;
     sigwait(&signals, &received);
-    if (!done) server.Stop();
+    if (!done) {
+      if (!quiet) std::fprintf(stderr, "slamd: %s: stopping\n", strsignal(received));
+      server.Stop();
+    }
   });
   std::thread status_thread;
   if (!quiet) {

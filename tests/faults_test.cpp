@@ -15,8 +15,10 @@
 // clang-format on
 
 #include <stdlib.h>
+#include <sys/stat.h>
 #include <termios.h>
 
+#include <atomic>
 #include <random>
 
 namespace slamd_test {
@@ -164,6 +166,53 @@ void WaitDue(const LoggedFrame& frame, int64_t first_us, double speed, Clock::ti
 
 // ---------------------------------------------------------------------------------------------
 // The source going away and coming back
+
+TEST(SlamdFaults, SignalsStopSlamdCleanlyWithinASecondWhateverItsSourceDoes) {
+  // A candump source on /dev/zero (one core at 100 % in a line without end) or on a FIFO that
+  // went quiet held the link thread, and SIGTERM never stopped slamd; SIGHUP and SIGQUIT killed
+  // it at once, skipping the clean shutdown. SIGUSR1 killed it too; it is ignored now.
+  ScratchDir scratch("signals");
+  const std::string fifo = (scratch.path() / "can.fifo").string();
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  for (const int signal : {SIGTERM, SIGHUP, SIGQUIT}) {
+    for (const bool quiet_fifo : {false, true}) {
+      SCOPED_TRACE(std::string(strsignal(signal)) + (quiet_fifo ? ", quiet FIFO" : ", /dev/zero"));
+      // The FIFO's writer sends nothing and stays open until slamd has stopped.
+      std::atomic<bool> release{false};
+      std::thread writer;
+      if (quiet_fifo) {
+        writer = std::thread([&] {
+          const int fd = ::open(fifo.c_str(), O_WRONLY | O_CLOEXEC);
+          while (!release) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+          if (fd >= 0) ::close(fd);
+        });
+      }
+      SlamdProcess slamd;
+      std::string error;
+      const bool started = slamd.Start(
+          {"--source", "candump:" + (quiet_fifo ? fifo : std::string("/dev/zero"))}, &error);
+      EXPECT_TRUE(started) << error;
+      if (started) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(300));  // the link is reading
+        ::kill(slamd.pid(), SIGUSR1);
+        EXPECT_FALSE(slamd.WaitExit(0.3).has_value()) << "SIGUSR1 ended slamd";
+        const auto sent = Clock::now();
+        ::kill(slamd.pid(), signal);
+        const std::optional<int> status = slamd.WaitExit(5.0);
+        const double seconds = SecondsSince(sent);
+        EXPECT_EQ(status, std::optional<int>(0)) << slamd.Stderr();
+        EXPECT_LT(seconds, 1.0);
+      }
+      slamd.Stop();
+      release = true;
+      if (quiet_fifo && !started) {  // the writer may still wait for a reader in open()
+        const int unblock = ::open(fifo.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+        if (unblock >= 0) ::close(unblock);
+      }
+      if (writer.joinable()) writer.join();
+    }
+  }
+}
 
 TEST(SlamdFaults, LogEndingKeepsServingAndReportsTheLinkEnded) {
   ScratchDir scratch("log_end");

@@ -9,9 +9,11 @@
 #include <poll.h>
 #include <stdlib.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -551,6 +553,72 @@ TEST(SlcanSourceTest, MissingDeviceFailsWithAClearMessage) {
   const std::string error = ErrorOf(OpenSlcan("/dev/nonexistent-slcan-adapter"));
   EXPECT_NE(error.find("/dev/nonexistent-slcan-adapter"), std::string::npos) << error;
   EXPECT_NE(error.find("No such file or directory"), std::string::npos) << error;
+}
+
+TEST(CandumpReplayTest, AQuietPipeOrAFileWithoutLineEndsNeverHoldsARead) {
+  // A FIFO that goes quiet blocked Read in read(), and /dev/zero (no line end, ever) kept it
+  // skipping one endless line: either way the link thread never saw its stop request, and
+  // SIGTERM did not stop slamd. Each Read now returns within a fraction of a second.
+  const auto timed_read = [](FrameSource& source, std::vector<TimedFrame>& frames) {
+    const auto start = std::chrono::steady_clock::now();
+    const ReadOutcome outcome = source.Read(frames, milliseconds(50));
+    return std::make_pair(outcome, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  };
+  {
+    auto zero = Unwrap(OpenCandumpReplay("/dev/zero", {.paced = false}));
+    ASSERT_NE(zero, nullptr);
+    std::vector<TimedFrame> frames;
+    for (int i = 0; i < 5; ++i) {
+      const auto [outcome, seconds] = timed_read(*zero, frames);
+      EXPECT_EQ(outcome.status, ReadStatus::kOk);
+      EXPECT_LT(seconds, 0.5) << i;
+    }
+    EXPECT_TRUE(frames.empty());
+    EXPECT_EQ(zero->Counters()[3], (std::pair<std::string, uint64_t>{"bad_lines", 1}));
+  }
+  TempDir dir;
+  const std::string fifo = dir.File("can.fifo");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  // The writer sends one frame, then stays quiet until told to close.
+  std::atomic<bool> close_writer{false};
+  std::thread writer([&] {
+    const int fd = ::open(fifo.c_str(), O_WRONLY | O_CLOEXEC);
+    const std::string line = "(1700000000.000000) can0 101#0102\n";
+    EXPECT_EQ(::write(fd, line.data(), line.size()), static_cast<ssize_t>(line.size()));
+    while (!close_writer) std::this_thread::sleep_for(milliseconds(10));
+    ::close(fd);
+  });
+  for (const bool paced : {false, true}) {
+    SCOPED_TRACE(paced ? "paced" : "unpaced");
+    if (paced) {
+      close_writer = true;
+      writer.join();
+      close_writer = false;
+      writer = std::thread([&] {
+        const int fd = ::open(fifo.c_str(), O_WRONLY | O_CLOEXEC);
+        const std::string line = "(1700000000.000000) can0 101#0102\n";
+        EXPECT_EQ(::write(fd, line.data(), line.size()), static_cast<ssize_t>(line.size()));
+        while (!close_writer) std::this_thread::sleep_for(milliseconds(10));
+        ::close(fd);
+      });
+    }
+    auto source = Unwrap(OpenCandumpReplay(fifo, {.paced = paced}));
+    ASSERT_NE(source, nullptr);
+    const std::vector<TimedFrame> first = ReadFrames(*source, 1);
+    ASSERT_EQ(first.size(), 1u);
+    std::vector<TimedFrame> frames;
+    for (int i = 0; i < 3; ++i) {
+      const auto [outcome, seconds] = timed_read(*source, frames);
+      EXPECT_EQ(outcome.status, ReadStatus::kOk);
+      EXPECT_LT(seconds, 0.5) << i;
+    }
+    EXPECT_TRUE(frames.empty());
+    close_writer = true;  // the writer closes: the log has ended
+    ReadOutcome outcome;
+    for (int i = 0; i < 100 && outcome.status != ReadStatus::kEnd; ++i) outcome = source->Read(frames, milliseconds(50));
+    EXPECT_EQ(outcome.status, ReadStatus::kEnd);
+  }
+  writer.join();
 }
 
 // --------------------------------------------------------------------------------------------
