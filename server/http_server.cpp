@@ -394,6 +394,24 @@ thread_local bool t_close_connection = false;
 /// in-memory request), for the request guard; nullptr when unknown.
 thread_local const std::string* t_request_head = nullptr;
 
+/// Whether the request head as received has a `name` field: httplib drops fields whose value is
+/// empty ("If-Match:" must still fail the precondition, not skip it).
+bool HeadHasField(const httplib::Request& req, std::string_view name) {
+  if (req.has_header(std::string(name).c_str())) return true;
+  if (t_request_head == nullptr) return false;
+  const std::string_view head = *t_request_head;
+  for (size_t at = head.find("\r\n"); at != std::string_view::npos; at = head.find("\r\n", at + 2)) {
+    const std::string_view rest = head.substr(at + 2);
+    if (rest.size() > name.size() && rest[name.size()] == ':' &&
+        std::equal(name.begin(), name.end(), rest.begin(), [](char a, char b) {
+          return std::tolower(static_cast<unsigned char>(a)) == std::tolower(static_cast<unsigned char>(b));
+        })) {
+      return true;
+    }
+  }
+  return false;
+}
+
 class BoundedServer final : public httplib::Server {
  public:
   /// One request through the parser, the pre-routing guard, routing, the handlers and the
@@ -477,6 +495,53 @@ std::string HostName(const std::string& host_header) {
     return host_header;
   }
   return host_header.substr(0, colon);
+}
+
+bool IsIpAddress(const std::string& host) {
+  in_addr v4{};
+  in6_addr v6{};
+  return inet_pton(AF_INET, host.c_str(), &v4) == 1 || inet_pton(AF_INET6, host.c_str(), &v6) == 1;
+}
+
+bool IsPublicWebPath(std::string_view path) {
+  size_t at = 0;
+  while (at < path.size()) {
+    while (at < path.size() && path[at] == '/') ++at;
+    const size_t end = std::min(path.find('/', at), path.size());
+    const std::string_view segment = path.substr(at, end - at);
+    if (segment.starts_with('.') || segment == "node_modules" || segment == "package.json" ||
+        segment == "package-lock.json") {
+      return false;
+    }
+    at = end;
+  }
+  return true;
+}
+
+bool EntityTagListMatches(std::string_view list, std::string_view etag, bool weak) {
+  const auto trim = [](std::string_view s) {
+    while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
+    while (!s.empty() && (s.back() == ' ' || s.back() == '\t')) s.remove_suffix(1);
+    return s;
+  };
+  const auto opaque = [](std::string_view tag, bool& is_weak) {
+    is_weak = tag.starts_with("W/");
+    if (is_weak) tag.remove_prefix(2);
+    return tag;
+  };
+  bool etag_weak = false;
+  const std::string_view ours = opaque(etag, etag_weak);
+  for (size_t at = 0; at <= list.size();) {
+    const size_t comma = std::min(list.find(',', at), list.size());
+    const std::string_view item = trim(list.substr(at, comma - at));
+    at = comma + 1;
+    if (item.empty()) continue;
+    if (item == "*") return true;
+    bool item_weak = false;
+    const std::string_view theirs = opaque(item, item_weak);
+    if (theirs == ours && (weak || (!item_weak && !etag_weak))) return true;
+  }
+  return false;
 }
 
 std::optional<std::string> AmbiguousFraming(std::string_view head) {
@@ -645,18 +710,33 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
       return refuse(400, "Bad Request", *problem);
     }
   }
-  // Without a token slamd listens on loopback only, and answers only to loopback names: a page
-  // whose own name resolves to 127.0.0.1 (DNS rebinding) is same-origin with itself, so the
-  // Origin check below lets it through, but its requests name its host.
-  if (options.token.empty() && req.has_header("Host")) {
+  // slamd answers only to loopback names, IP addresses and --allow-host names, with a token or
+  // without: a page whose own name an attacker makes resolve to slamd's address (DNS rebinding)
+  // is same-origin with itself, so the Origin check below lets it through, and the token guards
+  // only changes: it would read the map, the trajectory and the events. Its requests name its
+  // host, which is none of these. (An address cannot be rebound: a page at http://192.168.1.5/
+  // is one the user opened.)
+  if (req.has_header("Host")) {
     const std::string host = Lower(HostName(req.get_header_value("Host")));
-    if (!IsLoopback(host) && std::find(options.allowed_hosts.begin(), options.allowed_hosts.end(),
-                                       host) == options.allowed_hosts.end()) {
+    if (!IsLoopback(host) && !IsIpAddress(host) &&
+        std::find(options.allowed_hosts.begin(), options.allowed_hosts.end(), host) ==
+            options.allowed_hosts.end()) {
       return refuse(403, "Forbidden",
-                    "slamd without a token answers only to loopback names (localhost, "
-                    "127.0.0.1, [::1]) and --allow-host names, not to '" +
+                    "slamd answers only to loopback names (localhost, 127.0.0.1, [::1]), IP "
+                    "addresses and --allow-host names, not to '" +
                         host + "'");
     }
+  }
+  // A path that decodes to a control character (a NUL: /index.html%00.js served index.html as
+  // JavaScript) names no file of ours; nor do the page's npm folder and manifests, or hidden
+  // files (GET /node_modules/... served the page's development tools).
+  if (std::any_of(req.path.begin(), req.path.end(),
+                  [](char c) { return static_cast<unsigned char>(c) < 0x20 || c == 0x7f; })) {
+    return refuse(400, "Bad Request", "the path holds a control character");
+  }
+  if (req.path.rfind("/api/", 0) != 0 && !IsPublicWebPath(req.path)) {
+    SendProblem(res, 404, "Not Found", "no such page file");
+    return R::Handled;
   }
   // Body limits before the body is read: the library's own limit does not bound chunked or
   // compressed bodies (notes point 5), and a POST without a length would hang (point 6).
@@ -758,7 +838,7 @@ void HttpServer::Impl::HandleBudgetChange(const httplib::Request& req, httplib::
   }
   const std::lock_guard lock(revision_mutex);
   const std::string if_match = req.get_header_value("If-Match");
-  if (!if_match.empty() && if_match != "*" && if_match != BudgetEtag()) {
+  if (HeadHasField(req, "If-Match") && !EntityTagListMatches(if_match, BudgetEtag(), false)) {
     res.set_header("ETag", BudgetEtag());
     SendProblem(res, 412, "Precondition Failed",
                 "the budget changed since " + if_match + "; it is now " + BudgetEtag());
@@ -798,7 +878,7 @@ void HttpServer::Impl::HandleParamsPatch(const httplib::Request& req, httplib::R
   if (!ParseBody(req, res, "application/merge-patch+json", body)) return;
   const std::lock_guard lock(revision_mutex);
   const std::string if_match = req.get_header_value("If-Match");
-  if (!if_match.empty() && if_match != "*" && if_match != ParamsEtag()) {
+  if (HeadHasField(req, "If-Match") && !EntityTagListMatches(if_match, ParamsEtag(), false)) {
     res.set_header("ETag", ParamsEtag());
     SendProblem(res, 412, "Precondition Failed",
                 "the parameters changed since " + if_match + "; they are now " + ParamsEtag());
@@ -842,7 +922,8 @@ void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response
   const std::string etag = "\"" + std::to_string(version) + "\"";
   res.set_header("ETag", etag);
   res.set_header("Cache-Control", "no-cache");
-  if (req.get_header_value("If-None-Match") == etag) {
+  if (req.has_header("If-None-Match") &&
+      EntityTagListMatches(req.get_header_value("If-None-Match"), etag, true)) {
     res.status = 304;
     return;
   }

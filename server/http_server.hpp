@@ -40,6 +40,18 @@ bool IsLoopback(const std::string& address);
 /// The host of a Host header value without its port: "[::1]:8080" -> "::1", "a:80" -> "a".
 std::string HostName(const std::string& host_header);
 
+/// True for an IPv4 or IPv6 address (without brackets).
+bool IsIpAddress(const std::string& host);
+
+/// Whether the page's static handler may serve `path` (decoded): not the npm folder, the npm
+/// manifests or a hidden file, at any depth.
+bool IsPublicWebPath(std::string_view path);
+
+/// Whether an If-Match or If-None-Match value (a list of entity tags, or "*") matches `etag`
+/// (RFC 9110 13.1): If-None-Match compares weakly (W/"1" matches "1"), If-Match strongly (a
+/// weak tag matches nothing). An empty list matches nothing.
+bool EntityTagListMatches(std::string_view list, std::string_view etag, bool weak);
+
 /// What makes a request head (request line and header lines as received, CRLF-separated, up to
 /// the blank line) ambiguous to read, or nothing (RFC 9112): a header line folded onto the
 /// previous one, a header line without a colon, a field name that is not a token (whitespace

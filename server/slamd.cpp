@@ -99,8 +99,8 @@ int main(int argc, char** argv) {
                  "file holding the bearer token that mutating routes require");
   std::vector<std::string> allowed_hosts;
   app.add_option("--allow-host", allowed_hosts,
-                 "without a token, also answer requests for this Host name (e.g. a reverse "
-                 "proxy's); only loopback names otherwise (repeatable)");
+                 "also answer requests for this Host name (e.g. robot.local, a reverse proxy's); "
+                 "only loopback names and IP addresses otherwise (repeatable)");
   app.add_option("--web-root", web_root, "folder of the web page")->capture_default_str();
   app.add_option("--speed", speed, "sim and candump sources: times real time")
       ->check(CLI::PositiveNumber)

@@ -100,11 +100,11 @@ TEST_F(SecuredSlamd, OnlyTheExactTokenMayChangeAnything) {
 
 TEST_F(SecuredSlamd, OversizeHeadersAndUrisAreRefusedAndSlamdServesOn) {
   const RawReply header = RawExchange(
-      port(), "GET /api/v1/health HTTP/1.1\r\nHost: x\r\nX-Big: " + std::string(100'000, 'a') +
+      port(), "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " + std::string(100'000, 'a') +
                   "\r\nConnection: close\r\n\r\n");
   EXPECT_EQ(header.status, 400) << header;
   const RawReply uri = RawExchange(port(), "GET /api/v1/health?" + std::string(20'000, 'a') +
-                                               " HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+                                               " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
   EXPECT_EQ(uri.status, 414) << uri;
   EXPECT_EQ(http().Get("/api/v1/health").status, 200);
 }
@@ -115,7 +115,7 @@ TEST_F(SecuredSlamd, AFloodOfHeaderLinesIsCutAtTheRequestBudget) {
   const double rss_before = RssMib(slamd_->pid());
   const int fd = ConnectTo(port());
   ASSERT_GE(fd, 0);
-  ASSERT_TRUE(SendAll(fd, "GET /api/v1/health HTTP/1.1\r\nHost: x\r\n"));
+  ASSERT_TRUE(SendAll(fd, "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n"));
   const std::string lines = [] {
     std::string text;
     for (int i = 0; i < 16; ++i) text += "X-Flood: " + std::string(8000, 'a') + "\r\n";
@@ -138,7 +138,7 @@ TEST_F(SecuredSlamd, ARequestTricklingInIsCutAtItsDeadline) {
   // A byte a second keeps every read within its timeout; the request's 10 s deadline ends it.
   const int fd = ConnectTo(port());
   ASSERT_GE(fd, 0);
-  const std::string request = "GET /api/v1/health HTTP/1.1\r\nHost: x\r\nX-Slow: aaaaaaaaaaaaaaaa";
+  const std::string request = "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: aaaaaaaaaaaaaaaa";
   const auto start = Clock::now();
   bool cut = false;
   for (size_t i = 0; i < request.size() && SecondsSince(start) < 20.0; ++i) {
@@ -170,7 +170,7 @@ TEST_F(SecuredSlamd, NoPathLeadsOutOfTheWebRoot) {
         "/./../secret.txt", "/vendor/uplot/../../../secret.txt", "//../secret.txt",
         "/index.html/../../secret.txt", "/..\\secret.txt", "/%00/../secret.txt"}) {
     const RawReply reply = RawExchange(
-        port(), std::string("GET ") + path + " HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+        port(), std::string("GET ") + path + " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
     EXPECT_NE(reply.status, 200) << path << ": " << reply;
     EXPECT_EQ(reply.raw.find("outside the web root"), std::string::npos) << path << ": " << reply;
   }
@@ -182,7 +182,7 @@ TEST_F(SecuredSlamd, BytesThatAreNotUtf8InPathsAndParametersGiveProblemsNot500) 
        {std::string("/api/v1/trajectory?format=%ff%00"), std::string("/api/v1/no\xff\xfe"),
         std::string("/api/v1/jobs/%c3%28"), std::string("/api/v1/map/tiles/\xe2\x28/1.png")}) {
     const RawReply reply =
-        RawExchange(port(), "GET " + target + " HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+        RawExchange(port(), "GET " + target + " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
     EXPECT_TRUE(reply.status == 400 || reply.status == 404) << target << ": " << reply;
     EXPECT_FALSE(json::parse(reply.body, nullptr, false).is_discarded()) << target << ": " << reply;
   }
@@ -195,7 +195,7 @@ TEST_F(SecuredSlamd, UnknownMethodsAreCountedAsOtherAndNeverBecomeLabels) {
        {std::string("FOO"), std::string("G\xffT"), std::string("B\"REW"),
         std::string("X") + std::string(100, 'Y')}) {
     const RawReply reply = RawExchange(
-        port(), method + " /api/v1/health HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+        port(), method + " /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
     EXPECT_EQ(reply.status, 400) << reply;
   }
   const Reply metrics = http().Get("/metrics");
@@ -423,9 +423,43 @@ TEST(AllowedHosts, AReverseProxysNameIsAnsweredWhenAllowed) {
   EXPECT_EQ(StatusWithHost(slamd.port(), "other.local"), 403);
 }
 
-TEST_F(SecuredSlamd, WithATokenAnyHostIsAnswered) {
-  // Beyond loopback slamd has a token and is reached by whatever name the network gives it.
-  EXPECT_EQ(StatusWithHost(port(), "robot.example:8080"), 200);
+TEST_F(SecuredSlamd, WithATokenTooOnlyLoopbackAddressesAndAllowedNamesAreAnswered) {
+  // The token guards changes only: with any Host answered, a page that rebinds its own name to
+  // the robot's address read the status, map, trajectory and events. A name needs
+  // --allow-host; an address cannot be rebound, so any is answered.
+  EXPECT_EQ(StatusWithHost(port(), "robot.example:8080"), 403);
+  EXPECT_EQ(StatusWithHost(port(), "robot.example"), 403);
+  for (const std::string host : {"192.168.1.5:8080", "10.0.0.7", "[fe80::1]:8080", "[2001:db8::5]",
+                                 "localhost", "127.0.0.1"}) {
+    EXPECT_EQ(StatusWithHost(port(), host), 200) << host;
+  }
+  // Reads are refused too, not only changes.
+  const RawReply map = RawExchange(port(), "GET /api/v1/map HTTP/1.1\r\nHost: robot.example\r\n"
+                                           "Connection: close\r\n\r\n");
+  EXPECT_EQ(map.status, 403);
+}
+
+TEST_F(SecuredSlamd, OnlyThePagesOwnFilesAreServed) {
+  // /index.html%00.js served index.html as JavaScript; web/node_modules, package.json and
+  // hidden files were served like the page.
+  fs::create_directories(dir_->path() / "web" / "node_modules" / "tool");
+  WriteFile(dir_->path() / "web" / "node_modules" / "tool" / "index.js", "tool\n");
+  WriteFile(dir_->path() / "web" / "package.json", "{}\n");
+  WriteFile(dir_->path() / "web" / "package-lock.json", "{}\n");
+  WriteFile(dir_->path() / "web" / ".env", "secret\n");
+  const auto get = [&](const std::string& target) {
+    return RawExchange(port(), "GET " + target + " HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                               "Connection: close\r\n\r\n");
+  };
+  EXPECT_EQ(get("/index.html").status, 200);
+  EXPECT_EQ(get("/index.html%00.js").status, 400);
+  EXPECT_EQ(get("/index.html%0a").status, 400);
+  for (const char* hidden : {"/node_modules/tool/index.js", "/package.json", "/package-lock.json",
+                             "/.env", "/%2eenv", "//node_modules/tool/index.js"}) {
+    const RawReply reply = get(hidden);
+    EXPECT_EQ(reply.status, 404) << hidden;
+    EXPECT_EQ(reply.body.find("tool"), std::string::npos) << hidden;
+  }
 }
 
 TEST(WebRoot, TheShippedPageHasNoSymbolicLinks) {

@@ -241,6 +241,38 @@ TEST(Security, AmbiguousFramingOfARequestHead) {
   EXPECT_EQ(problem(line + "Host: a\r\nHost: b\r\n\r\n"), "more than one Host header");
 }
 
+TEST(Security, EntityTagLists) {
+  // If-None-Match: weak comparison, lists, "*".
+  EXPECT_TRUE(EntityTagListMatches("\"7\"", "\"7\"", true));
+  EXPECT_TRUE(EntityTagListMatches("W/\"7\"", "\"7\"", true));
+  EXPECT_TRUE(EntityTagListMatches("\"1\", W/\"7\" ,\"9\"", "\"7\"", true));
+  EXPECT_TRUE(EntityTagListMatches("*", "\"7\"", true));
+  EXPECT_FALSE(EntityTagListMatches("\"17\"", "\"7\"", true));
+  EXPECT_FALSE(EntityTagListMatches("", "\"7\"", true));
+  // If-Match: strong comparison; an empty value matches nothing.
+  EXPECT_TRUE(EntityTagListMatches("\"b1\", \"b2\"", "\"b2\"", false));
+  EXPECT_TRUE(EntityTagListMatches("*", "\"b2\"", false));
+  EXPECT_FALSE(EntityTagListMatches("W/\"b2\"", "\"b2\"", false));
+  EXPECT_FALSE(EntityTagListMatches("", "\"b2\"", false));
+  EXPECT_FALSE(EntityTagListMatches(" , ", "\"b2\"", false));
+}
+
+TEST(Security, PublicWebPathsAndIpAddresses) {
+  EXPECT_TRUE(IsPublicWebPath("/"));
+  EXPECT_TRUE(IsPublicWebPath("/app.js"));
+  EXPECT_TRUE(IsPublicWebPath("/vendor/uplot/uPlot.iife.js"));
+  EXPECT_FALSE(IsPublicWebPath("/node_modules/uplot/package.json"));
+  EXPECT_FALSE(IsPublicWebPath("/a/node_modules/b"));
+  EXPECT_FALSE(IsPublicWebPath("/package.json"));
+  EXPECT_FALSE(IsPublicWebPath("/.git/config"));
+  EXPECT_FALSE(IsPublicWebPath("//package-lock.json"));
+  EXPECT_TRUE(IsIpAddress("192.168.1.5"));
+  EXPECT_TRUE(IsIpAddress("fe80::1"));
+  EXPECT_FALSE(IsIpAddress("robot.local"));
+  EXPECT_FALSE(IsIpAddress("192.168.1.5.evil.example"));
+  EXPECT_FALSE(IsIpAddress(""));
+}
+
 TEST(Security, HostNameOfAHostHeader) {
   EXPECT_EQ(HostName("localhost:8080"), "localhost");
   EXPECT_EQ(HostName("127.0.0.1"), "127.0.0.1");
@@ -455,12 +487,12 @@ TEST_F(SlamServiceTest, InMemoryRequestsTakeTheWholeServerPath) {
     return response.rfind("HTTP/1.1 ", 0) == 0 ? std::stoi(response.substr(9, 3)) : -1;
   };
   const std::string health =
-      server.HandleInMemory("GET /api/v1/health HTTP/1.1\r\nHost: x\r\n\r\n");
+      server.HandleInMemory("GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
   EXPECT_EQ(status_of(health), 200) << health;
   EXPECT_NE(health.find("{\"status\":\"ok\"}"), std::string::npos) << health;
   const std::string json_body = R"({"rays_per_scan": 9000})";
   const std::string patch =
-      "PATCH /api/v1/budget HTTP/1.1\r\nHost: x\r\nContent-Type: application/merge-patch+json\r\n"
+      "PATCH /api/v1/budget HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/merge-patch+json\r\n"
       "Content-Length: " +
       std::to_string(json_body.size()) + "\r\n";
   const std::string body = "\r\n" + json_body;
@@ -476,11 +508,11 @@ TEST_F(SlamServiceTest, InMemoryRequestsTakeTheWholeServerPath) {
       status_of(server.HandleInMemory("GET /" + std::string(10000, 'a') + " HTTP/1.1\r\n\r\n")),
       414);
   EXPECT_EQ(status_of(server.HandleInMemory("\x01\x02 garbage\r\n\r\n")), 400);
-  const std::string unknown = server.HandleInMemory("GET /api/v1/nope HTTP/1.1\r\nHost: x\r\n\r\n");
+  const std::string unknown = server.HandleInMemory("GET /api/v1/nope HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
   EXPECT_EQ(status_of(unknown), 404);
   EXPECT_NE(unknown.find("application/problem+json"), std::string::npos) << unknown;
   // The response is cut at the cap.
-  EXPECT_LE(server.HandleInMemory("GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n", 100).size(), 100u);
+  EXPECT_LE(server.HandleInMemory("GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n", 100).size(), 100u);
 }
 
 }  // namespace

@@ -304,6 +304,16 @@ TEST_F(SharedSlamd, BudgetIfMatchStaleIs412AndCurrentApplies) {
   replacement["rays_per_scan"] = rays + 1;
   ExpectProblem(http().PutJson(kBudgetPath, replacement.dump(), {{"If-Match", "\"b0-old\""}}), 412);
   EXPECT_EQ(http().Get(kBudgetPath).body, before.body);
+  // An empty If-Match applied the change; a weak tag matches nothing under If-Match.
+  const std::string patch = json({{"rays_per_scan", rays + 1}}).dump();
+  const RawReply empty = RawExchange(
+      port(), "PATCH " + std::string(kBudgetPath) +
+                  " HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/merge-patch+json\r\n"
+                  "If-Match:\r\nConnection: close\r\nContent-Length: " +
+                  std::to_string(patch.size()) + "\r\n\r\n" + patch);
+  EXPECT_EQ(empty.status, 412) << empty.raw;
+  ExpectProblem(http().MergePatch(kBudgetPath, patch, {{"If-Match", "W/" + etag}}), 412);
+  EXPECT_EQ(http().Get(kBudgetPath).body, before.body);
 
   const Reply current = http().MergePatch(kBudgetPath, json({{"rays_per_scan", rays + 1}}).dump(),
                                           {{"If-Match", etag}});
@@ -488,8 +498,13 @@ TEST_F(SharedSlamd, TilePngIs64x64GreyWithETagAndConditionalGet) {
     }
   }
   EXPECT_TRUE(got_304);
-  // A stale ETag gets the tile.
+  // A stale ETag gets the tile. "*", a weak tag and a list holding the tag are 304 (they were 200).
   EXPECT_EQ(http().Get(path, {{"If-None-Match", "\"0\""}}).status, 200);
+  for (const std::string& matching : {std::string("*"), "W/" + current, "\"0\", " + current}) {
+    const Reply again = http().Get(path, {{"If-None-Match", matching}});
+    if (again.status == 200) current = again.Header("ETag");  // the tile changed meanwhile
+    EXPECT_TRUE(again.status == 304 || (matching != "*" && again.status == 200)) << matching << again;
+  }
   // ?v= is only for cache busting.
   const Reply busted = http().Get(path + "?v=1");
   EXPECT_EQ(busted.status, 200) << busted;
