@@ -413,6 +413,71 @@ TEST_F(OpenSlamd, WithoutATokenOnlyLoopbackNamesAreAnswered) {
   EXPECT_EQ(RawExchange(port(), "GET /api/v1/health HTTP/1.0\r\n\r\n").status, 200);
 }
 
+/// A TCP connection to 127.0.0.1:`port` from the loopback address `from` (127.0.0.2 and on are
+/// all this machine's): -1 on failure.
+int ConnectFrom(const std::string& from, int port) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return -1;
+  sockaddr_in local{};
+  local.sin_family = AF_INET;
+  ::inet_pton(AF_INET, from.c_str(), &local.sin_addr);
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(static_cast<uint16_t>(port));
+  to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  if (::bind(fd, reinterpret_cast<sockaddr*>(&local), sizeof local) != 0 ||
+      ::connect(fd, reinterpret_cast<sockaddr*>(&to), sizeof to) != 0) {
+    ::close(fd);
+    return -1;
+  }
+  return fd;
+}
+
+TEST(Starvation, ANormalClientIsAnsweredPromptlyHoweverManySlowOrIdleConnectionsThereAre) {
+  // One thread per connection, 24 threads: 24 connections trickling their headers delayed a
+  // normal GET by 8 s, 200 by far more, a burst of 240 idle connections by 19.5 s. Connections
+  // now wait at the gate until their request is whole.
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--budget", "8000"}, &error)) << error;
+  std::vector<int> held;
+  // 200 connections from 200 other addresses, each with a request head that never ends.
+  for (int i = 0; i < 200; ++i) {
+    const int fd = ConnectFrom("127.0.0." + std::to_string(2 + i), slamd.port());
+    ASSERT_GE(fd, 0) << i;
+    held.push_back(fd);
+    ASSERT_TRUE(SendAll(fd, "GET /api/v1/status HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: "));
+  }
+  // 300 idle connections from the normal client's own address.
+  for (int i = 0; i < 300; ++i) {
+    const int fd = ConnectTo(slamd.port());
+    ASSERT_GE(fd, 0) << i;
+    held.push_back(fd);
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));  // all of them accepted
+  for (int attempt = 0; attempt < 5; ++attempt) {
+    const RawReply reply = RawExchange(
+        slamd.port(), "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
+    EXPECT_EQ(reply.status, 200) << reply.raw;
+    EXPECT_LT(reply.seconds, 1.0) << attempt;
+    // The slow ones trickle on: a byte each.
+    for (int k = 0; k < 200; ++k) SendAll(held[static_cast<size_t>(k)], "x");
+  }
+  // A keep-alive client keeps being answered promptly too.
+  Http http(slamd.host(), slamd.port());
+  for (int i = 0; i < 20; ++i) {
+    const auto start = Clock::now();
+    EXPECT_EQ(http.Get("/api/v1/health").status, 200);
+    EXPECT_LT(SecondsSince(start), 1.0) << i;
+  }
+  // 300 idle connections of one address: beyond 64 waiting, the longest waiting were closed.
+  const std::optional<double> evicted =
+      PollMetric(http, "slamd_http_connections_evicted_total", 5.0, [](double v) { return v >= 236; });
+  EXPECT_GE(evicted.value_or(0.0), 236.0);
+  for (const int fd : held) ::close(fd);
+  EXPECT_EQ(slamd.Stop(), std::optional<int>(0));
+}
+
 TEST(AllowedHosts, AReverseProxysNameIsAnsweredWhenAllowed) {
   SlamdProcess slamd;
   std::string error;
