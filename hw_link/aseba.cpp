@@ -64,6 +64,10 @@ std::optional<AsebaMessage> AsebaReassembler::Push(const CanFrame& frame, double
     ++counters_.remote;
     return std::nullopt;
   }
+  if ((frame.id & 0x400U) != 0) {  // Aseba ids are 10 bits: another protocol on the bus
+    ++counters_.foreign;
+    return std::nullopt;
+  }
   const auto type = static_cast<FragmentType>((frame.id >> 8) & 0x3);
   const auto source = static_cast<uint8_t>(frame.id & 0xFF);
   Partial& partial = partial_[source];

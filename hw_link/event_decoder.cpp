@@ -2,6 +2,8 @@
 
 #include <array>
 
+#include "engine/sensor_model.hpp"
+
 namespace slam::hw {
 namespace {
 
@@ -69,7 +71,10 @@ std::optional<RobotEvent> EventDecoder::Decode(const AsebaMessage& message) {
     r.t = message.t;
     r.seq = WordAt(p, 0);
     r.angle_raw = WordAt(p, 1);
-    for (size_t s = 0; s < kScannerSensors; ++s) r.raw[s] = WordAt(p, 2 + s);
+    for (size_t s = 0; s < kScannerSensors; ++s) {
+      r.raw[s] = WordAt(p, 2 + s);
+      if (r.raw[s] >= kRawValues) ++counters_.raw_out_of_range;
+    }
     r.rectifier_mv = WordAt(p, 6);
     ++counters_.scanner;
     return RobotEvent(r);

@@ -21,6 +21,9 @@ struct DecoderCounters {
   uint64_t unknown_node = 0;  // from a node that is neither the base nor the scanner
   uint64_t unknown_type = 0;  // from a known node, of a type robot.json does not name
   uint64_t bad_size = 0;      // a known event with the wrong number of bytes
+  /// Scanner readings above the 10-bit ADC's 1023 (the sample is kept; those sensors' values
+  /// are unusable and the engine skips them): a corrupt event, or a scanner of another kind.
+  uint64_t raw_out_of_range = 0;
 
   uint64_t Rejected() const { return unknown_node + unknown_type + bad_size; }
 };

@@ -24,6 +24,7 @@ nlohmann::json LinkStatusToJson(const LinkStatus& s) {
             {"extended", r.extended},
             {"remote", r.remote},
             {"fd", r.fd},
+            {"foreign", r.foreign},
             {"bad_length", r.bad_length},
             {"middle_without_start", r.middle_without_start},
             {"stop_without_start", r.stop_without_start},
@@ -35,7 +36,8 @@ nlohmann::json LinkStatusToJson(const LinkStatus& s) {
             {"scanner", d.scanner},
             {"unknown_node", d.unknown_node},
             {"unknown_type", d.unknown_type},
-            {"bad_size", d.bad_size}}},
+            {"bad_size", d.bad_size},
+            {"raw_out_of_range", d.raw_out_of_range}}},
           {"source_counters", source}};
 }
 

@@ -125,6 +125,22 @@ TEST_F(AsebaAnomalyTest, MiddleWithoutStart) {
   ExpectNextMessageIntact();
 }
 
+TEST_F(AsebaAnomalyTest, IdsWithBit10SetAreForeignNotAsebaFragments) {
+  // Aseba's ids use bits 0..9 (fragment type, source). 0x6xx was read as a fragment of
+  // source xx: another protocol's frames on the bus became starts and stops.
+  CanFrame frame = long_[0];
+  frame.id |= 0x400;
+  r_.Push(frame, 0.0);
+  for (CanFrame f : FragmentAseba(2, 0x20, std::vector<uint8_t>(4, 1))) {
+    f.id |= 0x400;
+    EXPECT_FALSE(r_.Push(f, 0.0));
+  }
+  EXPECT_EQ(r_.counters().foreign, 2u);
+  EXPECT_EQ(r_.counters().messages, 0u);
+  EXPECT_EQ(r_.counters().Rejected(), 2u);
+  ExpectNextMessageIntact();
+}
+
 TEST_F(AsebaAnomalyTest, StopWithoutStart) {
   r_.Push(long_[2], 0.0);
   EXPECT_EQ(r_.counters().stop_without_start, 1u);

@@ -67,6 +67,19 @@ TEST(EventDecoderTest, CountsWhatItCannotDecode) {
   EXPECT_EQ(decoder.counters().odometry + decoder.counters().scanner, 0u);
 }
 
+TEST(EventDecoderTest, RawReadingsBeyondTheAdcAreCounted) {
+  // A 10-bit ADC reads at most 1023: larger values were dropped by the sensor model uncounted.
+  const RobotDescription robot = testing::ShippedRobot();
+  EventDecoder decoder(robot);
+  ScannerReading r;
+  r.raw = {1023, 1024, 65535, 5};
+  const auto event = decoder.Decode(EncodeScanner(robot, r));
+  ASSERT_TRUE(event);  // the sample is kept: its other sensors are good
+  EXPECT_EQ(std::get<ScannerReading>(*event).raw, r.raw);
+  EXPECT_EQ(decoder.counters().raw_out_of_range, 2u);
+  EXPECT_EQ(decoder.counters().scanner, 1u);
+}
+
 TEST(EventDecoderTest, FollowsTheRobotDescription) {
   RobotDescription robot = testing::ShippedRobot();
   robot.base.node = 5;
