@@ -6,7 +6,10 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <set>
+#include <string_view>
 #include <system_error>
+#include <utility>
 
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/map_image.hpp"
@@ -19,15 +22,6 @@ namespace fs = std::filesystem;
 
 constexpr char kMagic[8] = {'S', 'L', 'M', 'T', 'I', 'L', 'E', '1'};
 constexpr int kFormat = 1;
-
-uint64_t Fnv1a(const char* data, size_t size) {
-  uint64_t h = 1469598103934665603ULL;
-  for (size_t i = 0; i < size; ++i) {
-    h ^= static_cast<uint8_t>(data[i]);
-    h *= 1099511628211ULL;
-  }
-  return h;
-}
 
 // Little-endian fixed-width fields (the robot and the workstation may differ in nothing else).
 template <typename T>
@@ -67,6 +61,15 @@ std::optional<std::string> ReadFile(const fs::path& path, std::string& out) {
 
 }  // namespace
 
+uint64_t TileFileChecksum(std::string_view bytes) {
+  uint64_t h = 1469598103934665603ULL;  // FNV-1a, 64 bits
+  for (const char c : bytes) {
+    h ^= static_cast<uint8_t>(c);
+    h *= 1099511628211ULL;
+  }
+  return h;
+}
+
 std::string EncodeTiles(const SavedState& state) {
   std::string out(kMagic, sizeof(kMagic));
   Put<uint32_t>(out, static_cast<uint32_t>(kTileSize));
@@ -79,7 +82,7 @@ std::string EncodeTiles(const SavedState& state) {
     Put<uint64_t>(out, tile.version);
     out.append(reinterpret_cast<const char*>(tile.cells.data()), tile.cells.size() * sizeof(LogOdds));
   }
-  Put<uint64_t>(out, Fnv1a(out.data(), out.size()));
+  Put<uint64_t>(out, TileFileChecksum(out));
   return out;
 }
 
@@ -92,7 +95,7 @@ bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error
   const size_t body = bytes.size() - sizeof(uint64_t);
   uint64_t stored = 0;
   std::memcpy(&stored, bytes.data() + body, sizeof(stored));
-  if (stored != Fnv1a(bytes.data(), body)) {
+  if (stored != TileFileChecksum(std::string_view(bytes).substr(0, body))) {
     error = "checksum mismatch (truncated or damaged)";
     return false;
   }
@@ -128,6 +131,7 @@ bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error
   }
   state.tiles.clear();
   state.tiles.reserve(count);
+  std::set<std::pair<int32_t, int32_t>> seen;
   for (uint64_t i = 0; i < count; ++i) {
     SavedTile tile;
     tile.cells.resize(kTileCells);
@@ -140,7 +144,20 @@ bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error
               std::to_string(kMapTileBound) + " to " + std::to_string(kMapTileBound - 1) + ")";
       return false;
     }
-    for (LogOdds& cell : tile.cells) in.Get(cell);
+    if (!seen.insert({tile.index.x, tile.index.y}).second) {
+      error = "tile " + std::to_string(i) + " at (" + std::to_string(tile.index.x) + ", " +
+              std::to_string(tile.index.y) + ") appears twice";
+      return false;
+    }
+    for (LogOdds& cell : tile.cells) {
+      in.Get(cell);
+      // Saves hold clamped cells only; anything beyond the encoding's limit was not written here.
+      if (cell < -kLogOddsLimit || cell > kLogOddsLimit) {
+        error = "tile " + std::to_string(i) + " has a cell of " + std::to_string(cell) +
+                ", beyond the log-odds limit of " + std::to_string(kLogOddsLimit);
+        return false;
+      }
+    }
     state.tiles.push_back(std::move(tile));
   }
   return true;

@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "engine/occupancy_grid.hpp"
@@ -34,9 +35,12 @@ struct SavedState {
   std::vector<TimedPose> trajectory;  // scan ends, time-ordered; the last is the robot's pose
 };
 
-/// The tile file's contents (magic, resolution, tiles, FNV-1a checksum).
+/// The checksum that ends a tile file: 64-bit FNV-1a of everything before it.
+uint64_t TileFileChecksum(std::string_view bytes);
+/// The tile file's contents (magic, resolution, tiles, checksum).
 std::string EncodeTiles(const SavedState& state);
-/// Parses EncodeTiles' output; false with `error` set when damaged.
+/// Parses EncodeTiles' output; false with `error` set when damaged or implausible (a tile outside
+/// the map's bound or twice, a cell beyond kLogOddsLimit, a version of 2^62 or more).
 bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error);
 
 struct SaveInputs {

@@ -177,6 +177,25 @@ TEST(StateStore, TilesBeyondTheMapsBoundAndWrappingVersionsAreRefused) {
   EXPECT_NE(loaded.error.find("map-10.tiles: map version"), std::string::npos) << loaded.error;
 }
 
+TEST(StateStore, DuplicateTilesAndCellsBeyondTheLimitAreRefused) {
+  // Neither is something SaveState writes: a file holding them was made or damaged elsewhere.
+  SavedState twice = SampleState(42, 5);
+  twice.tiles[2].index = twice.tiles[0].index;
+  SavedState back;
+  std::string error;
+  EXPECT_FALSE(DecodeTiles(EncodeTiles(twice), back, error));
+  EXPECT_NE(error.find("tile 2 at (" + std::to_string(twice.tiles[0].index.x)), std::string::npos)
+      << error;
+  EXPECT_NE(error.find("appears twice"), std::string::npos) << error;
+
+  SavedState hot = SampleState(42, 6);
+  hot.tiles[1].cells[7] = static_cast<LogOdds>(kLogOddsLimit + 1);
+  EXPECT_FALSE(DecodeTiles(EncodeTiles(hot), back, error));
+  EXPECT_NE(error.find("tile 1 has a cell of 16001"), std::string::npos) << error;
+  hot.tiles[1].cells[7] = static_cast<LogOdds>(-kLogOddsLimit);  // the limit itself is fine
+  EXPECT_TRUE(DecodeTiles(EncodeTiles(hot), back, error)) << error;
+}
+
 TEST(StateStore, DamagedStateIsAnErrorNamingTheFile) {
   TempDir dir("state_damaged");
   Save(dir.path().string(), SampleState(10, 8));
