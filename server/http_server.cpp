@@ -1420,14 +1420,19 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
   in.grid = &grid;
   in.version_base = snapshot->version_base;
   in.trajectory = ScanEndTrajectory(*snapshot);
-  if (auto error = SaveState(options.state_dir, in)) {
-    SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + *error);
+  const SaveOutcome saved = SaveState(options.state_dir, in);
+  if (saved.error) {
+    SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + *saved.error);
     return;
   }
   saves_made.fetch_add(1);
   last_save.answer = {{"path", std::filesystem::absolute(options.state_dir).string()},
                       {"version", snapshot->map_version},
-                      {"tiles", snapshot->tiles.size()}};
+                      {"tiles", snapshot->tiles.size()},
+                      {"warnings", saved.warnings}};
+  for (const std::string& warning : saved.warnings) {
+    std::fprintf(stderr, "slamd: map saved, but a copy was not written: %s\n", warning.c_str());
+  }
   last_save.valid = true;
   SendJson(res, last_save.answer);
 }

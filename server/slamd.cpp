@@ -170,7 +170,12 @@ int main(int argc, char** argv) {
   service_options.budget = budget;
   service_options.config.seed = seed;
   service_options.resume_at_origin = source.rfind("sim:", 0) == 0;
+  // Held until slamd exits: a second slamd on the same directory would race its saves.
+  std::optional<slam::server::StateDirLock> state_lock;
   if (!state_dir.empty()) {
+    auto locked = slam::server::StateDirLock::Acquire(state_dir);
+    if (!locked.ok()) return Fail(locked.Message(), 1);
+    state_lock.emplace(std::move(locked).value());
     auto loaded = slam::server::LoadState(state_dir);
     if (!loaded.error.empty()) {
       return Fail("cannot resume the saved state: " + loaded.error +

@@ -1,5 +1,10 @@
 #include "server/state_store.hpp"
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -163,10 +168,50 @@ bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error
   return true;
 }
 
-std::optional<std::string> SaveState(const std::string& dir, const SaveInputs& in) {
+namespace {
+
+bool IsVersionedName(const std::string& name) {
+  return (name.rfind("map-", 0) == 0 && name.ends_with(".tiles")) ||
+         (name.rfind("trajectory-", 0) == 0 && name.ends_with(".tum"));
+}
+
+/// The versioned files the committed state.json in `base` names (none when there is none).
+std::set<std::string> CommittedNames(const fs::path& base) {
+  std::set<std::string> names;
+  std::string text;
+  if (ReadFile(base / "state.json", text)) return names;
+  const nlohmann::json meta = nlohmann::json::parse(text, nullptr, false);
+  if (!meta.is_object()) return names;
+  for (const char* key : {"tiles_file", "trajectory_file"}) {
+    const auto it = meta.find(key);
+    if (it != meta.end() && it->is_string()) names.insert(it->get<std::string>());
+  }
+  return names;
+}
+
+/// Removes the versioned files not in `keep`, and temporaries (what a save killed in the middle,
+/// or one that failed, left behind; saves are one at a time: none is in flight).
+void RemoveUnnamed(const fs::path& base, const std::set<std::string>& keep) {
+  std::error_code ec;
+  std::vector<fs::path> doomed;
+  for (const auto& entry : fs::directory_iterator(base, ec)) {
+    const std::string name = entry.path().filename().string();
+    const bool temporary = name.find(".tmp-") != std::string::npos;
+    if ((IsVersionedName(name) && !keep.contains(name)) || temporary) doomed.push_back(entry.path());
+  }
+  for (const fs::path& path : doomed) fs::remove(path, ec);
+}
+
+}  // namespace
+
+SaveOutcome SaveState(const std::string& dir, const SaveInputs& in) {
+  SaveOutcome outcome;
   std::error_code ec;
   fs::create_directories(dir, ec);
-  if (ec) return dir + ": cannot create: " + ec.message();
+  if (ec) {
+    outcome.error = dir + ": cannot create: " + ec.message();
+    return outcome;
+  }
 
   SavedState state;
   state.version = in.version;
@@ -183,8 +228,19 @@ std::optional<std::string> SaveState(const std::string& dir, const SaveInputs& i
   const std::string trajectory_name = "trajectory-" + v + ".tum";
   const fs::path base(dir);
   const std::string tum = io::FormatTum(in.trajectory);
-  if (auto e = io::WriteFileAtomic((base / tiles_name).string(), EncodeTiles(state))) return e;
-  if (auto e = io::WriteFileAtomic((base / trajectory_name).string(), tum)) return e;
+
+  // Space first: what no state.json names (left by a failed or killed save) goes before the new
+  // files are written, and whatever this save wrote goes again if it cannot commit. A full disk
+  // thus fails this save only, never the next one once space is back.
+  const std::set<std::string> committed = CommittedNames(base);
+  RemoveUnnamed(base, committed);
+  const auto fail = [&](std::string error) {
+    RemoveUnnamed(base, committed);
+    outcome.error = std::move(error);
+    return outcome;
+  };
+  if (auto e = io::WriteFileAtomic((base / tiles_name).string(), EncodeTiles(state))) return fail(*e);
+  if (auto e = io::WriteFileAtomic((base / trajectory_name).string(), tum)) return fail(*e);
 
   nlohmann::json meta;
   meta["format"] = kFormat;
@@ -197,32 +253,72 @@ std::optional<std::string> SaveState(const std::string& dir, const SaveInputs& i
     const TimedPose& last = in.trajectory.back();
     meta["pose"] = {{"t", last.t}, {"x", last.pose.x}, {"y", last.pose.y}, {"theta", last.pose.theta}};
   }
-  if (auto e = io::WriteFileAtomic((base / "state.json").string(), meta.dump(2) + "\n")) return e;
+  if (auto e = io::WriteFileAtomic((base / "state.json").string(), meta.dump(2) + "\n")) {
+    return fail(*e);
+  }
+  // Committed: the superseded versioned files go before the copies are written.
+  RemoveUnnamed(base, {tiles_name, trajectory_name});
 
-  // Copies for people and map_server; the state is already committed.
+  // Copies for people and map_server. The state is committed whatever happens to them: a copy
+  // that cannot be written is a warning, and the previous copy stays as it was.
+  const auto warn = [&](std::optional<std::string> e) {
+    if (e) outcome.warnings.push_back(std::move(*e));
+  };
   const io::GridImage image = io::MakeGridImage(*in.grid);
-  if (auto e = io::WritePgm((base / "map.pgm").string(), image)) return e;
-  if (auto e = io::WriteMapYaml((base / "map.yaml").string(), "map.pgm", image)) return e;
+  warn(io::WritePgm((base / "map.pgm").string(), image));
+  warn(io::WriteMapYaml((base / "map.yaml").string(), "map.pgm", image));
   const io::PngBytes png = io::EncodeGrayPng(image.width, image.height, image.gray);
-  if (!png.ok()) return png.error;
-  if (auto e = io::WriteFileAtomic((base / "map.png").string(),
-                                   std::string(png.bytes.begin(), png.bytes.end()))) {
-    return e;
+  if (!png.ok()) {
+    warn((base / "map.png").string() + ": " + png.error);
+  } else {
+    warn(io::WriteFileAtomic((base / "map.png").string(),
+                             std::string(png.bytes.begin(), png.bytes.end())));
   }
-  if (auto e = io::WriteFileAtomic((base / "trajectory.tum").string(), tum)) return e;
+  warn(io::WriteFileAtomic((base / "trajectory.tum").string(), tum));
+  RemoveUnnamed(base, {tiles_name, trajectory_name});  // temporaries of failed copies
+  return outcome;
+}
 
-  // Older versioned files are no longer named by state.json; temporaries (".tmp-PID-N") are
-  // what a save killed in the middle left behind (saves are one at a time: none is in flight).
-  for (const auto& entry : fs::directory_iterator(base, ec)) {
-    const std::string name = entry.path().filename().string();
-    const bool versioned = (name.rfind("map-", 0) == 0 && name.ends_with(".tiles")) ||
-                           (name.rfind("trajectory-", 0) == 0 && name.ends_with(".tum"));
-    const bool temporary = name.find(".tmp-") != std::string::npos;
-    if ((versioned && name != tiles_name && name != trajectory_name) || temporary) {
-      fs::remove(entry.path(), ec);
-    }
+io::Result<StateDirLock> StateDirLock::Acquire(const std::string& dir) {
+  const auto failed = [&](const std::string& detail) {
+    return io::Result<StateDirLock>(ConfigErrors{{"", "--state-dir " + dir + ": " + detail}});
+  };
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return failed("cannot create: " + ec.message());
+  const std::string path = (fs::path(dir) / "slamd.lock").string();
+  const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0) return failed("cannot open " + path + ": " + std::strerror(errno));
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    const int why = errno;
+    char holder[32] = {};
+    const ssize_t n = ::pread(fd, holder, sizeof(holder) - 1, 0);
+    ::close(fd);
+    if (why != EWOULDBLOCK) return failed("cannot lock " + path + ": " + std::strerror(why));
+    std::string pid = n > 0 ? std::string(holder, static_cast<size_t>(n)) : "";
+    while (!pid.empty() && (pid.back() == '\n' || pid.back() == ' ')) pid.pop_back();
+    return failed("in use by another slamd" + (pid.empty() ? "" : " (pid " + pid + ")") +
+                  "; each slamd needs its own state directory");
   }
-  return std::nullopt;
+  // The holder's pid, for the message above (informational: the lock is what counts).
+  const std::string pid = std::to_string(::getpid()) + "\n";
+  const bool noted = ::ftruncate(fd, 0) == 0 && ::pwrite(fd, pid.data(), pid.size(), 0) > 0;
+  (void)noted;  // a lock file without the pid only makes the message above shorter
+  return StateDirLock(fd);
+}
+
+StateDirLock::StateDirLock(StateDirLock&& other) noexcept : fd_(std::exchange(other.fd_, -1)) {}
+
+StateDirLock& StateDirLock::operator=(StateDirLock&& other) noexcept {
+  if (this != &other) {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = std::exchange(other.fd_, -1);
+  }
+  return *this;
+}
+
+StateDirLock::~StateDirLock() {
+  if (fd_ >= 0) ::close(fd_);
 }
 
 LoadOutcome LoadState(const std::string& dir) {

@@ -6,6 +6,7 @@
 //   map-V.tiles             every tile's log odds (binary, checksummed)
 //   trajectory-V.tum        the trajectory (one pose per scan end)
 //   map.pgm, map.yaml, map.png, trajectory.tum   copies for people and map_server
+//   slamd.lock              held by the slamd using the directory (its pid inside)
 //
 // Saving writes the versioned files first, then state.json (each a temporary file renamed over
 // the old one), then removes the files state.json no longer names. state.json is the commit
@@ -17,6 +18,7 @@
 #include <string_view>
 #include <vector>
 
+#include "engine/io/result.hpp"
 #include "engine/occupancy_grid.hpp"
 #include "engine/pose.hpp"
 
@@ -51,13 +53,37 @@ struct SaveInputs {
   std::vector<TimedPose> trajectory;
 };
 
-/// Saves into `dir` (created if missing) as described above; nullopt on success, else why (the
-/// previous state is then untouched).
-[[nodiscard]] std::optional<std::string> SaveState(const std::string& dir, const SaveInputs& in);
+struct SaveOutcome {
+  std::optional<std::string> error;   // set: nothing new was committed (the previous state stands)
+  std::vector<std::string> warnings;  // committed, but these copies for people were not written
+};
+
+/// Saves into `dir` (created if missing) as described above. Files no state.json names (left by
+/// a failed or killed save) are removed first, and again if this save fails to commit.
+[[nodiscard]] SaveOutcome SaveState(const std::string& dir, const SaveInputs& in);
 
 struct LoadOutcome {
   std::optional<SavedState> state;  // nullopt: nothing saved there yet (or an error)
   std::string error;                // non-empty: something is saved but damaged
+};
+
+/// One slamd per state directory: holds an exclusive lock on `DIR/slamd.lock` (flock, which the
+/// kernel releases when the process ends, however it ends) for the object's life.
+class StateDirLock {
+ public:
+  /// Creates `dir` if missing and takes its lock; the error names the directory and, when it can,
+  /// the process holding the lock.
+  static io::Result<StateDirLock> Acquire(const std::string& dir);
+
+  StateDirLock(StateDirLock&& other) noexcept;
+  StateDirLock& operator=(StateDirLock&& other) noexcept;
+  StateDirLock(const StateDirLock&) = delete;
+  StateDirLock& operator=(const StateDirLock&) = delete;
+  ~StateDirLock();
+
+ private:
+  explicit StateDirLock(int fd) : fd_(fd) {}
+  int fd_ = -1;
 };
 
 /// Loads the state saved in `dir`.

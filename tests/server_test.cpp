@@ -4,10 +4,15 @@
 
 #include <gtest/gtest.h>
 
+#include <sys/resource.h>
+#include <unistd.h>
+
 #include <chrono>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <set>
 #include <thread>
 
 #include "engine/io/atomic_file.hpp"
@@ -61,8 +66,9 @@ void Save(const std::string& dir, const SavedState& s) {
   in.grid = &grid;
   in.version_base = 100;
   in.trajectory = s.trajectory;
-  const auto error = SaveState(dir, in);
-  ASSERT_FALSE(error) << *error;
+  const SaveOutcome saved = SaveState(dir, in);
+  ASSERT_FALSE(saved.error) << *saved.error;
+  EXPECT_TRUE(saved.warnings.empty());
 }
 
 TEST(StateStore, TilesRoundTripExactly) {
@@ -194,6 +200,126 @@ TEST(StateStore, DuplicateTilesAndCellsBeyondTheLimitAreRefused) {
   EXPECT_NE(error.find("tile 1 has a cell of 16001"), std::string::npos) << error;
   hot.tiles[1].cells[7] = static_cast<LogOdds>(-kLogOddsLimit);  // the limit itself is fine
   EXPECT_TRUE(DecodeTiles(EncodeTiles(hot), back, error)) << error;
+}
+
+/// Files larger than `bytes` cannot be written while this lives (RLIMIT_FSIZE: write fails with
+/// EFBIG, as on a full disk), as long as the files stay under it.
+class FileSizeLimit {
+ public:
+  explicit FileSizeLimit(rlim_t bytes) {
+    ::getrlimit(RLIMIT_FSIZE, &saved_);
+    previous_handler_ = std::signal(SIGXFSZ, SIG_IGN);
+    rlimit limit = saved_;
+    limit.rlim_cur = bytes;
+    EXPECT_EQ(::setrlimit(RLIMIT_FSIZE, &limit), 0);
+  }
+  ~FileSizeLimit() {
+    ::setrlimit(RLIMIT_FSIZE, &saved_);
+    std::signal(SIGXFSZ, previous_handler_);
+  }
+  FileSizeLimit(const FileSizeLimit&) = delete;
+  FileSizeLimit& operator=(const FileSizeLimit&) = delete;
+
+ private:
+  rlimit saved_{};
+  void (*previous_handler_)(int) = SIG_DFL;
+};
+
+std::set<std::string> FilesIn(const std::filesystem::path& dir) {
+  std::set<std::string> names;
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    names.insert(entry.path().filename().string());
+  }
+  return names;
+}
+
+SaveInputs InputsOf(const SavedState& s, const OccupancyGrid& grid) {
+  SaveInputs in;
+  in.version = s.version;
+  in.resolution_m = s.resolution_m;
+  in.grid = &grid;
+  in.trajectory = s.trajectory;
+  return in;
+}
+
+TEST(StateStore, ASaveThatCannotCommitLeavesNothingBehindAndTheNextOneWorks) {
+  // A full disk while the trajectory is written, after the tile file: the previous state stands,
+  // and neither the new tile file nor what earlier failed or killed saves left stays behind
+  // (they did, and with them less space for the next save).
+  TempDir dir("state_full_before");
+  Save(dir.path().string(), SampleState(10, 1));
+  const std::set<std::string> before = FilesIn(dir.path());
+  std::ofstream(dir.File("map-15.tiles")) << "left by a failed save";
+  std::ofstream(dir.File("trajectory-15.tum")) << "left by a failed save";
+  std::ofstream(dir.File("map-15.tiles.tmp-1-2")) << "left by a killed save";
+  SavedState s = SampleState(20, 2);  // a 24 kB tile file
+  s.trajectory.clear();
+  for (int i = 0; i < 3000; ++i) s.trajectory.push_back({0.1 * i, {0.001 * i, 0.5, 0.25}});
+  const OccupancyGrid grid = GridOf(s);
+  {
+    const FileSizeLimit limit(64 * 1024);  // the trajectory is about 180 kB
+    const SaveOutcome saved = SaveState(dir.path().string(), InputsOf(s, grid));
+    ASSERT_TRUE(saved.error);
+    EXPECT_NE(saved.error->find("trajectory-20.tum"), std::string::npos) << *saved.error;
+  }
+  EXPECT_EQ(FilesIn(dir.path()), before);
+  EXPECT_EQ(LoadState(dir.path().string()).state->version, 10u);
+
+  const SaveOutcome again = SaveState(dir.path().string(), InputsOf(s, grid));
+  ASSERT_FALSE(again.error) << *again.error;
+  EXPECT_TRUE(again.warnings.empty());
+  EXPECT_EQ(LoadState(dir.path().string()).state->version, 20u);
+  EXPECT_EQ(FilesIn(dir.path()),
+            (std::set<std::string>{"map-20.tiles", "trajectory-20.tum", "state.json", "map.pgm",
+                                   "map.yaml", "map.png", "trajectory.tum"}));
+}
+
+TEST(StateStore, ASaveCommittedWhoseCopiesCannotBeWrittenSucceedsWithWarnings) {
+  // The copies for people failing after state.json was committed used to answer 500 and keep
+  // the superseded files, so a full disk failed the next save too.
+  TempDir dir("state_full_after");
+  Save(dir.path().string(), SampleState(10, 1));
+  // Two tiles far apart: a 16 kB tile file, a map picture of 31 x 31 tiles (3.9 MB as PGM).
+  SavedState sparse = SampleState(20, 3);
+  sparse.tiles.resize(2);
+  sparse.tiles[0].index = {-15, -15};
+  sparse.tiles[1].index = {15, 15};
+  const OccupancyGrid grid = GridOf(sparse);
+  SaveOutcome saved;
+  {
+    const FileSizeLimit limit(256 * 1024);
+    saved = SaveState(dir.path().string(), InputsOf(sparse, grid));
+  }
+  ASSERT_FALSE(saved.error) << *saved.error;
+  ASSERT_FALSE(saved.warnings.empty());
+  EXPECT_NE(saved.warnings[0].find("map.pgm"), std::string::npos) << saved.warnings[0];
+  const LoadOutcome loaded = LoadState(dir.path().string());
+  ASSERT_TRUE(loaded.state);
+  EXPECT_EQ(loaded.state->version, 20u);
+  const std::set<std::string> files = FilesIn(dir.path());
+  EXPECT_FALSE(files.contains("map-10.tiles"));
+  EXPECT_FALSE(files.contains("trajectory-10.tum"));
+  for (const std::string& name : files) {
+    EXPECT_EQ(name.find(".tmp-"), std::string::npos) << "left behind: " << name;
+  }
+}
+
+TEST(StateStore, OneProcessHoldsAStateDirectory) {
+  TempDir dir("state_lock");
+  const std::string nested = (dir.path() / "not" / "yet").string();
+  auto first = StateDirLock::Acquire(nested);
+  ASSERT_TRUE(first.ok()) << first.Message();
+  // flock conflicts between two opens even in one process, as between two slamd.
+  const auto second = StateDirLock::Acquire(nested);
+  ASSERT_FALSE(second.ok());
+  EXPECT_NE(second.Message().find("--state-dir " + nested + ": in use by another slamd (pid " +
+                                  std::to_string(::getpid()) + ")"),
+            std::string::npos)
+      << second.Message();
+  {
+    const StateDirLock released = std::move(first).value();
+  }
+  EXPECT_TRUE(StateDirLock::Acquire(nested).ok());
 }
 
 TEST(StateStore, DamagedStateIsAnErrorNamingTheFile) {
@@ -461,7 +587,7 @@ TEST_F(SlamServiceTest, ResumesASavedMap) {
     in.grid = &grid;
     in.version_base = saved->version_base;
     in.trajectory = ScanEndTrajectory(*saved);
-    ASSERT_FALSE(SaveState(state.path().string(), in));
+    ASSERT_FALSE(SaveState(state.path().string(), in).error);
   }
   LoadOutcome loaded = LoadState(state.path().string());
   ASSERT_TRUE(loaded.state) << loaded.error;
