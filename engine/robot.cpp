@@ -12,6 +12,19 @@ constexpr double kMaxRobotSpeedMS = 20.0;  // far beyond any robot this SLAM is 
 constexpr int kMaxEvent = 0x7FFF;  // Aseba user message types
 constexpr int kMaxRaw = 1023;      // 10-bit ADC
 
+// Plausible bounds: generous for any small robot and range sensor (laser scanners included),
+// and tight enough that no description can make the engine's tables or the simulator allocate
+// without bound (a calibration distance of 1e6 m once did).
+constexpr double kMaxRangeM = 100.0;          // ranges, use windows, calibration distances
+constexpr double kMaxSigmaM = 10.0;           // a reading's standard deviation anywhere in use
+constexpr double kMaxTrackWidthM = 10.0;
+constexpr double kMinTicksPerM = 1.0;
+constexpr double kMaxTicksPerM = 1e9;
+constexpr double kMaxGyroUnitDps = 100.0;
+constexpr double kMaxSampleRateHz = 10000.0;
+constexpr double kMaxMountRadiusM = 5.0;
+constexpr double kMaxAngleDeg = 360.0;
+
 // A double for messages (6 significant digits are enough to point at the culprit).
 std::string Num(double value) {
   std::ostringstream out;
@@ -56,6 +69,19 @@ class Checker {
   void Finite(const std::string& pointer, double value) {
     if (!std::isfinite(value)) Fail(pointer, "must be a finite number");
   }
+  /// A value already checked for sign: at most `hi`.
+  void AtMost(const std::string& pointer, double value, double hi, const char* unit) {
+    if (std::isfinite(value) && value > hi) {
+      Fail(pointer, Num(value) + unit + " is beyond any plausible value (at most " + Num(hi) +
+                        unit + ")");
+    }
+  }
+  void Within(const std::string& pointer, double value, double lo, double hi, const char* unit) {
+    if (std::isfinite(value) && (value < lo || value > hi)) {
+      Fail(pointer, Num(value) + unit + " is outside the plausible [" + Num(lo) + ", " + Num(hi) +
+                        "]" + unit);
+    }
+  }
 
  private:
   ConfigErrors& errors_;
@@ -76,6 +102,7 @@ void CheckCalibration(Checker& check, const std::string& pointer,
     if (!std::isfinite(point.distance_m) || !(point.distance_m > 0.0)) {
       check.Fail(at, "distance " + Num(point.distance_m) + " m must be > 0");
     }
+    check.AtMost(at + "/1", point.distance_m, kMaxRangeM, " m");
     if (i == 0) continue;
     const CalibrationPoint& previous = calibration[i - 1];
     if (!(point.raw < previous.raw)) {
@@ -103,6 +130,8 @@ void CheckSensorType(Checker& check, const std::string& pointer,
     check.Fail(pointer + "/use_m", "[" + Num(type.use_min_m) + ", " + Num(type.use_max_m) +
                                        "] must satisfy 0 <= min < max");
   }
+  check.AtMost(pointer + "/range_m/1", type.range_max_m, kMaxRangeM, " m");
+  check.AtMost(pointer + "/use_m/1", type.use_max_m, kMaxRangeM, " m");
   CheckCalibration(check, pointer + "/calibration", type.calibration);
 
   bool coefficients_ok = true;
@@ -120,6 +149,14 @@ void CheckSensorType(Checker& check, const std::string& pointer,
       check.Fail(pointer + "/sigma_m",
                  "sigma(" + Num(d) + " m) = " + Num(sigma) + " must be > 0 over the use window");
     }
+    // ... and its maximum at use_max.
+    const double far = type.use_max_m;
+    const double widest = type.sigma_m[0] + type.sigma_m[1] * far + type.sigma_m[2] * far * far;
+    if (!(widest <= kMaxSigmaM)) {
+      check.Fail(pointer + "/sigma_m", "sigma(" + Num(far) + " m) = " + Num(widest) +
+                                           " m is beyond any plausible noise (at most " +
+                                           Num(kMaxSigmaM) + " m over the use window)");
+    }
   }
 }
 
@@ -136,6 +173,9 @@ ConfigErrors Validate(const RobotDescription& robot) {
   check.Positive("/base/ticks_per_m", base.ticks_per_m);
   check.Positive("/base/gyro_unit_dps", base.gyro_unit_dps);
   check.Positive("/base/max_speed_m_s", base.max_speed_m_s);
+  check.AtMost("/base/track_width_m", base.track_width_m, kMaxTrackWidthM, " m");
+  check.Within("/base/ticks_per_m", base.ticks_per_m, kMinTicksPerM, kMaxTicksPerM, "");
+  check.AtMost("/base/gyro_unit_dps", base.gyro_unit_dps, kMaxGyroUnitDps, " deg/s");
   if (base.max_speed_m_s > kMaxRobotSpeedMS) {
     check.Fail("/base/max_speed_m_s", Num(base.max_speed_m_s) +
                                           " m/s is not a small robot's speed (at most " +
@@ -150,6 +190,8 @@ ConfigErrors Validate(const RobotDescription& robot) {
   }
   check.Positive("/scanner/sample_rate_hz", scanner.sample_rate_hz);
   check.NonNegative("/scanner/mount_radius_m", scanner.mount_radius_m);
+  check.AtMost("/scanner/sample_rate_hz", scanner.sample_rate_hz, kMaxSampleRateHz, " Hz");
+  check.AtMost("/scanner/mount_radius_m", scanner.mount_radius_m, kMaxMountRadiusM, " m");
   if (scanner.sensors.size() != static_cast<std::size_t>(kScannerSensors)) {
     check.Fail("/scanner/sensors", "needs exactly " + std::to_string(kScannerSensors) +
                                        " sensors, has " + std::to_string(scanner.sensors.size()));
@@ -161,6 +203,7 @@ ConfigErrors Validate(const RobotDescription& robot) {
       check.Fail(at + "/type", "unknown sensor type \"" + sensor.type + "\"");
     }
     check.Finite(at + "/angle_deg", sensor.angle_deg);
+    check.Within(at + "/angle_deg", sensor.angle_deg, -kMaxAngleDeg, kMaxAngleDeg, " deg");
   }
 
   for (const auto& [name, type] : robot.sensor_types) {

@@ -89,30 +89,63 @@ std::optional<std::vector<double>> ReadNumbers(const Json& value, size_t n,
 }
 
 /// The structural problems of a world, each with its pointer.
+// Plausible bounds: a building, not a city. Map quality samples every surface each centimetre
+// or so, and the robot's start is searched within the bounds: a world of 1e6 m made both
+// allocate or loop without bound.
+constexpr double kMaxCoordinateM = 1000.0;     // |x|, |y| of every point, and radii
+constexpr double kMaxSurfaceM = 10000.0;       // total length of walls and circle perimeters
+
+std::string Num(double value) {
+  std::ostringstream out;
+  out << value;
+  return out.str();
+}
+
 ConfigErrors WorldErrors(const World& world) {
   ConfigErrors errors;
+  const auto within = [&](const std::string& pointer, double value) {
+    if (std::isfinite(value) && std::abs(value) > kMaxCoordinateM) {
+      errors.push_back({pointer, Num(value) + " m is beyond the plausible +-" +
+                                     Num(kMaxCoordinateM) + " m of a world"});
+    }
+  };
   const auto& b = world.bounds;
   for (size_t i = 0; i < 4; ++i) {
     if (!std::isfinite(b[i])) errors.push_back({Pointer("/bounds", i), "must be finite"});
+    within(Pointer("/bounds", i), b[i]);
   }
   if (!(b[0] < b[2]) || !(b[1] < b[3])) {
     errors.push_back({"/bounds", "expected x0 < x1 and y0 < y1"});
   }
+  double surface_m = 0.0;
   for (size_t i = 0; i < world.segments.size(); ++i) {
     const Segment& s = world.segments[i];
+    const std::string at = Pointer("/segments", i);
     if (!s.a.allFinite() || !s.b.allFinite()) {
-      errors.push_back({Pointer("/segments", i), "coordinates must be finite"});
-    } else if ((s.b - s.a).norm() <= 0.0) {
-      errors.push_back({Pointer("/segments", i), "the two ends must differ"});
+      errors.push_back({at, "coordinates must be finite"});
+      continue;
     }
+    if ((s.b - s.a).norm() <= 0.0) errors.push_back({at, "the two ends must differ"});
+    const double coordinates[4] = {s.a.x(), s.a.y(), s.b.x(), s.b.y()};
+    for (size_t k = 0; k < 4; ++k) within(Pointer(at, k), coordinates[k]);
+    surface_m += (s.b - s.a).norm();
   }
   for (size_t i = 0; i < world.circles.size(); ++i) {
     const Circle& c = world.circles[i];
+    const std::string at = Pointer("/circles", i);
     if (!c.center.allFinite() || !std::isfinite(c.radius_m)) {
-      errors.push_back({Pointer("/circles", i), "values must be finite"});
-    } else if (c.radius_m <= 0.0) {
-      errors.push_back({Pointer("/circles", i) + "/2", "the radius must be positive"});
+      errors.push_back({at, "values must be finite"});
+      continue;
     }
+    if (c.radius_m <= 0.0) errors.push_back({at + "/2", "the radius must be positive"});
+    within(at + "/0", c.center.x());
+    within(at + "/1", c.center.y());
+    within(at + "/2", c.radius_m);
+    surface_m += 2.0 * kPi * std::abs(c.radius_m);
+  }
+  if (surface_m > kMaxSurfaceM) {
+    errors.push_back({"/segments", "the walls and circles measure " + Num(surface_m) +
+                              " m in all, beyond the plausible " + Num(kMaxSurfaceM) + " m"});
   }
   return errors;
 }

@@ -292,6 +292,32 @@ TEST(WorldJsonTest, ErrorsNameTheSourceAndThePointer) {
                "w.json:1: /circles/0/2: the radius must be positive");
 }
 
+TEST(WorldJsonTest, ImplausiblyLargeWorldsAreRefusedNamingTheKey) {
+  // A world of 1e6 m used to be accepted; map quality then sampled its walls every centimetre.
+  EXPECT_PRED2(Contains, ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1e6, 1]})"),
+               "w.json:1: /bounds/2: 1e+06 m is beyond the plausible +-1000 m of a world");
+  EXPECT_PRED2(Contains,
+               ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "segments": [[0, 0, 1, -2000]]})"),
+               "w.json:1: /segments/0/3: -2000 m is beyond the plausible +-1000 m of a world");
+  EXPECT_PRED2(Contains,
+               ErrorsOf(R"({"name": "x", "bounds": [0, 0, 1, 1], "circles": [[0, 0, 5000]]})"),
+               "w.json:1: /circles/0/2: 5000 m is beyond the plausible +-1000 m of a world");
+  // Within the coordinates, but 12 walls of 1 km are more than any building.
+  std::string walls;
+  for (int i = 0; i < 12; ++i) {
+    walls += std::string(i ? ", " : "") + "[-500, " + std::to_string(i) + ", 500, " +
+             std::to_string(i) + "]";
+  }
+  EXPECT_PRED2(Contains,
+               ErrorsOf(R"({"name": "x", "bounds": [-500, 0, 500, 12], "segments": [)" + walls + "]}"),
+               "/segments: the walls and circles measure 12000 m in all, beyond the plausible "
+               "10000 m");
+  EXPECT_TRUE(
+      ParseWorld(R"({"name": "x", "bounds": [-1000, -1000, 1000, 1000], "segments": [[-1000, 0, 1000, 0]]})",
+                 "w")
+          .ok());
+}
+
 TEST(WorldJsonTest, ReportsEveryErrorAtOnce) {
   const WorldLoadResult r =
       ParseWorld(R"({"extra": 1, "bounds": [0, 0, 1, 1], "segments": [[0, 0, 1], [1]]})", "w");
