@@ -916,6 +916,8 @@ struct HttpServer::Impl {
     json answer;
   } last_save;
   std::atomic<uint64_t> saves_made{0};
+  // A reset request waiting for the SLAM thread to apply its reset (at most one: see HandleReset).
+  std::atomic<bool> reset_waiting{false};
 
   // Whole-map exports and the trajectory cost time in proportion to the map and the run: each
   // kind is made at most once per published snapshot, one at a time; requests that come while
@@ -1440,8 +1442,18 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
 void HttpServer::Impl::HandleReset(httplib::Response& res) {
   const auto before = service.Snapshot();
   service.RequestReset();
-  // The SLAM thread applies it before its next scan; wait for it (bounded) so that the answer
-  // carries the new map version.
+  // The SLAM thread applies it before its next scan. One request waits for it (bounded) so that
+  // its answer carries the new map version; requests meanwhile ask for the same reset (requests
+  // before it is applied are one reset) and are answered at once, pending: each waiting held a
+  // server thread for up to 2 s, and 24 of them stalled the API.
+  if (reset_waiting.exchange(true)) {
+    SendJson(res, {{"version", before->map_version}, {"pending", true}}, 202);
+    return;
+  }
+  struct Release {
+    std::atomic<bool>& flag;
+    ~Release() { flag = false; }
+  } release{reset_waiting};
   auto snapshot = before;
   const auto deadline = Clock::now() + std::chrono::seconds(2);
   while (snapshot->epoch == before->epoch && Clock::now() < deadline && !stopping) {
