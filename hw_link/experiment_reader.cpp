@@ -1,6 +1,9 @@
 #include "hw_link/experiment_reader.hpp"
 
+#include <cmath>
 #include <filesystem>
+#include <limits>
+#include <vector>
 
 #include "engine/io/experiment_meta.hpp"
 #include "engine/io/robot_json.hpp"
@@ -17,6 +20,76 @@ uint64_t Counter(const SourceCounters& counters, const std::string& name) {
   }
   return 0;
 }
+
+// The replay's time is the log's with clock jumps taken out (OpenCandumpReplay): between two
+// jumps it is the log's time shifted by a constant. A stretch of frames with one shift:
+struct ClockSegment {
+  double logged_first = 0.0;  // the log's times of its first and last frame
+  double logged_last = 0.0;
+  double shift = 0.0;         // logged - replay time
+};
+
+// A jump changes the shift by at least 1 s (a step back) or 4 s (a step ahead); rounding of
+// the two times to doubles, by about a microsecond.
+constexpr double kShiftChangeS = 0.5;
+// Ground-truth poses this close to a stretch of frames belong to it (a tracker samples at tens
+// of Hz, the bus at hundreds): less than half the 1 s a jump leaves in the replay's time.
+constexpr double kSegmentSlackS = 0.2;
+
+class LogClock {
+ public:
+  void Observe(const TimedFrame& frame) {
+    if (!frame.source_t) return;
+    const double logged = *frame.source_t;
+    const double shift = logged - frame.t;
+    if (segments_.empty() || std::abs(shift - segments_.back().shift) > kShiftChangeS) {
+      segments_.push_back({logged, logged, shift});
+    } else {
+      segments_.back().logged_last = logged;
+    }
+  }
+
+  /// Ground-truth poses stamped by the log's clock, in the replay's time. Poses in no stretch
+  /// of frames (a silence taken out as a jump) or in several (a step back repeated the log's
+  /// times) cannot be placed: they are left out and counted in `dropped`.
+  std::vector<TimedPose> ToReplayTime(const std::vector<TimedPose>& logged,
+                                      uint64_t& dropped) const {
+    if (segments_.size() < 2) {
+      // No jump: one shift (zero when the log's clock never jumped, as OpenCandumpReplay starts
+      // the replay's time at the log's).
+      std::vector<TimedPose> out = logged;
+      const double shift = segments_.empty() ? 0.0 : segments_.front().shift;
+      for (TimedPose& pose : out) pose.t -= shift;
+      return out;
+    }
+    std::vector<TimedPose> out;
+    out.reserve(logged.size());
+    for (const TimedPose& pose : logged) {
+      const ClockSegment* home = nullptr;
+      int homes = 0;
+      for (size_t k = 0; k < segments_.size(); ++k) {
+        const ClockSegment& s = segments_[k];
+        const double from = k == 0 ? -std::numeric_limits<double>::infinity()
+                                   : s.logged_first - kSegmentSlackS;
+        const double to = k + 1 == segments_.size() ? std::numeric_limits<double>::infinity()
+                                                    : s.logged_last + kSegmentSlackS;
+        if (pose.t >= from && pose.t <= to) {
+          home = &s;
+          ++homes;
+        }
+      }
+      if (homes != 1) {
+        ++dropped;
+        continue;
+      }
+      out.push_back({pose.t - home->shift, pose.pose});
+    }
+    return out;
+  }
+
+ private:
+  std::vector<ClockSegment> segments_;
+};
 
 }  // namespace
 
@@ -79,9 +152,10 @@ ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig&
   FrameSource& source = *std::get<std::unique_ptr<FrameSource>>(opened);
   FrameDecoder decoder(experiment.robot);
   ScanAssembler assembler(experiment.robot, assembler_config);
-  const auto failure = DecodeToEnd(source, decoder, [&](const RobotEvent& event) {
-    assembler.Add(event, experiment.scans);
-  });
+  LogClock clock;
+  const auto failure = DecodeToEnd(
+      source, decoder, [&](const RobotEvent& event) { assembler.Add(event, experiment.scans); },
+      [&](const TimedFrame& frame) { clock.Observe(frame); });
   if (failure) {
     load.error = file("can.log") + ": " + *failure;
     return load;
@@ -95,6 +169,10 @@ ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig&
   counters.reassembly = decoder.reassembly();
   counters.decoder = decoder.decoder();
   counters.assembler = assembler.counters();
+  counters.clock_jumps = Counter(source_counters, "clock_jumps");
+  // The ground truth is stamped by the log's clock; the scans by the replay's.
+  experiment.ground_truth =
+      clock.ToReplayTime(experiment.ground_truth, counters.ground_truth_unplaced);
   experiment.t_first = decoder.first_time();
   experiment.t_last = decoder.last_time();
   if (experiment.scans.empty()) {

@@ -7,7 +7,9 @@
 // - robot.json, can.log and meta.json are required; a missing, unreadable or malformed one is
 //   an error naming the file (and the line, for JSON with a known position).
 // - groundtruth.tum and world.json are optional; when present they must be well formed
-//   (groundtruth.tum: times strictly increasing, errors give file:line).
+//   (groundtruth.tum: times strictly increasing, errors give file:line). Its times are the log's
+//   clock's; where that clock jumped (can.log's replay takes the jumps out) they are moved with
+//   the scans, and poses that fall in a jump are left out and counted.
 // - Inside can.log, garbled lines (a truncated last line too), malformed Aseba fragments and
 //   unknown messages are counted and skipped, as on a live link. A log that yields no scan at all
 //   is an error, with the counters that explain why.
@@ -37,6 +39,10 @@ struct ExperimentCounters {
   ReassemblyCounters reassembly;
   DecoderCounters decoder;
   ScanAssemblerCounters assembler;
+  uint64_t clock_jumps = 0;  // steps of the log's clock taken out of the replay's time
+  /// Ground-truth poses left out: stamped inside a clock jump (or a silence taken for one) or
+  /// in a stretch of time the log repeats after a step back, they match no replayed time.
+  uint64_t ground_truth_unplaced = 0;
 
   /// Frames, lines and messages rejected anywhere on the way: garbled lines, frames the Aseba
   /// reassembly dropped, messages the decoder did not recognise.
@@ -50,7 +56,9 @@ struct Experiment {
   io::ExperimentMeta meta;
   RobotDescription robot;
   std::vector<Scan> scans;
-  std::vector<TimedPose> ground_truth;  // empty without groundtruth.tum
+  /// In the replay's time (the log's with clock jumps taken out, as the scans'); empty without
+  /// groundtruth.tum.
+  std::vector<TimedPose> ground_truth;
   std::optional<sim::World> world;      // simulated experiments only
   double t_first = 0.0;                 // times of the first and last frame of can.log
   double t_last = 0.0;

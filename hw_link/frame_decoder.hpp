@@ -45,8 +45,10 @@ class FrameDecoder {
 };
 
 /// Reads `source` to its end, handing every decoded event to `on_event` in order, with nothing
-/// dropped. Returns the source's error message if it fails before its end (kError), or nothing.
+/// dropped, and every frame read to `on_frame` (when given) before it is decoded. Returns the
+/// source's error message if it fails before its end (kError), or nothing.
 std::optional<std::string> DecodeToEnd(FrameSource& source, FrameDecoder& decoder,
-                                       const std::function<void(const RobotEvent&)>& on_event);
+                                       const std::function<void(const RobotEvent&)>& on_event,
+                                       const std::function<void(const TimedFrame&)>& on_frame = {});
 
 }  // namespace slam::hw

@@ -2,9 +2,31 @@
 
 namespace slam::hw {
 
+nlohmann::json ReassemblyCountersToJson(const ReassemblyCounters& r) {
+  return {{"frames", r.frames},
+          {"messages", r.messages},
+          {"extended", r.extended},
+          {"remote", r.remote},
+          {"fd", r.fd},
+          {"foreign", r.foreign},
+          {"bad_length", r.bad_length},
+          {"middle_without_start", r.middle_without_start},
+          {"stop_without_start", r.stop_without_start},
+          {"oversize", r.oversize},
+          {"abandoned", r.abandoned}};
+}
+
+nlohmann::json DecoderCountersToJson(const DecoderCounters& d) {
+  return {{"messages", d.messages},
+          {"odometry", d.odometry},
+          {"scanner", d.scanner},
+          {"unknown_node", d.unknown_node},
+          {"unknown_type", d.unknown_type},
+          {"bad_size", d.bad_size},
+          {"raw_out_of_range", d.raw_out_of_range}};
+}
+
 nlohmann::json LinkStatusToJson(const LinkStatus& s) {
-  const auto& r = s.reassembly;
-  const auto& d = s.decoder;
   nlohmann::json source = nlohmann::json::object();
   for (const auto& [name, value] : s.source_counters) source[name] = value;
   return {{"state", ToString(s.state)},
@@ -14,30 +36,12 @@ nlohmann::json LinkStatusToJson(const LinkStatus& s) {
           {"frames", s.frames},
           {"silent", s.Silent()},
           {"seconds_without_frames", s.SecondsWithoutFrames()},
-          {"frames_rejected", r.Rejected() + d.Rejected()},
+          {"frames_rejected", s.reassembly.Rejected() + s.decoder.Rejected()},
           {"events_queued", s.events_queued},
           {"queue_drops", s.queue_drops},
           {"queue_size", s.queue_size},
-          {"reassembly",
-           {{"frames", r.frames},
-            {"messages", r.messages},
-            {"extended", r.extended},
-            {"remote", r.remote},
-            {"fd", r.fd},
-            {"foreign", r.foreign},
-            {"bad_length", r.bad_length},
-            {"middle_without_start", r.middle_without_start},
-            {"stop_without_start", r.stop_without_start},
-            {"oversize", r.oversize},
-            {"abandoned", r.abandoned}}},
-          {"decoder",
-           {{"messages", d.messages},
-            {"odometry", d.odometry},
-            {"scanner", d.scanner},
-            {"unknown_node", d.unknown_node},
-            {"unknown_type", d.unknown_type},
-            {"bad_size", d.bad_size},
-            {"raw_out_of_range", d.raw_out_of_range}}},
+          {"reassembly", ReassemblyCountersToJson(s.reassembly)},
+          {"decoder", DecoderCountersToJson(s.decoder)},
           {"source_counters", source}};
 }
 

@@ -10,6 +10,9 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <optional>
+#include <sstream>
 #include <nlohmann/json.hpp>
 #include <string>
 
@@ -87,6 +90,85 @@ void ExpectSameRun(const ReplayResult& a, const ReplayResult& b) {
   }
   EXPECT_EQ(a.rays_total, b.rays_total);
   EXPECT_TRUE(Cells(a.map) == Cells(b.map));
+}
+
+/// Copies experiment `from` into `to`, shifting the logged times of can.log lines and of
+/// groundtruth.tum poses at or after `from_s` (seconds after the log's first frame) by
+/// `shift_s`; can.log lines logged in [drop_from_s, drop_to_s) are left out.
+void CopyWithClockChange(const fs::path& from, const fs::path& to, double from_s, double shift_s,
+                         double drop_from_s = 0.0, double drop_to_s = 0.0) {
+  fs::remove_all(to);
+  fs::copy(from, to);
+  std::optional<double> first;
+  const auto rewrite = [&](const std::string& name, bool log) {
+    std::ifstream in(from / name);
+    std::ostringstream out;
+    out.precision(6);
+    out << std::fixed;
+    std::string line;
+    while (std::getline(in, line)) {
+      const size_t begin = log ? 1 : 0;
+      const size_t end = line.find(log ? ')' : ' ');
+      if (line.empty() || line[0] == '#' || end == std::string::npos) {
+        out << line << '\n';
+        continue;
+      }
+      double t = std::stod(line.substr(begin, end - begin));
+      if (!first) first = t;
+      const double since = t - *first;
+      if (log && since >= drop_from_s && since < drop_to_s) continue;
+      if (since >= from_s) t += shift_s;
+      out << (log ? "(" : "") << t << line.substr(end) << '\n';
+    }
+    std::ofstream(to / name, std::ios::trunc) << out.str();
+  };
+  rewrite("can.log", true);
+  rewrite("groundtruth.tum", false);
+}
+
+TEST_F(ReplayTest, AClockJumpInTheLogMovesTheGroundTruthWithTheScans) {
+  // The replay takes the jump out of the scans' time; the ground truth kept the log's clock, so
+  // every pose after the jump was compared with the ground truth an hour later: ATE inflated.
+  const fs::path jumped = root_ / "box-clock-ahead";
+  CopyWithClockChange(root_ / "box", jumped, 20.0, 3600.0);
+  const hw::ExperimentLoad load = hw::LoadExperiment(jumped.string());
+  ASSERT_TRUE(load.ok()) << load.error;
+  const hw::Experiment& e = *load.experiment;
+  EXPECT_EQ(e.counters.clock_jumps, 1u);
+  EXPECT_EQ(e.counters.ground_truth_unplaced, 0u);
+  ASSERT_EQ(e.ground_truth.size(), Box().ground_truth.size());
+  // The scan in progress at the jump is abandoned.
+  EXPECT_NEAR(static_cast<double>(e.scans.size()), static_cast<double>(Box().scans.size()), 1.0);
+  // After the jump, scans and ground truth moved by the same amount in the replay's time.
+  const double scan_shift = e.scans.back().t_end - Box().scans.back().t_end;
+  const double truth_shift = e.ground_truth.back().t - Box().ground_truth.back().t;
+  EXPECT_NEAR(truth_shift, scan_shift, 1e-5);
+  EXPECT_EQ(e.ground_truth.front().t, Box().ground_truth.front().t);
+  // ... so the evaluation is the unshifted experiment's, within what the 1 s the jump left
+  // in the replay's time changes.
+  const ReplayResult base = Run(Box(), 8000, true, 1, false);
+  const ReplayResult run = Run(e, 8000, true, 1, false);
+  ASSERT_TRUE(base.quality && run.quality);
+  EXPECT_NEAR(run.quality->matched, base.quality->matched, 3);
+  EXPECT_LT(run.quality->ate_rmse_m, base.quality->ate_rmse_m + 0.01);
+}
+
+TEST_F(ReplayTest, GroundTruthInASilenceTakenForAClockJumpIsLeftOutAndCounted) {
+  // Nothing logged from 10 s to 17 s (more than the 5 s that make a jump): the replay goes on
+  // 1 s later, and ground truth from inside the silence matches no replayed time.
+  const fs::path silent = root_ / "box-silent";
+  CopyWithClockChange(root_ / "box", silent, 1e9, 0.0, 10.0, 17.0);
+  const hw::ExperimentLoad load = hw::LoadExperiment(silent.string());
+  ASSERT_TRUE(load.ok()) << load.error;
+  const hw::Experiment& e = *load.experiment;
+  EXPECT_EQ(e.counters.clock_jumps, 1u);
+  // 7 s of the tracker's 30 Hz, less 0.2 s at either end that still belongs to the frames beside
+  // it.
+  EXPECT_NEAR(static_cast<double>(e.counters.ground_truth_unplaced), 30.0 * 6.6, 2.0);
+  EXPECT_EQ(e.ground_truth.size() + e.counters.ground_truth_unplaced, Box().ground_truth.size());
+  for (size_t i = 1; i < e.ground_truth.size(); ++i) {
+    ASSERT_LT(e.ground_truth[i - 1].t, e.ground_truth[i].t) << i;
+  }
 }
 
 TEST_F(ReplayTest, SameSeedSameOutputParallelOrSerial) {

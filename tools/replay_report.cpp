@@ -7,6 +7,7 @@
 #include "engine/io/params_json.hpp"
 #include "engine/io/tum.hpp"
 #include "engine/ray_cast.hpp"
+#include "hw_link/status_json.hpp"
 #include "sim/map_quality.hpp"
 
 namespace slam::tools {
@@ -15,45 +16,13 @@ namespace {
 using Json = nlohmann::json;
 
 Json CountersJson(const hw::ExperimentCounters& c) {
-  const hw::ReassemblyCounters& r = c.reassembly;
-  const hw::DecoderCounters& d = c.decoder;
-  const ScanAssemblerCounters& a = c.assembler;
-  return {
-      {"bad_lines", c.bad_lines},
-      {"ignored_lines", c.ignored_lines},
-      {"reassembly",
-       {{"frames", r.frames},
-        {"messages", r.messages},
-        {"extended", r.extended},
-        {"remote", r.remote},
-        {"fd", r.fd}, {"foreign", r.foreign},
-        {"bad_length", r.bad_length},
-        {"middle_without_start", r.middle_without_start},
-        {"stop_without_start", r.stop_without_start},
-        {"oversize", r.oversize},
-        {"abandoned", r.abandoned}}},
-      {"decoder",
-       {{"messages", d.messages},
-        {"odometry", d.odometry},
-        {"scanner", d.scanner},
-        {"unknown_node", d.unknown_node},
-        {"unknown_type", d.unknown_type},
-        {"bad_size", d.bad_size}, {"raw_out_of_range", d.raw_out_of_range}}},
-      {"assembler",
-       {{"odometry", a.odometry},
-        {"samples", a.samples},
-        {"samples_in_scans", a.samples_in_scans},
-        {"scans", a.scans},
-        {"out_of_order", a.out_of_order},
-        {"odometry_lost", a.odometry_lost},
-        {"samples_lost", a.samples_lost},
-        {"odometry_gaps", a.odometry_gaps},
-        {"odometry_jumps", a.odometry_jumps},
-        {"sample_gaps", a.sample_gaps},
-        {"samples_unposed", a.samples_unposed},
-        {"scans_discarded", a.scans_discarded},
-        {"scans_too_long", a.scans_too_long}}},
-  };
+  return {{"bad_lines", c.bad_lines},
+          {"ignored_lines", c.ignored_lines},
+          {"clock_jumps", c.clock_jumps},
+          {"ground_truth_unplaced", c.ground_truth_unplaced},
+          {"reassembly", hw::ReassemblyCountersToJson(c.reassembly)},
+          {"decoder", hw::DecoderCountersToJson(c.decoder)},
+          {"assembler", hw::AssemblerCountersToJson(c.assembler)}};
 }
 
 std::string BudgetLabel(const BudgetSettings& budget) {
