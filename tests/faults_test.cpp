@@ -6,12 +6,15 @@
 // slamd keeps serving, reports the fault in /api/v1/status, and that the SLAM goes on after it.
 
 // Engine headers before httplib (see bench/server_bench.cpp: <resolv.h> defines `_res`).
+#include "hw_link/aseba.hpp"
 #include "hw_link/candump.hpp"
 #include "hw_link/cannelloni.hpp"
+#include "hw_link/event_decoder.hpp"
 #include "hw_link/slcan.hpp"
 #include "server/state_store.hpp"
 // clang-format off
 #include "tests/slamd_harness.hpp"
+#include "tests/test_support.hpp"
 // clang-format on
 
 #include <stdlib.h>
@@ -465,6 +468,90 @@ TEST(SlamdFaults, UdpSilenceIsReportedAndBurstsOfLostAndCorruptFramesAreCountedA
   EXPECT_GT(after["slam"]["assembler"].value("samples_lost", uint64_t{0}), 0u)
       << after["slam"]["assembler"].dump();
   ExpectStillServing(http);
+}
+
+TEST(SlamdFaults, SpoofedOdometryAndScannerDatagramsAreCountedAndSurvived) {
+  // One datagram with random wheel counters moved the pose tens of kilometres and the map after
+  // it: std::bad_alloc within 1 to 4 datagrams. Here 1000 well-framed odometry and scanner
+  // messages with random contents (counters, sequence numbers, angles, readings), interleaved
+  // with the robot's own traffic.
+  const auto frames = ExperimentFrames();
+  ASSERT_FALSE(frames.empty());
+  SlamdProcess slamd;
+  const int udp_port = StartOnUdp(slamd);
+  ASSERT_GT(udp_port, 0);
+  Http http(slamd.host(), slamd.port());
+  UdpSender sender(udp_port);
+  const size_t third = frames.size() / 3;
+  SendUdp(sender, frames, 0, third, 4.0, {});
+  const json before = PollStatus(http, 10.0, [&](const json& s) {
+    return s["link"].value("frames", uint64_t{0}) == third && Scans(s) > 0;
+  });
+  ASSERT_GT(Scans(before), 0) << before.dump();
+  const double rss_before = RssMib(slamd.pid());
+
+  const slam::RobotDescription robot = slam::testing::ShippedRobot();
+  std::mt19937_64 random(2026);
+  uint64_t spoofed_frames = 0;
+  for (int i = 0; i < 1000; ++i) {
+    slam::hw::AsebaMessage message;
+    if (i % 2 == 0) {
+      slam::OdometryReading odometry;
+      odometry.seq = static_cast<uint16_t>(random());
+      odometry.left_ticks = static_cast<int32_t>(random());
+      odometry.right_ticks = static_cast<int32_t>(random());
+      odometry.gyro_raw = static_cast<int16_t>(random());
+      message = slam::hw::EncodeOdometry(robot, odometry);
+    } else {
+      slam::ScannerReading scanner;
+      scanner.seq = static_cast<uint16_t>(random());
+      scanner.angle_raw = static_cast<uint16_t>(random());
+      for (uint16_t& raw : scanner.raw) raw = static_cast<uint16_t>(random());
+      scanner.rectifier_mv = static_cast<uint16_t>(random());
+      message = slam::hw::EncodeScanner(robot, scanner);
+    }
+    const auto spoofed = slam::hw::FragmentAseba(message.source, message.type, message.payload);
+    spoofed_frames += spoofed.size();
+    sender.Send(slam::hw::EncodeCannelloni(static_cast<uint8_t>(random()), spoofed));
+    if (i % 10 == 9) std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  // The robot talks on.
+  SendUdp(sender, frames, third, 2 * third, 4.0, {});
+  const auto decoder = [](const json& s, const char* key) {
+    return s["link"]["decoder"].value(key, uint64_t{0});
+  };
+  const auto assembler = [](const json& s, const char* key) {
+    return s["slam"]["assembler"].value(key, uint64_t{0});
+  };
+  const json after = PollStatus(http, 15.0, [&](const json& s) {
+    return Scans(s) > Scans(before) + 5 &&
+           s["link"].value("frames", uint64_t{0}) == 2 * third + spoofed_frames;
+  });
+  // Every frame arrived (loopback loses nothing), and each spoofed message is counted as what
+  // it is.
+  EXPECT_EQ(after["link"].value("frames", uint64_t{0}), 2 * third + spoofed_frames)
+      << after["link"].dump();
+  const uint64_t spoofed_odometry = 500;
+  const uint64_t jumps = assembler(after, "odometry_jumps") - assembler(before, "odometry_jumps");
+  // Random counters are beyond 2 m/s but for a chance in millions; the robot's reading after a
+  // spoofed one is a jump from it too.
+  EXPECT_GE(jumps, spoofed_odometry) << after["slam"]["assembler"].dump();
+  EXPECT_LE(jumps, 2 * spoofed_odometry) << after["slam"]["assembler"].dump();
+  // 2000 random readings: those above 1023 (all but about 1 in 64) are counted.
+  const uint64_t out_of_range =
+      decoder(after, "raw_out_of_range") - decoder(before, "raw_out_of_range");
+  EXPECT_GE(out_of_range, 1900u) << after["link"]["decoder"].dump();
+  EXPECT_LE(out_of_range, 2000u) << after["link"]["decoder"].dump();
+  // Mapping went on, in memory bounded as ever.
+  EXPECT_GT(Scans(after), Scans(before) + 5) << after["slam"].dump();
+  EXPECT_LT(RssMib(slamd.pid()), rss_before + 64.0);
+  ExpectStillServing(http);
+  const Reply png = http.Get("/api/v1/map.png");
+  EXPECT_EQ(png.status, 200);
+  EXPECT_LT(png.body.size(), 4u << 20);
+  std::cout << "RSS " << rss_before << " MiB before, " << RssMib(slamd.pid())
+            << " MiB after 1000 spoofed datagrams; odometry jumps " << jumps
+            << ", readings out of range " << out_of_range << "\n";
 }
 
 TEST(SlamdFaults, DatagramsOfABatchingSenderLoseNoReadings) {
