@@ -410,22 +410,40 @@ thread_local bool t_close_connection = false;
 /// in-memory request), for the request guard; nullptr when unknown.
 thread_local const std::string* t_request_head = nullptr;
 
+/// Calls `visit(line)` for each field line of a request head as received (the lines after the
+/// request line, up to the blank line or the end of what arrived), until it returns false.
+template <typename Visit>
+void ForEachFieldLine(std::string_view head, Visit visit) {
+  size_t line_end = head.find("\r\n");
+  if (line_end == std::string_view::npos) return;
+  for (size_t at = line_end + 2; at < head.size(); at = line_end + 2) {
+    line_end = head.find("\r\n", at);
+    if (line_end == std::string_view::npos) line_end = head.size();
+    const std::string_view line = head.substr(at, line_end - at);
+    if (line.empty() || !visit(line)) return;
+  }
+}
+
+/// Whether a field line names `name` (case-insensitive), with the colon right after it.
+bool FieldNameIs(std::string_view line, std::string_view name) {
+  return line.size() > name.size() && line[name.size()] == ':' &&
+         std::equal(name.begin(), name.end(), line.begin(), [](char a, char b) {
+           return std::tolower(static_cast<unsigned char>(a)) ==
+                  std::tolower(static_cast<unsigned char>(b));
+         });
+}
+
 /// Whether the request head as received has a `name` field: httplib drops fields whose value is
 /// empty ("If-Match:" must still fail the precondition, not skip it).
 bool HeadHasField(const httplib::Request& req, std::string_view name) {
   if (req.has_header(std::string(name).c_str())) return true;
   if (t_request_head == nullptr) return false;
-  const std::string_view head = *t_request_head;
-  for (size_t at = head.find("\r\n"); at != std::string_view::npos; at = head.find("\r\n", at + 2)) {
-    const std::string_view rest = head.substr(at + 2);
-    if (rest.size() > name.size() && rest[name.size()] == ':' &&
-        std::equal(name.begin(), name.end(), rest.begin(), [](char a, char b) {
-          return std::tolower(static_cast<unsigned char>(a)) == std::tolower(static_cast<unsigned char>(b));
-        })) {
-      return true;
-    }
-  }
-  return false;
+  bool found = false;
+  ForEachFieldLine(*t_request_head, [&](std::string_view line) {
+    found = FieldNameIs(line, name);
+    return !found;
+  });
+  return found;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -457,25 +475,29 @@ struct Connection {
 bool RequestReady(const std::string& received, size_t max_head, size_t max_body) {
   const size_t end = received.find("\r\n\r\n");
   if (end == std::string::npos) return received.size() >= max_head;
-  size_t length = 0;
-  for (size_t at = received.find("\r\n"); at < end; at = received.find("\r\n", at + 2)) {
-    constexpr std::string_view kName = "content-length:";
-    if (end - (at + 2) < kName.size()) continue;
-    bool same = true;
-    for (size_t i = 0; i < kName.size() && same; ++i) {
-      same = std::tolower(static_cast<unsigned char>(received[at + 2 + i])) == kName[i];
+  // The first Content-Length (a second one is refused by the guard, whatever the body).
+  std::optional<size_t> length;
+  bool refused = false;
+  ForEachFieldLine(std::string_view(received).substr(0, end + 2), [&](std::string_view line) {
+    if (!FieldNameIs(line, "content-length")) return true;
+    std::string_view value = line.substr(sizeof("content-length:") - 1);
+    while (!value.empty() && (value.front() == ' ' || value.front() == '\t')) value.remove_prefix(1);
+    if (value.empty() || !std::isdigit(static_cast<unsigned char>(value.front()))) {
+      refused = true;  // the parser refuses it at once
+      return false;
     }
-    if (!same) continue;
-    size_t i = at + 2 + kName.size();
-    while (i < end && (received[i] == ' ' || received[i] == '\t')) ++i;
-    if (i >= end || !std::isdigit(static_cast<unsigned char>(received[i]))) return true;
-    for (; i < end && std::isdigit(static_cast<unsigned char>(received[i])); ++i) {
-      length = length * 10 + static_cast<size_t>(received[i] - '0');
-      if (length > max_body) return true;  // refused before its body is read
+    size_t n = 0;
+    for (size_t i = 0; i < value.size() && std::isdigit(static_cast<unsigned char>(value[i])); ++i) {
+      n = n * 10 + static_cast<size_t>(value[i] - '0');
+      if (n > max_body) {
+        refused = true;  // refused before its body is read
+        return false;
+      }
     }
-    break;
-  }
-  return received.size() - (end + 4) >= length;
+    length = n;
+    return false;
+  });
+  return refused || received.size() - (end + 4) >= length.value_or(0);
 }
 
 class Gate {
@@ -615,11 +637,13 @@ class Gate {
       keep.reserve(waiting_.size());
       for (size_t i = 0; i < waiting_.size(); ++i) {
         Connection& c = waiting_[i];
+        const size_t had = c.received.size();
         if (fds[i + 1].revents != 0 && !Receive(c)) {
           Close(c);  // the client went away (or the socket failed)
           continue;
         }
-        if (!c.received.empty() && RequestReady(c.received, max_head_, max_body_)) {
+        // Only new bytes can complete a request (Admit checked what a connection came with).
+        if (c.received.size() != had && RequestReady(c.received, max_head_, max_body_)) {
           dispatch_(std::move(c));
           continue;
         }
@@ -836,39 +860,37 @@ bool EntityTagListMatches(std::string_view list, std::string_view etag, bool wea
 }
 
 std::optional<std::string> AmbiguousFraming(std::string_view head) {
-  const auto lower = [](std::string_view text) {
-    std::string out(text);
-    for (char& c : out) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-    return out;
-  };
   const auto is_token_char = [](char c) {
     return std::isalnum(static_cast<unsigned char>(c)) != 0 ||
            std::string_view("!#$%&'*+-.^_`|~").find(c) != std::string_view::npos;
   };
-  size_t line_end = head.find("\r\n");
+  const size_t line_end = head.find("\r\n");
   if (line_end == std::string_view::npos) return std::nullopt;  // the parser judges it
   const std::string_view request_line = head.substr(0, line_end);
   const bool http11 = request_line.ends_with(" HTTP/1.1");
   int content_lengths = 0, hosts = 0;
-  for (size_t at = line_end + 2; at < head.size(); at = line_end + 2) {
-    line_end = head.find("\r\n", at);
-    if (line_end == std::string_view::npos) line_end = head.size();
-    const std::string_view line = head.substr(at, line_end - at);
-    if (line.empty()) break;
+  std::optional<std::string> problem;
+  ForEachFieldLine(head, [&](std::string_view line) {
     if (line.front() == ' ' || line.front() == '\t') {
-      return "a header line folded onto the previous one (obsolete line folding)";
+      problem = "a header line folded onto the previous one (obsolete line folding)";
+      return false;
     }
     const size_t colon = line.find(':');
-    if (colon == std::string_view::npos) return "a header line without a colon";
+    if (colon == std::string_view::npos) {
+      problem = "a header line without a colon";
+      return false;
+    }
     const std::string_view name = line.substr(0, colon);
     if (name.empty() || !std::all_of(name.begin(), name.end(), is_token_char)) {
-      return "the header name '" + std::string(name.substr(0, 64)) +
-             "' is not a token (no whitespace before the colon)";
+      problem = "the header name '" + std::string(name.substr(0, 64)) +
+                "' is not a token (no whitespace before the colon)";
+      return false;
     }
-    const std::string key = lower(name);
-    content_lengths += key == "content-length";
-    hosts += key == "host";
-  }
+    content_lengths += FieldNameIs(line, "content-length");
+    hosts += FieldNameIs(line, "host");
+    return true;
+  });
+  if (problem) return problem;
   if (content_lengths > 1) return "more than one Content-Length";
   if (http11 && hosts != 1) {
     return hosts == 0 ? "a request of HTTP version 1.1 needs a Host header" : "more than one Host header";
