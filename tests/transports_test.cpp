@@ -579,35 +579,31 @@ TEST(CandumpReplayTest, AQuietPipeOrAFileWithoutLineEndsNeverHoldsARead) {
   TempDir dir;
   const std::string fifo = dir.File("can.fifo");
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
-  // The writer sends one frame, then stays quiet until told to close.
+  // A writer sends one frame, then stays quiet until told to close.
   std::atomic<bool> close_writer{false};
-  std::thread writer([&] {
-    const int fd = ::open(fifo.c_str(), O_WRONLY | O_CLOEXEC);
-    const std::string line = "(1700000000.000000) can0 101#0102\n";
-    EXPECT_EQ(::write(fd, line.data(), line.size()), static_cast<ssize_t>(line.size()));
-    while (!close_writer) std::this_thread::sleep_for(milliseconds(10));
-    ::close(fd);
-  });
+  const auto quiet_writer = [&] {
+    return std::thread([&] {
+      const int fd = ::open(fifo.c_str(), O_WRONLY | O_CLOEXEC);
+      const std::string line = "(1700000000.000000) can0 101#0102\n";
+      EXPECT_EQ(::write(fd, line.data(), line.size()), static_cast<ssize_t>(line.size()));
+      while (!close_writer) std::this_thread::sleep_for(milliseconds(10));
+      ::close(fd);
+    });
+  };
   for (const bool paced : {false, true}) {
     SCOPED_TRACE(paced ? "paced" : "unpaced");
-    if (paced) {
-      close_writer = true;
-      writer.join();
-      close_writer = false;
-      writer = std::thread([&] {
-        const int fd = ::open(fifo.c_str(), O_WRONLY | O_CLOEXEC);
-        const std::string line = "(1700000000.000000) can0 101#0102\n";
-        EXPECT_EQ(::write(fd, line.data(), line.size()), static_cast<ssize_t>(line.size()));
-        while (!close_writer) std::this_thread::sleep_for(milliseconds(10));
-        ::close(fd);
-      });
-    }
+    close_writer = false;
+    std::thread writer = quiet_writer();
     auto source = Unwrap(OpenCandumpReplay(fifo, {.paced = paced}));
-    ASSERT_NE(source, nullptr);
-    const std::vector<TimedFrame> first = ReadFrames(*source, 1);
-    ASSERT_EQ(first.size(), 1u);
+    if (source == nullptr) {  // let the writer's open return, and then end
+      close_writer = true;
+      ::close(::open(fifo.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC));
+    }
+    const std::vector<TimedFrame> first =
+        source == nullptr ? std::vector<TimedFrame>{} : ReadFrames(*source, 1);
+    EXPECT_EQ(first.size(), 1u);
     std::vector<TimedFrame> frames;
-    for (int i = 0; i < 3; ++i) {
+    for (int i = 0; source != nullptr && i < 3; ++i) {
       const auto [outcome, seconds] = timed_read(*source, frames);
       EXPECT_EQ(outcome.status, ReadStatus::kOk);
       EXPECT_LT(seconds, 0.5) << i;
@@ -615,10 +611,12 @@ TEST(CandumpReplayTest, AQuietPipeOrAFileWithoutLineEndsNeverHoldsARead) {
     EXPECT_TRUE(frames.empty());
     close_writer = true;  // the writer closes: the log has ended
     ReadOutcome outcome;
-    for (int i = 0; i < 100 && outcome.status != ReadStatus::kEnd; ++i) outcome = source->Read(frames, milliseconds(50));
+    for (int i = 0; source != nullptr && i < 100 && outcome.status != ReadStatus::kEnd; ++i) {
+      outcome = source->Read(frames, milliseconds(50));
+    }
     EXPECT_EQ(outcome.status, ReadStatus::kEnd);
+    writer.join();
   }
-  writer.join();
 }
 
 // --------------------------------------------------------------------------------------------
