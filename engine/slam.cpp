@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <atomic>
 #include <limits>
 #include <numeric>
 #include <optional>
@@ -447,8 +448,15 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
     });
     std::vector<Pose2> candidate_pose(n_particles * n_candidates);
     std::vector<double> candidate_ll(n_particles * n_candidates);
+    std::atomic<size_t> skipped{0};
     ForEach(config_.parallel, candidate_pose.size(), [&](size_t index) {
       const size_t p = index / n_candidates, c = index % n_candidates;
+      if (c > 0 && interrupt_ != nullptr && interrupt_->load(std::memory_order_relaxed)) {
+        candidate_pose[index] = predicted[p];
+        candidate_ll[index] = -std::numeric_limits<double>::infinity();  // never chosen
+        skipped.fetch_add(1, std::memory_order_relaxed);
+        return;
+      }
       Pose2 end = predicted[p];
       if (c > 0) {
         Rng rng = Rng::ForStream(config_.seed, step, p, kStreamCandidate + c);
@@ -483,7 +491,9 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
       }
     }
     report.refinement_ambiguity = ambiguity / static_cast<double>(n_particles);
-    report.rays.matching = static_cast<int64_t>(n_particles * n_candidates * matching.size());
+    report.rays.matching =
+        static_cast<int64_t>((n_particles * n_candidates - skipped.load()) * matching.size());
+    report.interrupted = skipped.load() > 0;
     report.matching_measurements = static_cast<int>(matching.size());
   }
   report.candidates = static_cast<int>(n_candidates);

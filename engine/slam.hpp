@@ -3,6 +3,7 @@
 // (paper section V): per scan, phase A motion, B matching and pose refinement, C grid update,
 // D resampling. Its cost is counted in rays and bounded by the plan given for each scan.
 
+#include <atomic>
 #include <cstdint>
 #include <limits>
 #include <memory>
@@ -77,6 +78,9 @@ struct ScanReport {
   /// distance the proposal alone gives (sqrt(2) sigma). About 0 when one candidate dominates,
   /// about 1 when the likelihood is flat; 0 without refinement.
   double refinement_ambiguity = 0.0;
+  /// The interrupt flag (Slam::set_interrupt) cut the scan's refinement short: some candidates
+  /// beyond each particle's first were not evaluated (nor counted in `rays`).
+  bool interrupted = false;
 };
 
 /// History of a particle: one chunk per scan, shared with the ancestors it was copied from.
@@ -112,6 +116,12 @@ class Slam {
   /// Counts what a scan offers, for the scheduler to plan with.
   ScanSummary Summarize(const Scan& scan) const;
 
+  /// While `flag` (may be null) is true, a scan evaluates each particle's first candidate only
+  /// and skips the rest: a scan of a huge budget (seconds of work) then ends within
+  /// milliseconds of a stop or cancel request, the engine consistent. The flag must outlive
+  /// the engine's use of it; results do not depend on it while it stays false.
+  void set_interrupt(const std::atomic<bool>* flag) { interrupt_ = flag; }
+
   /// Replaces the tuned parameters from the next scan on (precondition: valid).
   void SetParams(const SlamParams& params) { params_ = params; }
   const SlamParams& params() const { return params_; }
@@ -144,6 +154,7 @@ class Slam {
   std::vector<Particle> particles_;
   int64_t scans_processed_ = 0;
   int64_t scans_since_resampling_ = 0;
+  const std::atomic<bool>* interrupt_ = nullptr;
 };
 
 }  // namespace slam

@@ -43,6 +43,7 @@ std::vector<TimedPose> DeadReckoning(const std::vector<Scan>& scans) {
 ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scans,
                     const std::vector<TimedPose>& ground_truth, const ReplayOptions& options) {
   Slam engine(robot, options.params, options.config);
+  engine.set_interrupt(options.cancel);  // a scan of a huge budget ends soon after a cancel
   RayBudgetScheduler scheduler(options.budget, options.scheduler);
   int64_t rays_total = 0, rays_max = 0, resamplings = 0;
   std::vector<PlanRecord> plans;

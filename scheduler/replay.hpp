@@ -30,9 +30,10 @@ struct ReplayOptions {
   bool refine = true;           // false: phase B off, odometry-only mapping
   /// Called after every scan with (scans done, scans in all); may be empty.
   std::function<void(size_t, size_t)> progress;
-  /// When it becomes true, the replay stops after the scan in progress (a cancelled tuning job
-  /// at a large budget must not finish a whole experiment first): the result covers the scans
-  /// done and says `cancelled`. May be null.
+  /// When it becomes true, the scan in progress skips its remaining refinement candidates and
+  /// the replay stops after it (a cancelled tuning job at a large budget must not finish a
+  /// whole experiment, nor a scan of seconds, first): the result covers the scans done and
+  /// says `cancelled`. May be null.
   const std::atomic<bool>* cancel = nullptr;
 };
 

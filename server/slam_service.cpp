@@ -128,6 +128,7 @@ void SlamService::BuildEngine() {
     params_changed_ = false;
   }
   engine_ = std::make_unique<Slam>(options_.robot, params, options_.config);
+  engine_->set_interrupt(&stop_);  // a scan of a huge budget ends soon after Stop()
   if (options_.resume) {
     const SavedState& saved = *options_.resume;
     OccupancyGrid grid(GridGeometry(options_.config.resolution_m), logodds_limit());

@@ -217,6 +217,25 @@ TEST(SlamdFaults, SignalsStopSlamdCleanlyWithinASecondWhateverItsSourceDoes) {
   }
 }
 
+TEST(SlamdFaults, SigtermStopsSlamdWithinASecondInTheMiddleOfAScanOfSeconds) {
+  // At 1e8 rays per scan a scan takes seconds here; the SLAM thread finished it before seeing
+  // the stop request (1.5 s measured). The scan now skips its remaining candidates.
+  for (int round = 0; round < 3; ++round) {
+    SlamdProcess slamd;
+    std::string error;
+    ASSERT_TRUE(slamd.Start({"--budget", "100000000"}, &error)) << error;
+    Http http(slamd.host(), slamd.port());
+    // In the middle of a scan: the first is done, and the next started right after it.
+    ASSERT_TRUE(PollMetric(http, "slamd_scans_total", 20.0, [](double v) { return v >= 1; }));
+    std::this_thread::sleep_for(std::chrono::milliseconds(200 + 300 * round));
+    const auto sent = Clock::now();
+    ::kill(slamd.pid(), SIGTERM);
+    const std::optional<int> status = slamd.WaitExit(10.0);
+    EXPECT_EQ(status, std::optional<int>(0)) << slamd.Stderr();
+    EXPECT_LT(SecondsSince(sent), 1.0) << "round " << round;
+  }
+}
+
 TEST(SlamdFaults, LogEndingKeepsServingAndReportsTheLinkEnded) {
   ScratchDir scratch("log_end");
   const auto frames = ExperimentFrames();

@@ -15,6 +15,7 @@
 #include <sstream>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <thread>
 
 #include "engine/io/map_image.hpp"
 #include "engine/io/tum.hpp"
@@ -220,6 +221,30 @@ TEST_F(ReplayTest, ACancelledReplayStopsAfterTheScanInProgress) {
   const ReplayResult whole = Replay(Box().robot, Box().scans, Box().ground_truth, options);
   EXPECT_FALSE(whole.cancelled);
   EXPECT_EQ(whole.scans, static_cast<int64_t>(Box().scans.size()));
+}
+
+TEST_F(ReplayTest, ACancelInTheMiddleOfAScanOfSecondsEndsItSoon) {
+  // At 1e8 rays/scan one scan takes seconds: the cancel waited for it.
+  std::atomic<bool> cancel{false};
+  ReplayOptions options;
+  options.budget.rays_per_scan = 100'000'000;
+  options.cancel = &cancel;
+  std::atomic<double> cancelled_at{0.0};
+  const auto start = std::chrono::steady_clock::now();
+  const auto seconds = [&] {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  };
+  std::thread canceller([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    cancelled_at = seconds();
+    cancel = true;
+  });
+  const ReplayResult run = Replay(Box().robot, Box().scans, Box().ground_truth, options);
+  const double ended_at = seconds();
+  canceller.join();
+  EXPECT_TRUE(run.cancelled);
+  EXPECT_LE(run.scans, 1);
+  EXPECT_LT(ended_at - cancelled_at, 0.5);
 }
 
 TEST_F(ReplayTest, CpuShareSettlesWithinAFifthOfItsTarget) {

@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
 
 #include "engine/cell_encoding.hpp"
@@ -132,6 +133,37 @@ TEST(Matching, RefinementRecoversAWrongPoseWithinOneCellAndHalfADegree) {
   const ScanReport blind_report = blind.ProcessScan(ScanAt(robot, room, truth, 0, truth, wrong), plan);
   EXPECT_EQ(blind_report.rays.matching, 0);
   EXPECT_NEAR(blind.Best().pose.x, wrong.x, 1e-12);
+}
+
+TEST(Matching, AnInterruptedScanEvaluatesEachParticlesFirstCandidateOnly) {
+  // A scan of 1e8 rays takes seconds; slamd's stop and a tuning job's cancel waited for it.
+  const RobotDescription robot = testing::ShippedRobot();
+  const sim::World room = TestRoom();
+  const SlamParams params = NoMotionNoise();
+  const Pose2 truth{0.02, -0.03, DegToRad(10.0)};
+  const Pose2 wrong = Compose(truth, {0.03, -0.02, DegToRad(3.0)});
+  ScanPlan plan;
+  plan.candidates = 500;
+  const auto run = [&](const std::atomic<bool>* flag) {
+    Slam slam(robot, params, SlamConfig{});
+    slam.set_interrupt(flag);
+    slam.Restore(DrawMap(room, 0.01), truth);
+    const ScanReport report = slam.ProcessScan(ScanAt(robot, room, truth, 0, truth, wrong), plan);
+    return std::make_pair(report, slam.Best().pose);
+  };
+  const auto [plain, plain_pose] = run(nullptr);
+  std::atomic<bool> flag{false};
+  const auto [calm, calm_pose] = run(&flag);  // a flag that stays false changes nothing
+  EXPECT_FALSE(calm.interrupted);
+  EXPECT_EQ(calm.rays.matching, plain.rays.matching);
+  EXPECT_EQ(calm_pose.x, plain_pose.x);
+  EXPECT_EQ(calm_pose.theta, plain_pose.theta);
+  flag = true;
+  const auto [cut, cut_pose] = run(&flag);
+  EXPECT_TRUE(cut.interrupted);
+  EXPECT_EQ(cut.rays.matching, cut.matching_measurements);  // one candidate, one particle
+  EXPECT_GT(cut.rays.update, 0);                            // the map is still updated
+  EXPECT_NEAR(cut_pose.x, wrong.x, 1e-12);  // the first candidate is the odometry's prediction
 }
 
 TEST(Matching, ThinningByAngleBetweenScansAndCapsBoundTheRays) {
