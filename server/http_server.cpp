@@ -977,6 +977,8 @@ struct HttpServer::Impl {
   void HandleTile(const httplib::Request& req, httplib::Response& res);
   void HandleEvents(const httplib::Request& req, httplib::Response& res);
   void HandleSave(httplib::Response& res);
+  /// Saves the newest snapshot into --state-dir (save_mutex held); sets last_save on success.
+  SaveOutcome SaveLocked();
   void HandleReset(httplib::Response& res);
   json StatusJson();
   json SourceJson(const std::string& description) {
@@ -1434,6 +1436,15 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
     SendJson(res, last_save.answer);
     return;
   }
+  const SaveOutcome saved = SaveLocked();
+  if (saved.error) {
+    SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + *saved.error);
+    return;
+  }
+  SendJson(res, last_save.answer);
+}
+
+SaveOutcome HttpServer::Impl::SaveLocked() {
   last_save.valid = false;
   last_save.started = Clock::now();
   const auto snapshot = service.Snapshot();
@@ -1444,11 +1455,8 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
   in.grid = &grid;
   in.version_base = snapshot->version_base;
   in.trajectory = ScanEndTrajectory(*snapshot);
-  const SaveOutcome saved = SaveState(options.state_dir, in);
-  if (saved.error) {
-    SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + *saved.error);
-    return;
-  }
+  SaveOutcome saved = SaveState(options.state_dir, in);
+  if (saved.error) return saved;
   saves_made.fetch_add(1);
   last_save.answer = {{"path", std::filesystem::absolute(options.state_dir).string()},
                       {"version", snapshot->map_version},
@@ -1458,7 +1466,17 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
     std::fprintf(stderr, "slamd: map saved, but a copy was not written: %s\n", warning.c_str());
   }
   last_save.valid = true;
-  SendJson(res, last_save.answer);
+  return saved;
+}
+
+SaveOutcome HttpServer::SaveMap() {
+  if (impl_->options.state_dir.empty()) {
+    SaveOutcome outcome;
+    outcome.error = "slamd was started without --state-dir";
+    return outcome;
+  }
+  const std::lock_guard lock(impl_->save_mutex);
+  return impl_->SaveLocked();
 }
 
 void HttpServer::Impl::HandleReset(httplib::Response& res) {

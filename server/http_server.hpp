@@ -13,10 +13,10 @@
 #include <string>
 #include <string_view>
 #include <vector>
-#include <string_view>
 
 #include "hw_link/link.hpp"
 #include "server/slam_service.hpp"
+#include "server/state_store.hpp"
 #include "server/tune_jobs.hpp"
 
 namespace slam::server {
@@ -76,6 +76,10 @@ class HttpServer {
   void Run();
   /// Stops serving (from any thread); event streams end within half a second.
   void Stop();
+
+  /// Saves the newest snapshot into --state-dir as POST /api/v1/map/save does (one save at a
+  /// time): for the save at a clean stop.
+  SaveOutcome SaveMap();
 
   /// Serves one raw HTTP/1.1 request held in memory, exactly as one arriving on a connection
   /// that closes after it (parser, limits, token, routes, handlers), and returns the raw

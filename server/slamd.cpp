@@ -261,5 +261,14 @@ int main(int argc, char** argv) {
   if (status_thread.joinable()) status_thread.join();
   service.Stop();
   link.Stop();
+  // What was mapped since the last save is kept: a clean stop (systemd's SIGTERM) saves.
+  if (!state_dir.empty()) {
+    const slam::server::SaveOutcome saved = server.SaveMap();
+    if (saved.error) {
+      std::fprintf(stderr, "slamd: the map was not saved at exit: %s\n", saved.error->c_str());
+      return 1;
+    }
+    if (!quiet) std::fprintf(stderr, "slamd: saved the map in %s\n", state_dir.c_str());
+  }
   return 0;
 }

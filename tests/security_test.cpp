@@ -480,14 +480,15 @@ TEST(Starvation, ANormalClientIsAnsweredPromptlyHoweverManySlowOrIdleConnections
 
 TEST(Starvation, ResetRequestsPilingUpDoNotStallTheApi) {
   // Each reset request waited up to 2 s on a server thread for the SLAM thread to apply it: 24
-  // at once stalled every other request. At 1e8 rays per scan a scan takes seconds here, so the
-  // reset waits the full 2 s.
+  // at once stalled every other request. At 1e8 rays per scan a scan takes seconds (3.2 s
+  // here), so a reset waits the full 2 s.
   SlamdProcess slamd;
   std::string error;
   ASSERT_TRUE(slamd.Start({"--budget", "100000000"}, &error)) << error;
   Http http(slamd.host(), slamd.port());
-  ASSERT_TRUE(PollMetric(http, "slamd_scans_total", 20.0, [](double v) { return v >= 1; }))
-      << "no scan processed";
+  // The virtual marXbot's first half turn reaches the SLAM within half a second; it then works
+  // on it for seconds (more under the sanitizers) and applies no reset meanwhile.
+  std::this_thread::sleep_for(std::chrono::milliseconds(1000));
   constexpr int kResets = 40;
   std::vector<std::thread> resetters;
   std::vector<int> statuses(kResets, 0);
