@@ -7,6 +7,8 @@
 
 #include <ifaddrs.h>
 
+#include <iostream>
+
 // clang-format off
 #include "tests/slamd_harness.hpp"
 // clang-format on
@@ -455,11 +457,13 @@ TEST(Starvation, ANormalClientIsAnsweredPromptlyHoweverManySlowOrIdleConnections
     held.push_back(fd);
   }
   std::this_thread::sleep_for(std::chrono::milliseconds(300));  // all of them accepted
+  double slowest = 0.0;
   for (int attempt = 0; attempt < 5; ++attempt) {
     const RawReply reply = RawExchange(
         slamd.port(), "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
     EXPECT_EQ(reply.status, 200) << reply.raw;
     EXPECT_LT(reply.seconds, 1.0) << attempt;
+    slowest = std::max(slowest, reply.seconds);
     // The slow ones trickle on: a byte each.
     for (int k = 0; k < 200; ++k) SendAll(held[static_cast<size_t>(k)], "x");
   }
@@ -469,7 +473,11 @@ TEST(Starvation, ANormalClientIsAnsweredPromptlyHoweverManySlowOrIdleConnections
     const auto start = Clock::now();
     EXPECT_EQ(http.Get("/api/v1/health").status, 200);
     EXPECT_LT(SecondsSince(start), 1.0) << i;
+    slowest = std::max(slowest, SecondsSince(start));
   }
+  // Informational (RELIABILITY.md).
+  std::cout << "slowest answer to the normal client beside 500 slow or idle connections: "
+            << slowest * 1e3 << " ms\n";
   // 300 idle connections of one address: beyond 64 waiting, the longest waiting were closed.
   const std::optional<double> evicted =
       PollMetric(http, "slamd_http_connections_evicted_total", 5.0, [](double v) { return v >= 236; });
