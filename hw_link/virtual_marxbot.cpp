@@ -102,6 +102,11 @@ void VirtualMarxbotSource::Advance(double until_s) {
     const std::lock_guard lock(truth_mutex_);
     ground_truth_.insert(ground_truth_.end(), output.ground_truth.begin(),
                          output.ground_truth.end());
+    const double keep_from = ground_truth_.back().t - kKeptTruthS;
+    while (ground_truth_.front().t < keep_from) {
+      ground_truth_.pop_front();
+      ++truth_dropped_;
+    }
   }
 }
 
@@ -158,16 +163,18 @@ SourceCounters VirtualMarxbotSource::Counters() const {
 
 std::vector<TimedPose> VirtualMarxbotSource::GroundTruth() const {
   const std::lock_guard lock(truth_mutex_);
-  return ground_truth_;
+  return {ground_truth_.begin(), ground_truth_.end()};
 }
 
 size_t VirtualMarxbotSource::GroundTruthSince(size_t first, std::vector<TimedPose>& out) const {
   const std::lock_guard lock(truth_mutex_);
-  if (first < ground_truth_.size()) {
-    out.insert(out.end(), ground_truth_.begin() + static_cast<std::ptrdiff_t>(first),
+  const size_t made = truth_dropped_ + ground_truth_.size();
+  const size_t from = std::max(first, truth_dropped_) - truth_dropped_;
+  if (from < ground_truth_.size()) {
+    out.insert(out.end(), ground_truth_.begin() + static_cast<std::ptrdiff_t>(from),
                ground_truth_.end());
   }
-  return ground_truth_.size();
+  return made;
 }
 
 }  // namespace slam::hw

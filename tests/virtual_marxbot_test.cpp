@@ -249,5 +249,36 @@ TEST_F(ExperimentTest, LiveVirtualMarxbotIsPacedInRealTime) {
   EXPECT_FALSE(source.GroundTruth().empty());
 }
 
+TEST_F(ExperimentTest, TheVirtualMarxbotKeepsTheLastMinuteOfGroundTruthOnly) {
+  // It kept every tracker pose for the whole run (55 KB a minute) though its reader copies
+  // them as they come.
+  VirtualMarxbotOptions options;
+  options.paced = false;
+  options.duration_s = 75.0;
+  config_.duration_s = 75.0;
+  VirtualMarxbotSource source(world_, "cluttered", robot_, config_, options);
+  std::vector<TimedFrame> frames;
+  std::vector<TimedPose> read;  // what a reader copying as they come gets
+  size_t next = 0;
+  ReadOutcome outcome;
+  for (int i = 0; i < 100000 && outcome.status != ReadStatus::kEnd; ++i) {
+    frames.clear();
+    outcome = source.Read(frames, std::chrono::milliseconds(20));
+    next = source.GroundTruthSince(next, read);
+  }
+  ASSERT_EQ(outcome.status, ReadStatus::kEnd);
+  const double rate = config_.tracker_rate_hz;
+  EXPECT_NEAR(static_cast<double>(next), 75.0 * rate, 10.0);  // the tracker runs on a little
+  EXPECT_EQ(read.size(), next);  // nothing missed by a reader keeping up
+  for (size_t i = 1; i < read.size(); ++i) ASSERT_GT(read[i].t, read[i - 1].t) << i;
+  const std::vector<TimedPose> kept = source.GroundTruth();
+  EXPECT_NEAR(static_cast<double>(kept.size()), VirtualMarxbotSource::kKeptTruthS * rate, 2.0);
+  EXPECT_EQ(kept.back().t, read.back().t);
+  // A reader that fell behind gets what is still kept, and the count of all made.
+  std::vector<TimedPose> late;
+  EXPECT_EQ(source.GroundTruthSince(0, late), next);
+  EXPECT_EQ(late.size(), kept.size());
+}
+
 }  // namespace
 }  // namespace slam::hw
