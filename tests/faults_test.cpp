@@ -438,6 +438,16 @@ int StartOnUdp(SlamdProcess& slamd) {
   return std::atoi(source.c_str() + prefix.size());
 }
 
+/// Sends the first third of `frames` (10 s of robot traffic) at 4x and waits until slamd has
+/// read all of it and mapped; the status then (the last one polled if it did not).
+json SendFirstThird(UdpSender& sender, Http& http, const std::vector<LoggedFrame>& frames) {
+  const size_t third = frames.size() / 3;
+  SendUdp(sender, frames, 0, third, 4.0, {});
+  return PollStatus(http, 10.0, [&](const json& s) {
+    return s["link"].value("frames", uint64_t{0}) == third && Scans(s) > 0;
+  });
+}
+
 TEST(SlamdFaults, UdpSilenceIsReportedAndBurstsOfLostAndCorruptFramesAreCountedAndSurvived) {
   const auto frames = ExperimentFrames();
   ASSERT_FALSE(frames.empty());
@@ -449,10 +459,7 @@ TEST(SlamdFaults, UdpSilenceIsReportedAndBurstsOfLostAndCorruptFramesAreCountedA
 
   // 10 s of robot traffic at 4x: mapping.
   const size_t third = frames.size() / 3;
-  SendUdp(sender, frames, 0, third, 4.0, {});
-  const json mapping = PollStatus(http, 10.0, [&](const json& s) {
-    return s["link"].value("frames", uint64_t{0}) == third && Scans(s) > 0;
-  });
+  const json mapping = SendFirstThird(sender, http, frames);
   ASSERT_GT(Scans(mapping), 0) << mapping.dump();
 
   // The sender goes quiet: within two seconds the link is reported silent, slamd serves on.
@@ -501,10 +508,7 @@ TEST(SlamdFaults, SpoofedOdometryAndScannerDatagramsAreCountedAndSurvived) {
   Http http(slamd.host(), slamd.port());
   UdpSender sender(udp_port);
   const size_t third = frames.size() / 3;
-  SendUdp(sender, frames, 0, third, 4.0, {});
-  const json before = PollStatus(http, 10.0, [&](const json& s) {
-    return s["link"].value("frames", uint64_t{0}) == third && Scans(s) > 0;
-  });
+  const json before = SendFirstThird(sender, http, frames);
   ASSERT_GT(Scans(before), 0) << before.dump();
   const double rss_before = RssMib(slamd.pid());
 
