@@ -23,8 +23,8 @@
 #include "engine/ray_cast.hpp"
 #include "engine/sensor_model.hpp"
 #include "engine/slam.hpp"
+#include "offline/replay.hpp"
 #include "scheduler/fixed_plan.hpp"
-#include "scheduler/replay.hpp"
 
 namespace slam::bench {
 namespace {
@@ -520,7 +520,7 @@ BENCHMARK(BM_Scan)
 void BM_Replay(benchmark::State& state) {
   const ThreadLimit limit(state.range(1));
   const SimulatedRun& run = RoomsRun(static_cast<double>(state.range(0)));
-  ReplayOptions options;
+  offline::ReplayOptions options;
   options.config = BenchConfig(true);
   options.budget.rays_per_scan = 65000;
   double wall_s = 0.0;
@@ -528,7 +528,8 @@ void BM_Replay(benchmark::State& state) {
   int64_t rays = 0;
   for (auto _ : state) {
     const auto start = std::chrono::steady_clock::now();
-    const ReplayResult result = Replay(ShippedRobot(), run.scans, run.ground_truth, options);
+    const offline::ReplayResult result =
+        offline::Replay(ShippedRobot(), run.scans, run.ground_truth, options);
     wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     scans += result.scans;
     rays += result.rays_total;

@@ -14,10 +14,10 @@
 #include "hw_link/can_frame.hpp"
 #include "hw_link/candump.hpp"
 #include "hw_link/event_decoder.hpp"
-#include "hw_link/experiment.hpp"
 #include "hw_link/frame_decoder.hpp"
 #include "hw_link/slcan.hpp"
-#include "hw_link/virtual_marxbot.hpp"
+#include "sim/experiment_writer.hpp"
+#include "sim/virtual_marxbot.hpp"
 
 namespace slam::bench {
 namespace {
@@ -26,7 +26,7 @@ namespace {
 const std::vector<hw::TimedFrame>& Frames() {
   static const std::vector<hw::TimedFrame> frames = [] {
     std::vector<hw::TimedFrame> out;
-    for (const auto& [t, frame] : hw::SimulatedFrames(ShippedRobot(), RoomsRun(60.0).output)) {
+    for (const auto& [t, frame] : sim::SimulatedFrames(ShippedRobot(), RoomsRun(60.0).output)) {
       hw::TimedFrame timed;
       timed.frame = frame;
       timed.t = t;
@@ -42,8 +42,8 @@ const std::vector<std::string>& CandumpLines() {
   static const std::vector<std::string> lines = [] {
     std::vector<std::string> out;
     for (const hw::TimedFrame& f : Frames()) {
-      const int64_t us = hw::kSimulationEpochUs + std::llround(f.t * 1e6);
-      out.push_back(hw::FormatCandumpLine(us, hw::kSimulatedInterface, f.frame));
+      const int64_t us = sim::kSimulationEpochUs + std::llround(f.t * 1e6);
+      out.push_back(hw::FormatCandumpLine(us, sim::kSimulatedInterface, f.frame));
     }
     return out;
   }();

@@ -8,9 +8,9 @@
 
 #include "bench/bench_support.hpp"
 #include "engine/slam.hpp"
+#include "offline/tuner.hpp"
 #include "scheduler/fixed_plan.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
-#include "scheduler/tuner.hpp"
 
 namespace slam::bench {
 namespace {
@@ -77,12 +77,12 @@ BENCHMARK(BM_SchedulerPlan)->ArgNames({"adaptive", "cpu_share"})->ArgsProduct({{
 // individual of the evolution strategy is. Items are scans.
 void BM_TunerFitness(benchmark::State& state) {
   const SimulatedRun& run = RoomsRun(static_cast<double>(state.range(0)));
-  const std::vector<TuningExperiment> experiments{
-      TuningExperiment{run.name, &ShippedRobot(), &run.scans, &run.ground_truth}};
-  TuningSettings settings;
+  const std::vector<offline::TuningExperiment> experiments{
+      offline::TuningExperiment{run.name, &ShippedRobot(), &run.scans, &run.ground_truth}};
+  offline::TuningSettings settings;
   double fitness = 0.0;
   for (auto _ : state) {
-    fitness = Fitness(experiments, settings.start, state.range(1), settings);
+    fitness = offline::Fitness(experiments, settings.start, state.range(1), settings);
     benchmark::DoNotOptimize(fitness);
   }
   Items(state, state.iterations() * static_cast<int64_t>(run.scans.size()), "scans");

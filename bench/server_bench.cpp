@@ -19,10 +19,10 @@
 #include "engine/grid_geometry.hpp"
 #include "engine/io/map_image.hpp"
 #include "hw_link/link.hpp"
-#include "hw_link/virtual_marxbot.hpp"
 #include "server/http_server.hpp"
 #include "server/slam_service.hpp"
 #include "server/tune_jobs.hpp"
+#include "sim/virtual_marxbot.hpp"
 
 // After Eigen (through the engine's headers): <resolv.h>, which httplib includes, defines a
 // `_res` macro that breaks Eigen's templates when it comes first.
@@ -59,12 +59,12 @@ class Slamd {
   Slamd() {
     sim::ScenarioConfig scenario;
     scenario.seed = 7;
-    hw::VirtualMarxbotOptions virtual_options;
+    sim::VirtualMarxbotOptions virtual_options;
     virtual_options.paced = false;
     virtual_options.duration_s = 20.0;
-    auto source = std::make_unique<hw::VirtualMarxbotSource>(
+    auto source = std::make_unique<sim::VirtualMarxbotSource>(
         *sim::BuiltinArena("rooms"), "rooms", ShippedRobot(), scenario, virtual_options);
-    const hw::VirtualMarxbotSource* truth = source.get();
+    const sim::VirtualMarxbotSource* truth = source.get();
     hw::LinkOptions link_options;
     link_options.queue_capacity = 1 << 16;  // the unpaced source must not lose events
     link_ = std::make_unique<hw::Link>(std::move(source), ShippedRobot(), link_options);

@@ -27,10 +27,10 @@
 #include "engine/io/robot_json.hpp"
 #include "fuzz/fuzz_check.hpp"
 #include "hw_link/link.hpp"
-#include "hw_link/virtual_marxbot.hpp"
 #include "server/http_server.hpp"
 #include "server/slam_service.hpp"
 #include "server/tune_jobs.hpp"
+#include "sim/virtual_marxbot.hpp"
 #include "sim/world.hpp"
 
 using slam::fuzz::Check;
@@ -52,12 +52,12 @@ struct Slamd {
     Check(robot.ok(), "the shipped robot.json does not load");
     slam::sim::ScenarioConfig scenario;
     scenario.seed = 3;
-    slam::hw::VirtualMarxbotOptions options;
+    slam::sim::VirtualMarxbotOptions options;
     options.paced = false;
     options.duration_s = 4.0;
-    auto source = std::make_unique<slam::hw::VirtualMarxbotSource>(
+    auto source = std::make_unique<slam::sim::VirtualMarxbotSource>(
         *slam::sim::BuiltinArena("box"), "box", robot.value(), scenario, options);
-    const slam::hw::VirtualMarxbotSource* truth = source.get();
+    const slam::sim::VirtualMarxbotSource* truth = source.get();
     slam::hw::LinkOptions link_options;
     link_options.queue_capacity = 1 << 16;
     link = std::make_unique<slam::hw::Link>(std::move(source), robot.value(), link_options);

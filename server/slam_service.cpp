@@ -82,7 +82,7 @@ OccupancyGrid SnapshotGrid(const SlamSnapshot& snapshot, int logodds_limit) {
   return grid;
 }
 
-SlamService::SlamService(hw::Link& link, const hw::VirtualMarxbotSource* truth_source,
+SlamService::SlamService(hw::Link& link, const sim::VirtualMarxbotSource* truth_source,
                          const ServiceOptions& options)
     : link_(link),
       truth_source_(truth_source),

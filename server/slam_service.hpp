@@ -24,9 +24,9 @@
 #include "engine/scan_assembler.hpp"
 #include "engine/slam.hpp"
 #include "hw_link/link.hpp"
-#include "hw_link/virtual_marxbot.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 #include "server/state_store.hpp"
+#include "sim/virtual_marxbot.hpp"
 
 namespace slam::server {
 
@@ -120,7 +120,7 @@ class SlamService {
  public:
   /// `truth_source` (may be null): the virtual marXbot inside `link`, for the ground truth.
   /// Preconditions: options valid (robot, params, config, budget).
-  SlamService(hw::Link& link, const hw::VirtualMarxbotSource* truth_source,
+  SlamService(hw::Link& link, const sim::VirtualMarxbotSource* truth_source,
               const ServiceOptions& options);
   ~SlamService();  // stops the thread
   SlamService(const SlamService&) = delete;
@@ -162,7 +162,7 @@ class SlamService {
   void UpdateGroundTruth();
 
   hw::Link& link_;
-  const hw::VirtualMarxbotSource* truth_source_;
+  const sim::VirtualMarxbotSource* truth_source_;
   ServiceOptions options_;
   RayBudgetScheduler scheduler_;
 

@@ -22,12 +22,12 @@
 #include "engine/io/params_json.hpp"
 #include "engine/io/robot_json.hpp"
 #include "hw_link/link.hpp"
-#include "hw_link/source_spec.hpp"
-#include "hw_link/virtual_marxbot.hpp"
 #include "server/http_server.hpp"
 #include "server/slam_service.hpp"
+#include "server/source_spec.hpp"
 #include "server/state_store.hpp"
 #include "server/tune_jobs.hpp"
+#include "sim/virtual_marxbot.hpp"
 
 #ifndef SLAMD_WEB_ROOT
 #define SLAMD_WEB_ROOT ""
@@ -189,15 +189,15 @@ int main(int argc, char** argv) {
     }
   }
 
-  slam::hw::SourceSpecOptions source_options;
+  slam::server::SourceSpecOptions source_options;
   source_options.paced = true;
   source_options.speed = speed;
   source_options.seed = seed;
-  auto opened = slam::hw::OpenSourceSpec(source, robot.value(), source_options);
+  auto opened = slam::server::OpenSourceSpec(source, robot.value(), source_options);
   if (auto* error = std::get_if<std::string>(&opened)) return Fail(*error, 1);
   auto frame_source = std::move(std::get<std::unique_ptr<slam::hw::FrameSource>>(opened));
   const auto* virtual_robot =
-      dynamic_cast<const slam::hw::VirtualMarxbotSource*>(frame_source.get());
+      dynamic_cast<const slam::sim::VirtualMarxbotSource*>(frame_source.get());
 
   // Signals go to one thread that stops the server cleanly; every other thread blocks them.
   // SIGHUP (the terminal went away) and SIGQUIT stop it cleanly too, instead of killing it

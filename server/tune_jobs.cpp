@@ -10,9 +10,9 @@
 #include <utility>
 
 #include "engine/io/params_json.hpp"
-#include "hw_link/experiment_reader.hpp"
-#include "tools/evaluation.hpp"
-#include "tools/tuning_report.hpp"
+#include "offline/evaluation.hpp"
+#include "offline/experiment_reader.hpp"
+#include "offline/tuning_report.hpp"
 
 namespace slam::server {
 namespace {
@@ -142,7 +142,7 @@ std::vector<std::string> JobManager::Experiments() const {
   std::vector<std::string> names;
   if (experiments_dir_.empty()) return names;
   std::string error;
-  for (const std::string& dir : tools::FindExperimentDirs({experiments_dir_}, error)) {
+  for (const std::string& dir : offline::FindExperimentDirs({experiments_dir_}, error)) {
     names.push_back(fs::path(dir).filename().string());
   }
   return names;
@@ -206,11 +206,12 @@ std::optional<nlohmann::json> JobManager::Start(const TuneRequest& request, std:
 
 void JobManager::Run(Job& job) {
   // Load the experiments (on this idle-priority thread: it can take seconds).
-  std::vector<hw::Experiment> loaded;
+  std::vector<offline::Experiment> loaded;
   std::string error;
   for (const std::string& name : job.experiments) {
     if (job.cancel) break;
-    hw::ExperimentLoad load = hw::LoadExperiment((fs::path(experiments_dir_) / name).string());
+    offline::ExperimentLoad load =
+        offline::LoadExperiment((fs::path(experiments_dir_) / name).string());
     if (!load.ok()) {
       error = load.error;
       break;
@@ -221,21 +222,21 @@ void JobManager::Run(Job& job) {
     }
     loaded.push_back(std::move(*load.experiment));
   }
-  std::vector<TuningExperiment> experiments;
-  for (const hw::Experiment& e : loaded) {
+  std::vector<offline::TuningExperiment> experiments;
+  for (const offline::Experiment& e : loaded) {
     experiments.push_back({fs::path(e.dir).filename().string(), &e.robot, &e.scans, &e.ground_truth});
   }
 
   bool finished = false;
   if (error.empty() && !job.cancel) {
-    TuningSettings settings;
+    offline::TuningSettings settings;
     settings.budgets = {job.request.budget};
     settings.evolution.population = job.request.population;
     settings.evolution.generations = job.request.generations;
     settings.evolution.seed = job.request.seed;
     settings.policy = job.request.policy;
-    TuningState state = NewTuningState(settings, experiments);
-    TuningCallbacks callbacks;
+    offline::TuningState state = offline::NewTuningState(settings, experiments);
+    offline::TuningCallbacks callbacks;
     callbacks.cancel = &job.cancel;
     callbacks.progress = [&](double done, double total) {
       {
@@ -246,7 +247,7 @@ void JobManager::Run(Job& job) {
     };
     const std::string out_dir =
         output_dir_.empty() ? std::string() : (fs::path(output_dir_) / "jobs" / job.id).string();
-    callbacks.generation_done = [&](const TuningState& s, int64_t) {
+    callbacks.generation_done = [&](const offline::TuningState& s, int64_t) {
       {
         const std::lock_guard lock(mutex_);
         job.generations = s.budgets.front().generations;
@@ -254,11 +255,11 @@ void JobManager::Run(Job& job) {
         for (const auto& g : job.generations) job.evaluations_done += g.evaluations;
       }
       if (!out_dir.empty()) {
-        for (const std::string& e : tools::WriteTuningOutputs(out_dir, s)) error += e + "\n";
+        for (const std::string& e : offline::WriteTuningOutputs(out_dir, s)) error += e + "\n";
       }
       Touch();
     };
-    finished = RunTuning(experiments, state, 1, callbacks);
+    finished = offline::RunTuning(experiments, state, 1, callbacks);
   }
   {
     const std::lock_guard lock(mutex_);
@@ -275,7 +276,7 @@ void JobManager::Run(Job& job) {
 
 nlohmann::json JobManager::ToJson(const Job& job) const {
   const TuneRequest& r = job.request;
-  EvolutionConfig evolution;
+  offline::EvolutionConfig evolution;
   evolution.population = r.population;
   const int64_t total =
       r.population + int64_t{r.generations - 1} * (r.population - evolution.elites());
@@ -293,7 +294,7 @@ nlohmann::json JobManager::ToJson(const Job& job) const {
                       {"experiments", job.experiments},
                       {"error", job.error}};
   nlohmann::json history = nlohmann::json::array();
-  for (const GenerationSummary& g : job.generations) {
+  for (const offline::GenerationSummary& g : job.generations) {
     history.push_back({{"generation", g.generation},
                        {"min", g.fitness.min},
                        {"q1", g.fitness.q1},
@@ -303,7 +304,7 @@ nlohmann::json JobManager::ToJson(const Job& job) const {
   }
   j["history"] = std::move(history);
   if (!job.generations.empty()) {
-    const Individual& best = job.generations.back().best;
+    const offline::Individual& best = job.generations.back().best;
     j["best"] = {{"fitness", best.fitness}, {"params", io::ParamsToJson(best.params)}};
   } else {
     j["best"] = nullptr;

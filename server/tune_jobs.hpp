@@ -15,8 +15,8 @@
 #include <vector>
 
 #include "engine/config_error.hpp"
+#include "offline/tuner.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
-#include "scheduler/tuner.hpp"
 
 namespace slam::server {
 
@@ -74,7 +74,7 @@ class JobManager {
     std::vector<std::string> experiments;
     double progress = 0.0;
     int64_t evaluations_done = 0;
-    std::vector<GenerationSummary> generations;
+    std::vector<offline::GenerationSummary> generations;
     std::atomic<bool> cancel{false};
     std::thread thread;
   };

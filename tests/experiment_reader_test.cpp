@@ -1,4 +1,4 @@
-#include "hw_link/experiment_reader.hpp"
+#include "offline/experiment_reader.hpp"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -8,11 +8,11 @@
 #include <sstream>
 #include <string>
 
-#include "hw_link/experiment.hpp"
+#include "sim/experiment_writer.hpp"
 #include "sim/scenario.hpp"
 #include "tests/test_support.hpp"
 
-namespace slam::hw {
+namespace slam::offline {
 namespace {
 
 std::string ReadFile(const std::filesystem::path& path) {
@@ -215,4 +215,4 @@ TEST_F(ExperimentReaderTest, GarbledWorldIsAnError) {
 }
 
 }  // namespace
-}  // namespace slam::hw
+}  // namespace slam::offline

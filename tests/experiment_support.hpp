@@ -5,8 +5,8 @@
 
 #include <string>
 
-#include "hw_link/experiment.hpp"
-#include "hw_link/experiment_reader.hpp"
+#include "offline/experiment_reader.hpp"
+#include "sim/experiment_writer.hpp"
 #include "sim/scenario.hpp"
 #include "tests/test_support.hpp"
 
@@ -14,16 +14,18 @@ namespace slam::testing {
 
 /// Writes a `duration_s` experiment of the shipped robot in a built-in arena into `dir` and
 /// reads it back; records a test failure and returns nothing when either step fails.
-inline std::optional<hw::Experiment> GenerateExperiment(const std::string& dir, const std::string& arena,
-                                                        double duration_s, uint64_t seed) {
+inline std::optional<offline::Experiment> GenerateExperiment(const std::string& dir,
+                                                             const std::string& arena,
+                                                             double duration_s, uint64_t seed) {
   sim::ScenarioConfig config;
   config.duration_s = duration_s;
   config.seed = seed;
-  if (const auto error = hw::WriteSimulatedExperiment(dir, *sim::BuiltinArena(arena), arena, ShippedRobot(), config)) {
+  if (const auto error = sim::WriteSimulatedExperiment(dir, *sim::BuiltinArena(arena), arena,
+                                                       ShippedRobot(), config)) {
     ADD_FAILURE() << *error;
     return std::nullopt;
   }
-  hw::ExperimentLoad load = hw::LoadExperiment(dir);
+  offline::ExperimentLoad load = offline::LoadExperiment(dir);
   if (!load.ok()) ADD_FAILURE() << load.error;
   return std::move(load.experiment);
 }

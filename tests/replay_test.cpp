@@ -2,33 +2,33 @@
 // serial), the files slam-replay writes read back by independent parsers, the evaluation table,
 // and the slam-replay command line on good and bad experiments.
 
-#include <gtest/gtest.h>
+#include "offline/replay.hpp"
 
-#include <atomic>
+#include <gtest/gtest.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <sstream>
-#include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
 
 #include "engine/io/map_image.hpp"
 #include "engine/io/tum.hpp"
 #include "engine/ray_cast.hpp"
-#include "hw_link/experiment.hpp"
-#include "hw_link/experiment_reader.hpp"
-#include "scheduler/replay.hpp"
+#include "offline/evaluation.hpp"
+#include "offline/experiment_reader.hpp"
+#include "offline/replay_report.hpp"
+#include "sim/experiment_writer.hpp"
 #include "sim/scenario.hpp"
-#include "tests/map_file_support.hpp"
 #include "tests/experiment_support.hpp"
+#include "tests/map_file_support.hpp"
 #include "tests/test_support.hpp"
-#include "tools/evaluation.hpp"
-#include "tools/replay_report.hpp"
 
 namespace slam {
 namespace {
@@ -54,21 +54,22 @@ class ReplayTest : public ::testing::Test {
     experiments_->clear();
   }
 
-  static const hw::Experiment& Box() { return experiments_->at(0); }
+  static const offline::Experiment& Box() { return experiments_->at(0); }
 
-  static ReplayResult Run(const hw::Experiment& e, int64_t budget, bool refine, uint64_t seed,
-                          bool parallel, int particles = 1) {
-    ReplayOptions options;
+  static offline::ReplayResult Run(const offline::Experiment& e, int64_t budget, bool refine,
+                                   uint64_t seed, bool parallel, int particles = 1) {
+    offline::ReplayOptions options;
     options.budget.rays_per_scan = budget;
     options.refine = refine;
     options.config.seed = seed;
     options.config.parallel = parallel;
     options.params.particles = particles;
-    return Replay(e.robot, e.scans, e.ground_truth, options);
+    return offline::Replay(e.robot, e.scans, e.ground_truth, options);
   }
 
   static inline fs::path root_;
-  static inline std::vector<hw::Experiment>* experiments_ = new std::vector<hw::Experiment>();
+  static inline std::vector<offline::Experiment>* experiments_ =
+      new std::vector<offline::Experiment>();
 };
 
 /// Every cell of the map, for exact comparisons.
@@ -81,7 +82,7 @@ std::vector<std::pair<TileIndex, std::array<LogOdds, kTileCells>>> Cells(const O
   return cells;
 }
 
-void ExpectSameRun(const ReplayResult& a, const ReplayResult& b) {
+void ExpectSameRun(const offline::ReplayResult& a, const offline::ReplayResult& b) {
   ASSERT_EQ(a.trajectory.size(), b.trajectory.size());
   for (size_t i = 0; i < a.trajectory.size(); ++i) {
     ASSERT_EQ(a.trajectory[i].t, b.trajectory[i].t) << i;
@@ -132,9 +133,9 @@ TEST_F(ReplayTest, AClockJumpInTheLogMovesTheGroundTruthWithTheScans) {
   // every pose after the jump was compared with the ground truth an hour later: ATE inflated.
   const fs::path jumped = root_ / "box-clock-ahead";
   CopyWithClockChange(root_ / "box", jumped, 20.0, 3600.0);
-  const hw::ExperimentLoad load = hw::LoadExperiment(jumped.string());
+  const offline::ExperimentLoad load = offline::LoadExperiment(jumped.string());
   ASSERT_TRUE(load.ok()) << load.error;
-  const hw::Experiment& e = *load.experiment;
+  const offline::Experiment& e = *load.experiment;
   EXPECT_EQ(e.counters.clock_jumps, 1u);
   EXPECT_EQ(e.counters.ground_truth_unplaced, 0u);
   ASSERT_EQ(e.ground_truth.size(), Box().ground_truth.size());
@@ -147,8 +148,8 @@ TEST_F(ReplayTest, AClockJumpInTheLogMovesTheGroundTruthWithTheScans) {
   EXPECT_EQ(e.ground_truth.front().t, Box().ground_truth.front().t);
   // ... so the evaluation is the unshifted experiment's, within what the 1 s the jump left
   // in the replay's time changes.
-  const ReplayResult base = Run(Box(), 8000, true, 1, false);
-  const ReplayResult run = Run(e, 8000, true, 1, false);
+  const offline::ReplayResult base = Run(Box(), 8000, true, 1, false);
+  const offline::ReplayResult run = Run(e, 8000, true, 1, false);
   ASSERT_TRUE(base.quality && run.quality);
   EXPECT_NEAR(run.quality->matched, base.quality->matched, 3);
   EXPECT_LT(run.quality->ate_rmse_m, base.quality->ate_rmse_m + 0.01);
@@ -159,9 +160,9 @@ TEST_F(ReplayTest, GroundTruthInASilenceTakenForAClockJumpIsLeftOutAndCounted) {
   // 1 s later, and ground truth from inside the silence matches no replayed time.
   const fs::path silent = root_ / "box-silent";
   CopyWithClockChange(root_ / "box", silent, 1e9, 0.0, 10.0, 17.0);
-  const hw::ExperimentLoad load = hw::LoadExperiment(silent.string());
+  const offline::ExperimentLoad load = offline::LoadExperiment(silent.string());
   ASSERT_TRUE(load.ok()) << load.error;
-  const hw::Experiment& e = *load.experiment;
+  const offline::Experiment& e = *load.experiment;
   EXPECT_EQ(e.counters.clock_jumps, 1u);
   // 7 s of the tracker's 30 Hz, less 0.2 s at either end that still belongs to the frames beside
   // it.
@@ -173,25 +174,25 @@ TEST_F(ReplayTest, GroundTruthInASilenceTakenForAClockJumpIsLeftOutAndCounted) {
 }
 
 TEST_F(ReplayTest, SameSeedSameOutputParallelOrSerial) {
-  const ReplayResult serial = Run(Box(), 16250, true, 7, false, 3);
-  const ReplayResult parallel = Run(Box(), 16250, true, 7, true, 3);
-  const ReplayResult again = Run(Box(), 16250, true, 7, true, 3);
+  const offline::ReplayResult serial = Run(Box(), 16250, true, 7, false, 3);
+  const offline::ReplayResult parallel = Run(Box(), 16250, true, 7, true, 3);
+  const offline::ReplayResult again = Run(Box(), 16250, true, 7, true, 3);
   ExpectSameRun(serial, parallel);
   ExpectSameRun(parallel, again);
   // And the seed matters: another one gives another trajectory.
-  const ReplayResult other = Run(Box(), 16250, true, 8, true, 3);
+  const offline::ReplayResult other = Run(Box(), 16250, true, 8, true, 3);
   ASSERT_EQ(other.trajectory.size(), serial.trajectory.size());
   EXPECT_NE(other.trajectory.back().pose.x, serial.trajectory.back().pose.x);
 }
 
 TEST_F(ReplayTest, BudgetBoundsEveryScanAndPhaseBOffFollowsOdometry) {
-  const ReplayResult slam = Run(Box(), 8125, true, 1, true);
+  const offline::ReplayResult slam = Run(Box(), 8125, true, 1, true);
   EXPECT_EQ(slam.scans, static_cast<int64_t>(Box().scans.size()));
   EXPECT_LE(slam.rays_per_scan_max, 8125);
   EXPECT_GT(slam.rays_total, slam.scans * 8125 * 9 / 10);
   // Phase B off: the trajectory is dead reckoning, pose for pose.
-  const ReplayResult odometry = Run(Box(), 8125, false, 1, true);
-  const std::vector<TimedPose> dead = DeadReckoning(Box().scans);
+  const offline::ReplayResult odometry = Run(Box(), 8125, false, 1, true);
+  const std::vector<TimedPose> dead = offline::DeadReckoning(Box().scans);
   ASSERT_EQ(odometry.trajectory.size(), dead.size());
   for (size_t i = 0; i < dead.size(); ++i) {
     ASSERT_EQ(odometry.trajectory[i].t, dead[i].t) << i;
@@ -205,20 +206,22 @@ TEST_F(ReplayTest, ACancelledReplayStopsAfterTheScanInProgress) {
   // A tuning job read its cancel flag only between evaluations: at 2e7 rays/scan a cancel took
   // 65 s, and SIGTERM waited for it. The replay now looks at the flag before every scan.
   std::atomic<bool> cancel{false};
-  ReplayOptions options;
+  offline::ReplayOptions options;
   options.budget.rays_per_scan = 2000;
   options.cancel = &cancel;
   options.progress = [&](size_t done, size_t) {
     if (done == 3) cancel = true;
   };
-  const ReplayResult run = Replay(Box().robot, Box().scans, Box().ground_truth, options);
+  const offline::ReplayResult run =
+      offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
   ASSERT_GT(Box().scans.size(), 10u);
   EXPECT_TRUE(run.cancelled);
   EXPECT_EQ(run.scans, 3);
   EXPECT_EQ(run.plans.size(), 3u);
   cancel = false;
   options.progress = nullptr;
-  const ReplayResult whole = Replay(Box().robot, Box().scans, Box().ground_truth, options);
+  const offline::ReplayResult whole =
+      offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
   EXPECT_FALSE(whole.cancelled);
   EXPECT_EQ(whole.scans, static_cast<int64_t>(Box().scans.size()));
 }
@@ -226,7 +229,7 @@ TEST_F(ReplayTest, ACancelledReplayStopsAfterTheScanInProgress) {
 TEST_F(ReplayTest, ACancelInTheMiddleOfAScanOfSecondsEndsItSoon) {
   // At 1e8 rays/scan one scan takes seconds: the cancel waited for it.
   std::atomic<bool> cancel{false};
-  ReplayOptions options;
+  offline::ReplayOptions options;
   options.budget.rays_per_scan = 100'000'000;
   options.cancel = &cancel;
   std::atomic<double> cancelled_at{0.0};
@@ -239,7 +242,8 @@ TEST_F(ReplayTest, ACancelInTheMiddleOfAScanOfSecondsEndsItSoon) {
     cancelled_at = seconds();
     cancel = true;
   });
-  const ReplayResult run = Replay(Box().robot, Box().scans, Box().ground_truth, options);
+  const offline::ReplayResult run =
+      offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
   const double ended_at = seconds();
   canceller.join();
   EXPECT_TRUE(run.cancelled);
@@ -251,11 +255,12 @@ TEST_F(ReplayTest, CpuShareSettlesWithinAFifthOfItsTarget) {
   // 2 % of a core on the box experiment: about 13 ms of CPU per 0.68 s scan. The cost per ray
   // starts from the prior (300 ns) and follows the measured one; over the second half of the
   // run the achieved share is within 20 % of the target.
-  ReplayOptions options;
+  offline::ReplayOptions options;
   options.budget.mode = QuotaMode::kCpuShare;
   options.budget.cpu_share = 0.02;
   options.config.parallel = false;  // the share is measured on this thread
-  const ReplayResult run = Replay(Box().robot, Box().scans, Box().ground_truth, options);
+  const offline::ReplayResult run =
+      offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
   ASSERT_EQ(run.plans.size(), Box().scans.size());
   double cpu = 0.0, robot = 0.0;
   for (size_t k = run.plans.size() / 2; k < run.plans.size(); ++k) {
@@ -273,12 +278,12 @@ TEST_F(ReplayTest, CpuShareSettlesWithinAFifthOfItsTarget) {
 }
 
 TEST_F(ReplayTest, AdaptivePolicyStaysWithinTheQuotaAndRecordsItsPlans) {
-  for (const hw::Experiment& e : *experiments_) {
-    ReplayOptions options;
+  for (const offline::Experiment& e : *experiments_) {
+    offline::ReplayOptions options;
     options.budget.rays_per_scan = 16250;
     options.budget.policy = BudgetPolicy::kAdaptive;
     options.config.parallel = true;
-    const ReplayResult run = Replay(e.robot, e.scans, e.ground_truth, options);
+    const offline::ReplayResult run = offline::Replay(e.robot, e.scans, e.ground_truth, options);
     ASSERT_EQ(run.plans.size(), e.scans.size());
     EXPECT_LE(run.rays_per_scan_max, 16250);
     for (const PlanRecord& r : run.plans) {
@@ -293,7 +298,7 @@ TEST_F(ReplayTest, AdaptivePolicyStaysWithinTheQuotaAndRecordsItsPlans) {
     ASSERT_TRUE(run.quality.has_value());
     // Deterministic like the fixed policy: the same run again gives the same trajectory.
     options.config.parallel = false;
-    const ReplayResult again = Replay(e.robot, e.scans, e.ground_truth, options);
+    const offline::ReplayResult again = offline::Replay(e.robot, e.scans, e.ground_truth, options);
     ASSERT_EQ(again.trajectory.size(), run.trajectory.size());
     EXPECT_EQ(again.trajectory.back().pose.x, run.trajectory.back().pose.x);
     EXPECT_EQ(again.rays_total, run.rays_total);
@@ -301,19 +306,20 @@ TEST_F(ReplayTest, AdaptivePolicyStaysWithinTheQuotaAndRecordsItsPlans) {
 }
 
 TEST_F(ReplayTest, PoseRefinementBeatsOdometryAtTheLargestBudget) {
-  for (const hw::Experiment& e : *experiments_) {
-    const ReplayResult slam = Run(e, 65000, true, 1, true);
-    const ReplayResult odometry = Run(e, 65000, false, 1, true);
+  for (const offline::Experiment& e : *experiments_) {
+    const offline::ReplayResult slam = Run(e, 65000, true, 1, true);
+    const offline::ReplayResult odometry = Run(e, 65000, false, 1, true);
     ASSERT_TRUE(slam.quality && odometry.quality);
     EXPECT_LT(slam.quality->ate_rmse_m, odometry.quality->ate_rmse_m) << e.meta.name;
   }
 }
 
 TEST_F(ReplayTest, SummaryHasTheContractKeysAndMapQuality) {
-  ReplayOptions options;
+  offline::ReplayOptions options;
   options.budget.rays_per_scan = 8125;
-  const ReplayResult run = Replay(Box().robot, Box().scans, Box().ground_truth, options);
-  const Json summary = tools::ReplaySummary(Box(), run, options);
+  const offline::ReplayResult run =
+      offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
+  const Json summary = offline::ReplaySummary(Box(), run, options);
   for (const char* key : {"q", "e", "ate_rmse_m", "scans", "rays_total", "rays_per_scan_max",
                           "budget", "wall_s", "realtime_factor", "frames", "frames_rejected"}) {
     ASSERT_TRUE(summary.contains(key)) << key;
@@ -335,8 +341,9 @@ TEST_F(ReplayTest, SummaryHasTheContractKeysAndMapQuality) {
 TEST_F(ReplayTest, WrittenMapFilesReadBackWithTheDocumentedValues) {
   const fs::path dir = root_ / "out";
   fs::create_directories(dir);
-  const ReplayResult run = Run(Box(), 8125, true, 1, true);
-  const auto written = tools::WriteReplayOutputs(dir.string(), Box(), run, false, BudgetSettings{.rays_per_scan = 8125});
+  const offline::ReplayResult run = Run(Box(), 8125, true, 1, true);
+  const auto written = offline::WriteReplayOutputs(dir.string(), Box(), run, false,
+                                                   BudgetSettings{.rays_per_scan = 8125});
   ASSERT_TRUE(written.errors.empty()) << written.errors.front();
 
   // map.yaml: map_server's keys and values.
@@ -391,14 +398,14 @@ TEST_F(ReplayTest, WrittenMapFilesReadBackWithTheDocumentedValues) {
 }
 
 TEST_F(ReplayTest, EvaluationIsTheSameWithOneJobOrTwo) {
-  tools::EvaluationPlan plan;
+  offline::EvaluationPlan plan;
   plan.budgets = {8125, 2000};
   plan.jobs = 1;
-  const auto serial = tools::Evaluate(*experiments_, plan);
+  const auto serial = offline::Evaluate(*experiments_, plan);
   plan.jobs = 2;
   size_t calls = 0;
-  const auto parallel =
-      tools::Evaluate(*experiments_, plan, [&](const tools::EvaluationRun&, size_t done, size_t total) {
+  const auto parallel = offline::Evaluate(
+      *experiments_, plan, [&](const offline::EvaluationRun&, size_t done, size_t total) {
         ++calls;
         EXPECT_EQ(done, calls);
         EXPECT_EQ(total, 8u);
@@ -422,13 +429,13 @@ TEST_F(ReplayTest, EvaluationIsTheSameWithOneJobOrTwo) {
   EXPECT_FALSE(serial[2].refine);
   EXPECT_EQ(serial[4].experiment, 1u);
 
-  const std::string csv = tools::EvaluationCsv(*experiments_, serial);
+  const std::string csv = offline::EvaluationCsv(*experiments_, serial);
   EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 9);
   EXPECT_EQ(csv.rfind("experiment,world,mode,budget,ate_rmse_m,q,e,", 0), 0u);
-  const std::string md = tools::EvaluationMarkdown(*experiments_, serial);
+  const std::string md = offline::EvaluationMarkdown(*experiments_, serial);
   EXPECT_NE(md.find("| 8125 | SLAM |"), std::string::npos) << md;
   EXPECT_NE(md.find("| box-seed1 |"), std::string::npos) << md;
-  const tools::EvaluationChecks checks = tools::CheckEvaluation(serial);
+  const offline::EvaluationChecks checks = offline::CheckEvaluation(serial);
   EXPECT_EQ(checks.largest_budget, 8125);
   EXPECT_EQ(checks.smallest_budget, 2000);
   EXPECT_EQ(checks.experiments_compared, 2);

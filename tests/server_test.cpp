@@ -3,7 +3,6 @@
 // versions, reset, budget changes), job requests and the security helpers.
 
 #include <gtest/gtest.h>
-
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -18,7 +17,7 @@
 #include "engine/io/atomic_file.hpp"
 #include "engine/random.hpp"
 #include "hw_link/transports.hpp"
-#include "scheduler/replay.hpp"
+#include "offline/replay.hpp"
 #include "server/http_server.hpp"
 #include "server/slam_service.hpp"
 #include "server/state_store.hpp"
@@ -450,7 +449,7 @@ class SlamServiceTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
     dir_ = new TempDir("slam_service");
-    experiment_ = new std::optional<hw::Experiment>(
+    experiment_ = new std::optional<offline::Experiment>(
         testing::GenerateExperiment(dir_->File("exp"), "box", 20.0, 11));
   }
   static void TearDownTestSuite() {
@@ -486,11 +485,11 @@ class SlamServiceTest : public ::testing::Test {
   }
 
   static TempDir* dir_;
-  static std::optional<hw::Experiment>* experiment_;
+  static std::optional<offline::Experiment>* experiment_;
 };
 
 TempDir* SlamServiceTest::dir_ = nullptr;
-std::optional<hw::Experiment>* SlamServiceTest::experiment_ = nullptr;
+std::optional<offline::Experiment>* SlamServiceTest::experiment_ = nullptr;
 
 TEST_F(SlamServiceTest, MapsTheLogAndPublishesSnapshots) {
   ASSERT_TRUE(*experiment_);
@@ -524,10 +523,11 @@ TEST_F(SlamServiceTest, MapsTheLogAndPublishesSnapshots) {
   EXPECT_EQ(trajectory.back().pose.x, last->pose.pose.x);
   // The live path (log -> link -> assembler -> scheduler -> engine) builds exactly the map that
   // Replay builds from the experiment read from disk, at the same budget and seed.
-  ReplayOptions replay;
+  offline::ReplayOptions replay;
   replay.budget = Options().budget;
   replay.config.parallel = false;
-  const ReplayResult expected = Replay((*experiment_)->robot, (*experiment_)->scans, {}, replay);
+  const offline::ReplayResult expected =
+      offline::Replay((*experiment_)->robot, (*experiment_)->scans, {}, replay);
   const OccupancyGrid grid = SnapshotGrid(*last, service.logodds_limit());
   ASSERT_EQ(grid.TileCount(), expected.map.TileCount());
   for (const TileRef& t : expected.map.Tiles()) {

@@ -1,4 +1,4 @@
-#include "hw_link/source_spec.hpp"
+#include "server/source_spec.hpp"
 
 #include <gtest/gtest.h>
 
@@ -8,38 +8,38 @@
 
 #include "test_support.hpp"
 
-namespace slam::hw {
+namespace slam::server {
 namespace {
 
-std::string ErrorOf(const OpenResult& result) {
+std::string ErrorOf(const hw::OpenResult& result) {
   const auto* error = std::get_if<std::string>(&result);
   return error != nullptr ? *error : std::string();
 }
 
 TEST(SourceSpecTest, OpensTheVirtualMarxbotAndUdp) {
   const RobotDescription robot = testing::ShippedRobot();
-  const OpenResult sim = OpenSourceSpec("sim:rooms", robot);
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(sim)) << ErrorOf(sim);
-  EXPECT_EQ(std::get<std::unique_ptr<FrameSource>>(sim)->Describe(), "sim:rooms");
+  const hw::OpenResult sim = OpenSourceSpec("sim:rooms", robot);
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(sim)) << ErrorOf(sim);
+  EXPECT_EQ(std::get<std::unique_ptr<hw::FrameSource>>(sim)->Describe(), "sim:rooms");
 
-  const OpenResult udp = OpenSourceSpec("udp:127.0.0.1:0", robot);
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(udp)) << ErrorOf(udp);
-  EXPECT_GT(BoundUdpPort(*std::get<std::unique_ptr<FrameSource>>(udp)), 0);
+  const hw::OpenResult udp = OpenSourceSpec("udp:127.0.0.1:0", robot);
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(udp)) << ErrorOf(udp);
+  EXPECT_GT(hw::BoundUdpPort(*std::get<std::unique_ptr<hw::FrameSource>>(udp)), 0);
 }
 
 TEST(SourceSpecTest, UdpListensOnLoopbackUnlessToldAndCanNameItsSender) {
   // udp:PORT once listened on every address: anyone on the network could send odometry.
   const RobotDescription robot = testing::ShippedRobot();
-  const OpenResult plain = OpenSourceSpec("udp:0", robot);
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(plain)) << ErrorOf(plain);
-  const FrameSource& source = *std::get<std::unique_ptr<FrameSource>>(plain);
-  EXPECT_EQ(source.Describe(), "udp:127.0.0.1:" + std::to_string(BoundUdpPort(source)));
+  const hw::OpenResult plain = OpenSourceSpec("udp:0", robot);
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(plain)) << ErrorOf(plain);
+  const hw::FrameSource& source = *std::get<std::unique_ptr<hw::FrameSource>>(plain);
+  EXPECT_EQ(source.Describe(), "udp:127.0.0.1:" + std::to_string(hw::BoundUdpPort(source)));
 
-  const OpenResult any = OpenSourceSpec("udp:0.0.0.0:0,from=192.168.1.7", robot);
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(any)) << ErrorOf(any);
-  const FrameSource& restricted = *std::get<std::unique_ptr<FrameSource>>(any);
+  const hw::OpenResult any = OpenSourceSpec("udp:0.0.0.0:0,from=192.168.1.7", robot);
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(any)) << ErrorOf(any);
+  const hw::FrameSource& restricted = *std::get<std::unique_ptr<hw::FrameSource>>(any);
   EXPECT_EQ(restricted.Describe(),
-            "udp:0.0.0.0:" + std::to_string(BoundUdpPort(restricted)) + ",from=192.168.1.7");
+            "udp:0.0.0.0:" + std::to_string(hw::BoundUdpPort(restricted)) + ",from=192.168.1.7");
 }
 
 TEST(SourceSpecTest, BadSpecsGiveClearErrors) {
@@ -66,10 +66,10 @@ TEST(SourceSpecTest, BadSpecsGiveClearErrors) {
 }
 
 TEST(SourceSpecTest, SocketCanFailsClearlyWithoutAfCan) {
-  if (SocketCanAvailable()) GTEST_SKIP() << "this kernel has AF_CAN";
+  if (hw::SocketCanAvailable()) GTEST_SKIP() << "this kernel has AF_CAN";
   const std::string error = ErrorOf(OpenSourceSpec("socketcan:can0", testing::ShippedRobot()));
   EXPECT_NE(error.find("AF_CAN"), std::string::npos) << error;
 }
 
 }  // namespace
-}  // namespace slam::hw
+}  // namespace slam::server

@@ -1,4 +1,4 @@
-#include "scheduler/statistics.hpp"
+#include "offline/statistics.hpp"
 
 #include <gtest/gtest.h>
 
@@ -93,7 +93,7 @@ double NormalPValueOracle(const std::vector<double>& a, const std::vector<double
 }
 
 TEST(SummarizeFive, OneElement) {
-  const FiveNumbers five = SummarizeFive({7.0});
+  const offline::FiveNumbers five = offline::SummarizeFive({7.0});
   EXPECT_EQ(five.min, 7.0);
   EXPECT_EQ(five.q1, 7.0);
   EXPECT_EQ(five.median, 7.0);
@@ -104,7 +104,7 @@ TEST(SummarizeFive, OneElement) {
 TEST(SummarizeFive, OddSizeUnsorted) {
   // Sorted: 1 3 4 8 10 15 21 (n = 7). Type 7: h = (n - 1) p.
   // q1: h = 1.5 -> 3 + 0.5 * (4 - 3) = 3.5; median: h = 3 -> 8; q3: h = 4.5 -> 10 + 0.5 * 5 = 12.5.
-  const FiveNumbers five = SummarizeFive({15, 1, 21, 8, 3, 10, 4});
+  const offline::FiveNumbers five = offline::SummarizeFive({15, 1, 21, 8, 3, 10, 4});
   EXPECT_DOUBLE_EQ(five.min, 1.0);
   EXPECT_DOUBLE_EQ(five.q1, 3.5);
   EXPECT_DOUBLE_EQ(five.median, 8.0);
@@ -114,7 +114,7 @@ TEST(SummarizeFive, OddSizeUnsorted) {
 
 TEST(SummarizeFive, EvenSize) {
   // 1 2 3 4: q1 h = 0.75 -> 1.75; median h = 1.5 -> 2.5; q3 h = 2.25 -> 3.25.
-  const FiveNumbers five = SummarizeFive({4, 3, 2, 1});
+  const offline::FiveNumbers five = offline::SummarizeFive({4, 3, 2, 1});
   EXPECT_DOUBLE_EQ(five.min, 1.0);
   EXPECT_DOUBLE_EQ(five.q1, 1.75);
   EXPECT_DOUBLE_EQ(five.median, 2.5);
@@ -125,7 +125,7 @@ TEST(SummarizeFive, EvenSize) {
 TEST(SummarizeFive, DuplicatesUnsorted) {
   // Sorted: 1 2 4 4 4 9 (n = 6). q1: h = 1.25 -> 2 + 0.25 * (4 - 2) = 2.5;
   // median: h = 2.5 -> 4 + 0.5 * 0 = 4; q3: h = 3.75 -> 4 + 0.75 * 0 = 4.
-  const FiveNumbers five = SummarizeFive({4, 1, 4, 9, 2, 4});
+  const offline::FiveNumbers five = offline::SummarizeFive({4, 1, 4, 9, 2, 4});
   EXPECT_DOUBLE_EQ(five.min, 1.0);
   EXPECT_DOUBLE_EQ(five.q1, 2.5);
   EXPECT_DOUBLE_EQ(five.median, 4.0);
@@ -135,7 +135,7 @@ TEST(SummarizeFive, DuplicatesUnsorted) {
 
 TEST(SummarizeFive, TenValuesWithFractionalPositions) {
   // 0 2 4 ... 18 (n = 10). q1: h = 2.25 -> 4.5; median: h = 4.5 -> 9; q3: h = 6.75 -> 13.5.
-  const FiveNumbers five = SummarizeFive({18, 0, 16, 2, 14, 4, 12, 6, 10, 8});
+  const offline::FiveNumbers five = offline::SummarizeFive({18, 0, 16, 2, 14, 4, 12, 6, 10, 8});
   EXPECT_DOUBLE_EQ(five.q1, 4.5);
   EXPECT_DOUBLE_EQ(five.median, 9.0);
   EXPECT_DOUBLE_EQ(five.q3, 13.5);
@@ -143,27 +143,27 @@ TEST(SummarizeFive, TenValuesWithFractionalPositions) {
 
 TEST(MannWhitney, SeparatedSamplesOfThree) {
   // The 20 arrangements of 3 + 3 values: only "all a below" and "all a above" are as extreme.
-  const MannWhitneyResult low = MannWhitneyU({1, 2, 3}, {4, 5, 6});
+  const offline::MannWhitneyResult low = offline::MannWhitneyU({1, 2, 3}, {4, 5, 6});
   EXPECT_TRUE(low.exact);
   EXPECT_EQ(low.u, 0.0);
   EXPECT_NEAR(low.p_value, 2.0 / 20.0, 1e-15);
-  const MannWhitneyResult high = MannWhitneyU({4, 5, 6}, {1, 2, 3});
+  const offline::MannWhitneyResult high = offline::MannWhitneyU({4, 5, 6}, {1, 2, 3});
   EXPECT_EQ(high.u, 9.0);
   EXPECT_NEAR(high.p_value, 2.0 / 20.0, 1e-15);
 }
 
 TEST(MannWhitney, SeparatedSamplesOfFourAndFive) {
   // C(9, 4) = 126 arrangements, two as extreme as complete separation.
-  const MannWhitneyResult result = MannWhitneyU({1, 2, 3, 4}, {5, 6, 7, 8, 9});
+  const offline::MannWhitneyResult result = offline::MannWhitneyU({1, 2, 3, 4}, {5, 6, 7, 8, 9});
   EXPECT_EQ(result.u, 0.0);
   EXPECT_NEAR(result.p_value, 2.0 / 126.0, 1e-15);
 }
 
 TEST(MannWhitney, IdenticalSamplesGiveOne) {
-  const MannWhitneyResult same = MannWhitneyU({1, 2, 3}, {1, 2, 3});
+  const offline::MannWhitneyResult same = offline::MannWhitneyU({1, 2, 3}, {1, 2, 3});
   EXPECT_EQ(same.u, 4.5);  // 3 pairs a > b + 3 ties / 2
   EXPECT_DOUBLE_EQ(same.p_value, 1.0);
-  const MannWhitneyResult all_tied = MannWhitneyU({5, 5}, {5, 5, 5});
+  const offline::MannWhitneyResult all_tied = offline::MannWhitneyU({5, 5}, {5, 5, 5});
   EXPECT_TRUE(all_tied.exact);
   EXPECT_EQ(all_tied.u, 3.0);
   EXPECT_DOUBLE_EQ(all_tied.p_value, 1.0);
@@ -174,7 +174,7 @@ TEST(MannWhitney, HandEnumeratedTies) {
   // The C(5, 3) = 10 choices for a, by rank multiset:
   //   {1,3,3} 3 ways, U = 1 | {1,3,5} 3 ways, U = 3 | {3,3,3} 1 way, U = 3 | {3,3,5} 3 ways, U = 5
   // |U - 3| >= 2 in 3 + 3 of them: p = 6/10.
-  const MannWhitneyResult result = MannWhitneyU({1, 2, 2}, {2, 3});
+  const offline::MannWhitneyResult result = offline::MannWhitneyU({1, 2, 2}, {2, 3});
   EXPECT_EQ(result.u, 1.0);
   EXPECT_NEAR(result.p_value, 0.6, 1e-15);
 }
@@ -187,7 +187,7 @@ TEST(MannWhitney, MatchesBruteForceOnRandomTiedSamples) {
     const int levels = 2 + static_cast<int>(rng.Uniform() * 5);
     const std::vector<double> a = TiedSample(rng, n_a, levels);
     const std::vector<double> b = TiedSample(rng, n_b, levels);
-    const MannWhitneyResult result = MannWhitneyU(a, b);
+    const offline::MannWhitneyResult result = offline::MannWhitneyU(a, b);
     ASSERT_TRUE(result.exact);
     ASSERT_EQ(2.0 * result.u, static_cast<double>(DoubledU(a, b))) << "trial " << trial;
     ASSERT_NEAR(result.p_value, BruteForcePValue(a, b), 1e-12) << "trial " << trial;
@@ -200,8 +200,8 @@ TEST(MannWhitney, SymmetricInSampleOrder) {
   for (const int size : {5, 12, 48, 60, 61, 90}) {
     const std::vector<double> a = TiedSample(rng, size, 6);
     const std::vector<double> b = TiedSample(rng, size + 3 * (size % 2), 6);
-    const MannWhitneyResult ab = MannWhitneyU(a, b);
-    const MannWhitneyResult ba = MannWhitneyU(b, a);
+    const offline::MannWhitneyResult ab = offline::MannWhitneyU(a, b);
+    const offline::MannWhitneyResult ba = offline::MannWhitneyU(b, a);
     EXPECT_EQ(ab.u + ba.u, static_cast<double>(a.size() * b.size())) << size;
     EXPECT_NEAR(ab.p_value, ba.p_value, 1e-12) << size;
     EXPECT_EQ(ab.exact, ba.exact);
@@ -215,18 +215,18 @@ TEST(MannWhitney, CriticalValueTableEightByEight) {
   std::vector<double> a;
   std::vector<double> b;
   EightByEightWithU(13, a, b);
-  const MannWhitneyResult at_critical = MannWhitneyU(a, b);
+  const offline::MannWhitneyResult at_critical = offline::MannWhitneyU(a, b);
   EXPECT_EQ(at_critical.u, 13.0);
   EXPECT_LE(at_critical.p_value, 0.05);
   EXPECT_NEAR(at_critical.p_value, 642.0 / 12870.0, 1e-14);
   EightByEightWithU(14, a, b);
-  const MannWhitneyResult above = MannWhitneyU(a, b);
+  const offline::MannWhitneyResult above = offline::MannWhitneyU(a, b);
   EXPECT_EQ(above.u, 14.0);
   EXPECT_GT(above.p_value, 0.05);
   EXPECT_NEAR(above.p_value, 836.0 / 12870.0, 1e-14);
   // The mirror image (U = 64 - 13 = 51) is as extreme.
   EightByEightWithU(13, a, b);
-  EXPECT_NEAR(MannWhitneyU(b, a).p_value, 642.0 / 12870.0, 1e-14);
+  EXPECT_NEAR(offline::MannWhitneyU(b, a).p_value, 642.0 / 12870.0, 1e-14);
 }
 
 TEST(MannWhitney, ExactTailAtTheLimitIsAccurate) {
@@ -239,12 +239,12 @@ TEST(MannWhitney, ExactTailAtTheLimitIsAccurate) {
   }
   double choose = 1.0;  // C(120, 60)
   for (int i = 1; i <= 60; ++i) choose = choose * (60.0 + i) / i;
-  const MannWhitneyResult separated = MannWhitneyU(a, b);
+  const offline::MannWhitneyResult separated = offline::MannWhitneyU(a, b);
   EXPECT_TRUE(separated.exact);
   EXPECT_NEAR(separated.p_value / (2.0 / choose), 1.0, 1e-12);
   // Swap the largest a with the smallest b: U = 1, and U <= 1 happens in 2 arrangements per tail.
   std::swap(a.back(), b.front());
-  const MannWhitneyResult one_swap = MannWhitneyU(a, b);
+  const offline::MannWhitneyResult one_swap = offline::MannWhitneyU(a, b);
   EXPECT_EQ(one_swap.u, 1.0);
   EXPECT_NEAR(one_swap.p_value / (4.0 / choose), 1.0, 1e-12);
 }
@@ -259,14 +259,14 @@ TEST(MannWhitney, ExactAgreesWithNormalNearTheLimit) {
     a.push_back(i);
     b.push_back(i + 5.5);
   }
-  const MannWhitneyResult result = MannWhitneyU(a, b);
+  const offline::MannWhitneyResult result = offline::MannWhitneyU(a, b);
   EXPECT_TRUE(result.exact);
   EXPECT_EQ(result.u, 1485.0);
   EXPECT_NEAR(result.p_value, 0.0989188122061937, 1e-12);
   EXPECT_NEAR(result.p_value, NormalPValueOracle(a, b), 0.01);
   // One more value crosses the limit to the normal approximation.
   b.push_back(65.5);
-  EXPECT_FALSE(MannWhitneyU(a, b).exact);
+  EXPECT_FALSE(offline::MannWhitneyU(a, b).exact);
 }
 
 TEST(MannWhitney, NormalApproximationWithTiesByHand) {
@@ -279,15 +279,15 @@ TEST(MannWhitney, NormalApproximationWithTiesByHand) {
   std::fill(a.begin() + 40, a.end(), 1.0);
   std::vector<double> b(60, 0.0);
   std::fill(b.begin() + 20, b.end(), 1.0);
-  const MannWhitneyResult result = MannWhitneyU(a, b);
+  const offline::MannWhitneyResult result = offline::MannWhitneyU(a, b);
   EXPECT_FALSE(result.exact);
   EXPECT_EQ(result.u, 1600.0);
   EXPECT_NEAR(result.p_value, 0.0069020, 1e-6);
 }
 
 TEST(MannWhitney, NormalApproximationAllTiedGivesOne) {
-  const MannWhitneyResult result =
-      MannWhitneyU(std::vector<double>(70, 2.0), std::vector<double>(60, 2.0));
+  const offline::MannWhitneyResult result =
+      offline::MannWhitneyU(std::vector<double>(70, 2.0), std::vector<double>(60, 2.0));
   EXPECT_FALSE(result.exact);
   EXPECT_EQ(result.u, 2100.0);
   EXPECT_EQ(result.p_value, 1.0);
@@ -299,7 +299,7 @@ TEST(MannWhitney, FortyEightEachWithHeavyTies) {
   const std::vector<double> a = TiedSample(rng, 48, 4);
   std::vector<double> b = TiedSample(rng, 48, 4);
   for (double& v : b) v = std::min(3.0, v + (rng.Uniform() < 0.3 ? 1.0 : 0.0));
-  const MannWhitneyResult result = MannWhitneyU(a, b);
+  const offline::MannWhitneyResult result = offline::MannWhitneyU(a, b);
   EXPECT_TRUE(result.exact);
   EXPECT_GT(result.p_value, 0.0);
   EXPECT_LE(result.p_value, 1.0);

@@ -4,6 +4,8 @@
 // after an interruption, and extending a finished study), and the tables and files slam-tune
 // writes, read back.
 
+#include "offline/tuner.hpp"
+
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 
@@ -15,14 +17,13 @@
 #include <sstream>
 
 #include "engine/io/params_json.hpp"
-#include "hw_link/experiment.hpp"
-#include "hw_link/experiment_reader.hpp"
-#include "scheduler/evolution.hpp"
-#include "scheduler/tuner.hpp"
+#include "offline/evolution.hpp"
+#include "offline/experiment_reader.hpp"
+#include "offline/tuning_report.hpp"
+#include "sim/experiment_writer.hpp"
 #include "sim/scenario.hpp"
 #include "tests/experiment_support.hpp"
 #include "tests/test_support.hpp"
-#include "tools/tuning_report.hpp"
 
 namespace slam {
 namespace {
@@ -32,15 +33,16 @@ namespace fs = std::filesystem;
 /// A smooth toy fitness: squared distance to a target, each parameter in units of its sigma.
 double Toy(const SlamParams& p, const SlamParams& target) {
   double sum = 0.0;
-  const auto& specs = TunedParameters();
+  const auto& specs = offline::TunedParameters();
   for (size_t i = 0; i < specs.size(); ++i) {
-    sum += std::pow((GetParameter(p, i) - GetParameter(target, i)) / specs[i].sigma, 2);
+    sum += std::pow(
+        (offline::GetParameter(p, i) - offline::GetParameter(target, i)) / specs[i].sigma, 2);
   }
   return sum;
 }
 
 TEST(Evolution, MutationStaysInBoundsRoundsIntegersAndUsesTheSigmas) {
-  const auto& specs = TunedParameters();
+  const auto& specs = offline::TunedParameters();
   ASSERT_EQ(specs.size(), 9u);
   SlamParams middle;  // far from every bound (in sigmas) so that clamping does not bias
   middle.angle_between_scans_deg = 20.0;
@@ -53,16 +55,16 @@ TEST(Evolution, MutationStaysInBoundsRoundsIntegersAndUsesTheSigmas) {
   std::vector<double> sum_sq(specs.size(), 0.0);
   const int n = 20000;
   for (int k = 0; k < n; ++k) {
-    const SlamParams m = Mutate(middle, rng);
+    const SlamParams m = offline::Mutate(middle, rng);
     EXPECT_TRUE(Validate(m).empty());
     for (size_t i = 0; i < specs.size(); ++i) {
-      const double v = GetParameter(m, i);
+      const double v = offline::GetParameter(m, i);
       ASSERT_GE(v, specs[i].lo);
       ASSERT_LE(v, specs[i].hi);
       if (specs[i].integer) {
         ASSERT_EQ(v, std::round(v));
       }
-      sum_sq[i] += std::pow(v - GetParameter(middle, i), 2);
+      sum_sq[i] += std::pow(v - offline::GetParameter(middle, i), 2);
     }
   }
   for (size_t i = 0; i < specs.size(); ++i) {
@@ -75,7 +77,7 @@ TEST(Evolution, MutationStaysInBoundsRoundsIntegersAndUsesTheSigmas) {
   low.particles = 1;
   low.angle_between_scans_deg = 0.0;
   for (int k = 0; k < 1000; ++k) {
-    const SlamParams m = Mutate(low, rng);
+    const SlamParams m = offline::Mutate(low, rng);
     ASSERT_GE(m.particles, 1);
     ASSERT_GE(m.angle_between_scans_deg, 0.0);
   }
@@ -92,39 +94,41 @@ TEST(Evolution, ConvergesOnAToyFunctionAndElitismKeepsTheBest) {
   target.resampling_period_scans = 3;
   target.angle_between_scans_deg = 10.0;
   target.particles = 4;
-  const EvolutionConfig config;  // the paper's: 48, 40 generations, 25 %
+  const offline::EvolutionConfig config;  // the paper's: 48, 40 generations, 25 %
   ASSERT_EQ(config.elites(), 12);
-  std::vector<Individual> population = InitialPopulation(SlamParams{}, config, 7);
+  std::vector<offline::Individual> population = offline::InitialPopulation(SlamParams{}, config, 7);
   ASSERT_EQ(population.size(), 48u);
   EXPECT_EQ(population[0].params, SlamParams{});  // the start itself comes first
-  const auto evaluate = [&](std::vector<Individual>& pop) {
-    for (Individual& i : pop) {
+  const auto evaluate = [&](std::vector<offline::Individual>& pop) {
+    for (offline::Individual& i : pop) {
       if (!i.evaluated) i = {i.params, Toy(i.params, target), true};
     }
   };
   evaluate(population);
-  const double first = Ranked(population).front().fitness;
+  const double first = offline::Ranked(population).front().fitness;
   double best = first;
   for (int g = 1; g < config.generations; ++g) {
-    const Individual previous_best = Ranked(population).front();
-    population = NextGeneration(population, config, 7, g);
+    const offline::Individual previous_best = offline::Ranked(population).front();
+    population = offline::NextGeneration(population, config, 7, g);
     ASSERT_EQ(population.size(), 48u);
     // The elites come first, unchanged and already evaluated; the rest are new.
     for (size_t i = 0; i < 48; ++i) EXPECT_EQ(population[i].evaluated, i < 12);
     EXPECT_EQ(population[0].params, previous_best.params);
     evaluate(population);
-    const double now = Ranked(population).front().fitness;
+    const double now = offline::Ranked(population).front().fitness;
     EXPECT_LE(now, best) << "generation " << g;  // elitism: never worse
     best = now;
   }
   EXPECT_GT(first, 100.0);
   EXPECT_LT(best, 0.02 * first);
-  const SlamParams found = Ranked(population).front().params;
+  const SlamParams found = offline::Ranked(population).front().params;
   EXPECT_EQ(found.particles, 4);
   EXPECT_NEAR(found.angle_between_scans_deg, 10.0, 2.5);
   // The same seed and stream give the same generation; another stream another one.
-  EXPECT_EQ(NextGeneration(population, config, 7, 5)[20].params, NextGeneration(population, config, 7, 5)[20].params);
-  EXPECT_NE(NextGeneration(population, config, 8, 5)[20].params, NextGeneration(population, config, 7, 5)[20].params);
+  EXPECT_EQ(offline::NextGeneration(population, config, 7, 5)[20].params,
+            offline::NextGeneration(population, config, 7, 5)[20].params);
+  EXPECT_NE(offline::NextGeneration(population, config, 8, 5)[20].params,
+            offline::NextGeneration(population, config, 7, 5)[20].params);
 }
 
 /// Two short generated experiments, shared by the reduced studies.
@@ -145,13 +149,14 @@ class TunerTest : public ::testing::Test {
     experiments_->clear();
   }
 
-  static std::vector<TuningExperiment> Experiments() {
-    std::vector<TuningExperiment> out;
-    for (const hw::Experiment& e : *experiments_) out.push_back({e.meta.name, &e.robot, &e.scans, &e.ground_truth});
+  static std::vector<offline::TuningExperiment> Experiments() {
+    std::vector<offline::TuningExperiment> out;
+    for (const offline::Experiment& e : *experiments_)
+      out.push_back({e.meta.name, &e.robot, &e.scans, &e.ground_truth});
     return out;
   }
-  static TuningSettings Reduced(int generations) {
-    TuningSettings settings;
+  static offline::TuningSettings Reduced(int generations) {
+    offline::TuningSettings settings;
     settings.budgets = {4000};
     settings.evolution.population = 12;
     settings.evolution.generations = generations;
@@ -159,71 +164,75 @@ class TunerTest : public ::testing::Test {
     return settings;
   }
   /// The full study of the suite, run once: 12 individuals, 8 generations, 2 threads.
-  static const TuningState& Full() {
-    static const TuningState state = [] {
-      TuningState s = NewTuningState(Reduced(8), Experiments());
-      EXPECT_TRUE(RunTuning(Experiments(), s, 2));
+  static const offline::TuningState& Full() {
+    static const offline::TuningState state = [] {
+      offline::TuningState s = offline::NewTuningState(Reduced(8), Experiments());
+      EXPECT_TRUE(offline::RunTuning(Experiments(), s, 2));
       return s;
     }();
     return state;
   }
 
   static inline fs::path root_;
-  static inline std::vector<hw::Experiment>* experiments_ = new std::vector<hw::Experiment>();
+  static inline std::vector<offline::Experiment>* experiments_ =
+      new std::vector<offline::Experiment>();
 };
 
-void ExpectSameStudy(const TuningState& a, const TuningState& b) {
-  EXPECT_EQ(tools::TuningStateToJson(a), tools::TuningStateToJson(b));
+void ExpectSameStudy(const offline::TuningState& a, const offline::TuningState& b) {
+  EXPECT_EQ(offline::TuningStateToJson(a), offline::TuningStateToJson(b));
 }
 
 TEST_F(TunerTest, ReducedStudyImprovesOverGenerations) {
-  const TuningState& state = Full();
+  const offline::TuningState& state = Full();
   ASSERT_EQ(state.budgets.size(), 1u);
-  const BudgetRun& run = state.budgets[0];
+  const offline::BudgetRun& run = state.budgets[0];
   ASSERT_EQ(run.generations.size(), 8u);
   EXPECT_EQ(run.generations[0].evaluations, 12);
   EXPECT_EQ(run.generations[1].evaluations, 9);  // elites are not evaluated again
   for (size_t g = 1; g < run.generations.size(); ++g) {
     EXPECT_LE(run.generations[g].best.fitness, run.generations[g - 1].best.fitness);
   }
-  const FiveNumbers& first = run.generations.front().fitness;
-  const FiveNumbers& last = run.generations.back().fitness;
+  const offline::FiveNumbers& first = run.generations.front().fitness;
+  const offline::FiveNumbers& last = run.generations.back().fitness;
   EXPECT_LT(last.median, first.median);
   EXPECT_LT(run.generations.back().best.fitness, run.generations.front().best.fitness);
   // The defaults are generation 0's first individual; the best beats them.
   EXPECT_LT(run.generations.back().best.fitness, run.generations.front().fitness_values[0]);
   // The best's fitness is what an evaluation of its parameters gives.
-  EXPECT_DOUBLE_EQ(Fitness(Experiments(), run.generations.back().best.params, 4000, state.settings),
-                   run.generations.back().best.fitness);
+  EXPECT_DOUBLE_EQ(
+      offline::Fitness(Experiments(), run.generations.back().best.params, 4000, state.settings),
+      run.generations.back().best.fitness);
   std::printf("reduced study: median %.4f -> %.4f, best %.4f -> %.4f\n", first.median, last.median,
               run.generations.front().best.fitness, run.generations.back().best.fitness);
 }
 
 TEST_F(TunerTest, SameResultWithOneThreadAndResumedOrExtended) {
   // Three generations on one thread are the first three of the two-thread study.
-  TuningState part = NewTuningState(Reduced(3), Experiments());
-  ASSERT_TRUE(RunTuning(Experiments(), part, 1));
+  offline::TuningState part = offline::NewTuningState(Reduced(3), Experiments());
+  ASSERT_TRUE(offline::RunTuning(Experiments(), part, 1));
   ASSERT_EQ(part.budgets[0].generations.size(), 3u);
   for (size_t g = 0; g < 3; ++g) {
     EXPECT_EQ(part.budgets[0].generations[g].fitness_values, Full().budgets[0].generations[g].fitness_values);
   }
   // Saved to JSON, read back and extended to eight generations: the same study.
-  auto reread = tools::TuningStateFromJson(nlohmann::json::parse(tools::TuningStateToJson(part).dump()));
+  auto reread =
+      offline::TuningStateFromJson(nlohmann::json::parse(offline::TuningStateToJson(part).dump()));
   ASSERT_TRUE(reread.ok()) << reread.Message();
-  TuningState resumed = std::move(reread).value();
-  EXPECT_TRUE(tools::ResumeConflicts(resumed, Reduced(8), {"rooms-seed3", "cluttered-seed4"}).empty());
+  offline::TuningState resumed = std::move(reread).value();
+  EXPECT_TRUE(
+      offline::ResumeConflicts(resumed, Reduced(8), {"rooms-seed3", "cluttered-seed4"}).empty());
   resumed.settings.evolution.generations = 8;
-  ASSERT_TRUE(RunTuning(Experiments(), resumed, 2));
+  ASSERT_TRUE(offline::RunTuning(Experiments(), resumed, 2));
   ExpectSameStudy(resumed, Full());
 }
 
 TEST_F(TunerTest, InterruptedRunKeepsFinishedGenerationsAndResumesExactly) {
-  TuningState state = NewTuningState(Reduced(8), Experiments());
+  offline::TuningState state = offline::NewTuningState(Reduced(8), Experiments());
   std::atomic<bool> cancel{false};
   int saved = 0, calls = 0;
-  TuningCallbacks callbacks;
+  offline::TuningCallbacks callbacks;
   callbacks.cancel = &cancel;
-  callbacks.generation_done = [&](const TuningState&, int64_t budget) {
+  callbacks.generation_done = [&](const offline::TuningState&, int64_t budget) {
     EXPECT_EQ(budget, 4000);
     ++saved;
   };
@@ -235,38 +244,38 @@ TEST_F(TunerTest, InterruptedRunKeepsFinishedGenerationsAndResumesExactly) {
     // Stop in the middle of generation 3 (12 + 9 + 9 evaluations of 2 experiments before it).
     if (++calls == 2 * (12 + 9 + 9) + 5) cancel = true;
   };
-  EXPECT_FALSE(RunTuning(Experiments(), state, 2, callbacks));
+  EXPECT_FALSE(offline::RunTuning(Experiments(), state, 2, callbacks));
   EXPECT_EQ(saved, 3);
   EXPECT_EQ(state.budgets[0].generations.size(), 3u);
   cancel = false;
-  ASSERT_TRUE(RunTuning(Experiments(), state, 1));
+  ASSERT_TRUE(offline::RunTuning(Experiments(), state, 1));
   ExpectSameStudy(state, Full());
 }
 
 TEST_F(TunerTest, TablesAndFilesReadBack) {
-  TuningState state = Full();
+  offline::TuningState state = Full();
   // A second budget from the same run, shifted, so that Table III has a pair.
-  BudgetRun other = state.budgets[0];
+  offline::BudgetRun other = state.budgets[0];
   other.budget = 8125;
   for (double& f : other.generations.back().fitness_values) f += 0.5;
   state.settings.budgets.push_back(8125);
   state.budgets.push_back(other);
 
-  const std::string table2 = tools::Table2Markdown(state);
-  for (const ParameterSpec& spec : TunedParameters()) {
+  const std::string table2 = offline::Table2Markdown(state);
+  for (const offline::ParameterSpec& spec : offline::TunedParameters()) {
     EXPECT_NE(table2.find("| `" + std::string(spec.key) + "` |"), std::string::npos) << spec.key;
   }
   EXPECT_NE(table2.find("| parameter | default | 4000 | 8125 |"), std::string::npos);
-  const std::string table3 = tools::Table3Markdown(state);
-  const MannWhitneyResult expected =
-      MannWhitneyU(state.budgets[0].generations.back().fitness_values, other.generations.back().fitness_values);
+  const std::string table3 = offline::Table3Markdown(state);
+  const offline::MannWhitneyResult expected = offline::MannWhitneyU(
+      state.budgets[0].generations.back().fitness_values, other.generations.back().fitness_values);
   char p[32];
   std::snprintf(p, sizeof(p), expected.p_value < 1e-4 ? "%.1e" : "%.4f", expected.p_value);
   EXPECT_NE(table3.find("| 4000 | " + std::string(p) + " |"), std::string::npos) << table3;
   EXPECT_LT(expected.p_value, 0.01);  // shifted by far more than the spread
 
   const testing::TempDir dir("tuning_outputs");
-  ASSERT_TRUE(tools::WriteTuningOutputs(dir.path().string(), state).empty());
+  ASSERT_TRUE(offline::WriteTuningOutputs(dir.path().string(), state).empty());
   for (const char* name : {"results.json", "table2.md", "table3.md", "fig10.svg", "fig10.png", "params/4000.json",
                            "params/8125.json"}) {
     EXPECT_TRUE(fs::exists(dir.path() / name)) << name;
@@ -281,41 +290,43 @@ TEST_F(TunerTest, TablesAndFilesReadBack) {
   EXPECT_EQ(results["budgets"][0]["last_generation"]["fitness"].size(), 12u);
   EXPECT_EQ(results["budgets"][0]["generations"].size(), 8u);
   EXPECT_TRUE(results["budgets"][0]["generations"][7].contains("median"));
-  auto reread = tools::TuningStateFromJson(results);
+  auto reread = offline::TuningStateFromJson(results);
   ASSERT_TRUE(reread.ok()) << reread.Message();
   ExpectSameStudy(reread.value(), state);
 }
 
 TEST(TuningReport, DamagedResultsAreRejectedWithTheReason) {
-  TuningState state;
+  offline::TuningState state;
   state.settings.budgets = {8125};
-  state.budgets.push_back(BudgetRun{8125, {}, {}});
-  const nlohmann::json good = tools::TuningStateToJson(state);
-  ASSERT_TRUE(tools::TuningStateFromJson(good).ok());
+  state.budgets.push_back(offline::BudgetRun{8125, {}, {}});
+  const nlohmann::json good = offline::TuningStateToJson(state);
+  ASSERT_TRUE(offline::TuningStateFromJson(good).ok());
   nlohmann::json bad = good;
   bad["format"] = "something else";
-  EXPECT_NE(tools::TuningStateFromJson(bad).Message().find("not a slam-tune result"), std::string::npos);
+  EXPECT_NE(offline::TuningStateFromJson(bad).Message().find("not a slam-tune result"),
+            std::string::npos);
   bad = good;
   bad["settings"].erase("seed");
-  EXPECT_NE(tools::TuningStateFromJson(bad).Message().find("not a complete slam-tune result"), std::string::npos);
+  EXPECT_NE(offline::TuningStateFromJson(bad).Message().find("not a complete slam-tune result"),
+            std::string::npos);
   bad = good;
   bad["settings"]["start"]["particles"] = 0;
-  EXPECT_NE(tools::TuningStateFromJson(bad).Message().find("particles"), std::string::npos);
+  EXPECT_NE(offline::TuningStateFromJson(bad).Message().find("particles"), std::string::npos);
   bad = good;
   bad["budgets"][0]["budget"] = 16250;
-  EXPECT_FALSE(tools::TuningStateFromJson(bad).ok());
+  EXPECT_FALSE(offline::TuningStateFromJson(bad).ok());
   bad = good;
   bad["budgets"] = nlohmann::json::array();
-  EXPECT_FALSE(tools::TuningStateFromJson(bad).ok());
-  EXPECT_FALSE(tools::TuningStateFromJson(nlohmann::json::array()).ok());
+  EXPECT_FALSE(offline::TuningStateFromJson(bad).ok());
+  EXPECT_FALSE(offline::TuningStateFromJson(nlohmann::json::array()).ok());
 
   // Resuming with other settings names each difference; more generations are allowed.
-  TuningSettings asked = state.settings;
+  offline::TuningSettings asked = state.settings;
   asked.evolution.generations = 100;
-  EXPECT_TRUE(tools::ResumeConflicts(state, asked, {}).empty());
+  EXPECT_TRUE(offline::ResumeConflicts(state, asked, {}).empty());
   asked.evolution.seed = 9;
   asked.budgets = {8125, 65000};
-  const auto conflicts = tools::ResumeConflicts(state, asked, {"other"});
+  const auto conflicts = offline::ResumeConflicts(state, asked, {"other"});
   ASSERT_EQ(conflicts.size(), 3u);
   EXPECT_EQ(conflicts[0].rfind("budgets:", 0), 0u);
   EXPECT_EQ(conflicts[1].rfind("seed:", 0), 0u);

@@ -1,8 +1,8 @@
-// Tests of the Fig. 10-like tuning plot (tools/tuning_plot.hpp) and of the canvas it draws with
+// Tests of the Fig. 10-like tuning plot (offline/tuning_plot.hpp) and of the canvas it draws with
 // (engine/io/canvas.hpp). The SVG is read back by a small XML parser written here, the axis is
 // read from the SVG's own tick labels, and the PNG is decoded by libpng.
 
-#include "tools/tuning_plot.hpp"
+#include "offline/tuning_plot.hpp"
 
 #include <gtest/gtest.h>
 
@@ -221,9 +221,9 @@ std::string Hex(const Rgb& c) {
 
 /// A budget's run: the median falls from `start` to `end` like an evolution strategy converging,
 /// the band narrows from `spread` to a third of it.
-TuningSeries Synthetic(const std::string& label, int generations, double start, double end,
-                       double spread) {
-  TuningSeries s{label, {}};
+offline::TuningSeries Synthetic(const std::string& label, int generations, double start, double end,
+                                double spread) {
+  offline::TuningSeries s{label, {}};
   for (int g = 0; g < generations; ++g) {
     const double t = std::exp(-g / 8.0);
     const double median = end + (start - end) * t;
@@ -233,14 +233,14 @@ TuningSeries Synthetic(const std::string& label, int generations, double start, 
   return s;
 }
 
-std::vector<TuningSeries> FourBudgets() {
+std::vector<offline::TuningSeries> FourBudgets() {
   return {Synthetic("60 rays", 40, -0.5, -1.5, 0.3), Synthetic("120 rays", 40, -0.8, -2.5, 0.3),
           Synthetic("240 rays", 25, -1.0, -3.5, 0.3), Synthetic("480 rays", 0, 0, 0, 0)};
 }
 
 /// Checks the structure every plot must have; returns the parsed document.
-Xml ExpectValidPlot(const std::string& svg, const std::vector<TuningSeries>& series,
-                    const TuningPlotOptions& options) {
+Xml ExpectValidPlot(const std::string& svg, const std::vector<offline::TuningSeries>& series,
+                    const offline::TuningPlotOptions& options) {
   Xml xml = ParseXml(svg);
   EXPECT_EQ(xml.error, "");
   if (!xml.error.empty()) return xml;
@@ -269,7 +269,7 @@ Xml ExpectValidPlot(const std::string& svg, const std::vector<TuningSeries>& ser
   std::vector<size_t> drawn;
   for (size_t k = 0; k < series.size(); ++k) {
     size_t finite = 0;
-    for (const TuningBand& b : series[k].generations) finite += std::isfinite(b.median);
+    for (const offline::TuningBand& b : series[k].generations) finite += std::isfinite(b.median);
     if (finite > 0) drawn.push_back(k);
   }
   const auto medians = xml.WithClass("median");
@@ -277,10 +277,10 @@ Xml ExpectValidPlot(const std::string& svg, const std::vector<TuningSeries>& ser
   for (size_t i = 0; i < std::min(medians.size(), drawn.size()); ++i) {
     const size_t k = drawn[i];
     EXPECT_EQ(medians[i]->Attr("data-series"), std::to_string(k));
-    EXPECT_EQ(medians[i]->Attr("stroke"), Hex(TuningSeriesColor(k)));
+    EXPECT_EQ(medians[i]->Attr("stroke"), Hex(offline::TuningSeriesColor(k)));
     const std::vector<Point> points = ParsePoints(medians[i]->Attr("points"));
     size_t finite = 0;
-    for (const TuningBand& b : series[k].generations) finite += std::isfinite(b.median);
+    for (const offline::TuningBand& b : series[k].generations) finite += std::isfinite(b.median);
     EXPECT_EQ(points.size(), finite) << "series " << k;
     for (size_t p = 0; p < points.size(); ++p) {
       EXPECT_TRUE(area.Contains(points[p])) << "series " << k << " point " << p;
@@ -387,7 +387,7 @@ TEST(CanvasTest, UpwardTextIsTheTextTurnedAQuarterCounterClockwise) {
 }
 
 TEST(CanvasTest, FontHasEveryCharacterThePlotDraws) {
-  const TuningPlotOptions defaults;
+  const offline::TuningPlotOptions defaults;
   for (const std::string& text :
        {defaults.title, defaults.x_label, defaults.y_label, std::string("0123456789-.=(),")}) {
     for (const char c : text) EXPECT_TRUE(Canvas::HasGlyph(c)) << "'" << c << "' in " << text;
@@ -405,9 +405,9 @@ TEST(CanvasTest, FontHasEveryCharacterThePlotDraws) {
 // SVG.
 
 TEST(TuningPlotSvgTest, OneBandAndMedianPerSeriesWithALegend) {
-  const std::vector<TuningSeries> series = FourBudgets();
-  const TuningPlotOptions options;
-  const std::string svg = TuningPlotSvg(series, options);
+  const std::vector<offline::TuningSeries> series = FourBudgets();
+  const offline::TuningPlotOptions options;
+  const std::string svg = offline::TuningPlotSvg(series, options);
   const Xml xml = ExpectValidPlot(svg, series, options);
   ASSERT_EQ(xml.error, "");
   EXPECT_EQ(xml.WithClass("median").size(), 3u);  // "480 rays" has not started
@@ -419,18 +419,18 @@ TEST(TuningPlotSvgTest, OneBandAndMedianPerSeriesWithALegend) {
   // The band outline goes along q3 and back along q1: twice the generations.
   EXPECT_EQ(ParsePoints(xml.WithClass("band")[2]->Attr("points")).size(), 50u);
   std::set<std::string> colors;
-  for (size_t k = 0; k < 8; ++k) colors.insert(Hex(TuningSeriesColor(k)));
+  for (size_t k = 0; k < 8; ++k) colors.insert(Hex(offline::TuningSeriesColor(k)));
   EXPECT_EQ(colors.size(), 8u);
-  EXPECT_EQ(TuningSeriesColor(8), TuningSeriesColor(0));
+  EXPECT_EQ(offline::TuningSeriesColor(8), offline::TuningSeriesColor(0));
 }
 
 TEST(TuningPlotSvgTest, YAxisCoversEveryQuartileWithNiceTicks) {
-  const std::vector<TuningSeries> series = FourBudgets();
-  const Xml xml = ParseXml(TuningPlotSvg(series));
+  const std::vector<offline::TuningSeries> series = FourBudgets();
+  const Xml xml = ParseXml(offline::TuningPlotSvg(series));
   ASSERT_EQ(xml.error, "");
   double lo = kInf, hi = -kInf;
-  for (const TuningSeries& s : series) {
-    for (const TuningBand& b : s.generations) {
+  for (const offline::TuningSeries& s : series) {
+    for (const offline::TuningBand& b : s.generations) {
       lo = std::min(lo, b.q1);
       hi = std::max(hi, b.q3);
     }
@@ -457,12 +457,12 @@ TEST(TuningPlotSvgTest, YAxisCoversEveryQuartileWithNiceTicks) {
 
 TEST(TuningPlotSvgTest, MedianMapsThroughTheAxis) {
   // Known medians: -1 at generation 0, -3 at generation 10, -2 elsewhere; 21 generations.
-  TuningSeries s{"known", {}};
+  offline::TuningSeries s{"known", {}};
   for (int g = 0; g <= 20; ++g) {
     const double m = g == 0 ? -1.0 : (g == 10 ? -3.0 : -2.0);
     s.generations.push_back({m - 0.25, m, m + 0.25});
   }
-  const Xml xml = ParseXml(TuningPlotSvg({s}));
+  const Xml xml = ParseXml(offline::TuningPlotSvg({s}));
   ASSERT_EQ(xml.error, "");
   const Axis x = ReadAxis(xml, "x-tick", "x");
   const Axis y = ReadAxis(xml, "y-tick", "y");
@@ -478,11 +478,12 @@ TEST(TuningPlotSvgTest, MedianMapsThroughTheAxis) {
 }
 
 TEST(TuningPlotSvgTest, EscapesLabelsAndTitles) {
-  TuningPlotOptions options;
+  offline::TuningPlotOptions options;
   options.title = "<script>alert('x')</script> & co";
   options.y_label = "e \"quoted\"";
-  const std::vector<TuningSeries> series{{"rays < 200 & > 100", {{-1, -0.5, 0}, {-2, -1, 0}}}};
-  const std::string svg = TuningPlotSvg(series, options);
+  const std::vector<offline::TuningSeries> series{
+      {"rays < 200 & > 100", {{-1, -0.5, 0}, {-2, -1, 0}}}};
+  const std::string svg = offline::TuningPlotSvg(series, options);
   EXPECT_EQ(svg.find("<script>"), std::string::npos);
   EXPECT_EQ(svg.find("< 200"), std::string::npos);
   EXPECT_NE(svg.find("rays &lt; 200 &amp; &gt; 100"), std::string::npos);
@@ -494,15 +495,15 @@ TEST(TuningPlotSvgTest, EscapesLabelsAndTitles) {
 }
 
 TEST(TuningPlotSvgTest, DegenerateInputsGiveValidPlots) {
-  const TuningPlotOptions options;
+  const offline::TuningPlotOptions options;
   // Nothing at all, and a run not started.
-  ExpectValidPlot(TuningPlotSvg({}, options), {}, options);
-  const std::vector<TuningSeries> not_started{{"60 rays", {}}};
-  ExpectValidPlot(TuningPlotSvg(not_started, options), not_started, options);
+  ExpectValidPlot(offline::TuningPlotSvg({}, options), {}, options);
+  const std::vector<offline::TuningSeries> not_started{{"60 rays", {}}};
+  ExpectValidPlot(offline::TuningPlotSvg(not_started, options), not_started, options);
 
   // One generation: a one-point median with a marker, a band bar.
-  const std::vector<TuningSeries> one{{"one", {{-1.2, -1.0, -0.9}}}};
-  const Xml one_xml = ExpectValidPlot(TuningPlotSvg(one, options), one, options);
+  const std::vector<offline::TuningSeries> one{{"one", {{-1.2, -1.0, -0.9}}}};
+  const Xml one_xml = ExpectValidPlot(offline::TuningPlotSvg(one, options), one, options);
   EXPECT_EQ(one_xml.WithClass("marker").size(), 1u);
   ASSERT_EQ(one_xml.WithClass("band").size(), 1u);
   const std::vector<Point> bar = ParsePoints(one_xml.WithClass("band")[0]->Attr("points"));
@@ -514,8 +515,9 @@ TEST(TuningPlotSvgTest, DegenerateInputsGiveValidPlots) {
               0.02);
 
   // Flat: every value equal; the line lies strictly inside the plot, between two ticks.
-  const std::vector<TuningSeries> flat{{"flat", std::vector<TuningBand>(12, {-1.5, -1.5, -1.5})}};
-  const Xml flat_xml = ExpectValidPlot(TuningPlotSvg(flat, options), flat, options);
+  const std::vector<offline::TuningSeries> flat{
+      {"flat", std::vector<offline::TuningBand>(12, {-1.5, -1.5, -1.5})}};
+  const Xml flat_xml = ExpectValidPlot(offline::TuningPlotSvg(flat, options), flat, options);
   const Area area = PlotArea(flat_xml);
   const Axis y = ReadAxis(flat_xml, "y-tick", "y");
   EXPECT_LT(y.values.front(), -1.5);
@@ -526,15 +528,16 @@ TEST(TuningPlotSvgTest, DegenerateInputsGiveValidPlots) {
     EXPECT_NEAR(p.y, y.Pixel(-1.5), 0.01);
   }
   // Zero is flat too.
-  const std::vector<TuningSeries> zero{{"zero", std::vector<TuningBand>(3, {0, 0, 0})}};
-  ExpectValidPlot(TuningPlotSvg(zero, options), zero, options);
+  const std::vector<offline::TuningSeries> zero{
+      {"zero", std::vector<offline::TuningBand>(3, {0, 0, 0})}};
+  ExpectValidPlot(offline::TuningPlotSvg(zero, options), zero, options);
 
   // Non-finite values are skipped: the axis ignores them and the points stay in increasing x.
-  const std::vector<TuningSeries> holes{
+  const std::vector<offline::TuningSeries> holes{
       {"holes",
        {{-2, -1.5, -1}, {kNaN, kNaN, kNaN}, {-2, kInf, -1}, {kNaN, -1.4, -1}, {-1.9, -1.3, -0.8}}},
       {"all missing", {{kNaN, kNaN, kNaN}, {-kInf, kNaN, kInf}}}};
-  const Xml holes_xml = ExpectValidPlot(TuningPlotSvg(holes, options), holes, options);
+  const Xml holes_xml = ExpectValidPlot(offline::TuningPlotSvg(holes, options), holes, options);
   EXPECT_EQ(holes_xml.WithClass("median").size(), 1u);
   const Axis hy = ReadAxis(holes_xml, "y-tick", "y");
   EXPECT_LT(hy.values.front(), -2.0);
@@ -542,25 +545,25 @@ TEST(TuningPlotSvgTest, DegenerateInputsGiveValidPlots) {
   EXPECT_LT(hy.values.back() - hy.values.front(), 3.0);
 
   // A small canvas is still a plot.
-  TuningPlotOptions small;
+  offline::TuningPlotOptions small;
   small.width = 320;
   small.height = 240;
-  ExpectValidPlot(TuningPlotSvg(FourBudgets(), small), FourBudgets(), small);
+  ExpectValidPlot(offline::TuningPlotSvg(FourBudgets(), small), FourBudgets(), small);
 }
 
 // ---------------------------------------------------------------------------------------------
 // PNG.
 
 TEST(TuningPlotImageTest, PngHasTheSizeTheSeriesColoursAndMediansWhereTheAxisPutsThem) {
-  TuningPlotOptions options;
+  offline::TuningPlotOptions options;
   options.width = 800;
   options.height = 500;
-  const std::vector<TuningSeries> series = FourBudgets();
-  const io::RgbImage image = ThroughPng(TuningPlotImage(series, options), "colours");
+  const std::vector<offline::TuningSeries> series = FourBudgets();
+  const io::RgbImage image = ThroughPng(offline::TuningPlotImage(series, options), "colours");
   ASSERT_EQ(image.width, 800);
   ASSERT_EQ(image.height, 500);
 
-  const Xml xml = ParseXml(TuningPlotSvg(series, options));
+  const Xml xml = ParseXml(offline::TuningPlotSvg(series, options));
   ASSERT_EQ(xml.error, "");
   const Area area = PlotArea(xml);
   const Axis x = ReadAxis(xml, "x-tick", "x");
@@ -568,19 +571,19 @@ TEST(TuningPlotImageTest, PngHasTheSizeTheSeriesColoursAndMediansWhereTheAxisPut
   const auto x0 = static_cast<int>(area.x0), x1 = static_cast<int>(area.x1);
   const auto y0 = static_cast<int>(area.y0), y1 = static_cast<int>(area.y1);
   for (size_t k = 0; k < 3; ++k) {
-    EXPECT_GT(CountColor(image, x0, y0, x1, y1, TuningSeriesColor(k)), 100) << k;
+    EXPECT_GT(CountColor(image, x0, y0, x1, y1, offline::TuningSeriesColor(k)), 100) << k;
   }
   // The series not started is only in the legend.
-  EXPECT_EQ(CountColor(image, x0, y0, x1, y1, TuningSeriesColor(3)), 0);
-  EXPECT_GT(CountColor(image, x1, 0, image.width, image.height, TuningSeriesColor(3)), 0);
+  EXPECT_EQ(CountColor(image, x0, y0, x1, y1, offline::TuningSeriesColor(3)), 0);
+  EXPECT_GT(CountColor(image, x1, 0, image.width, image.height, offline::TuningSeriesColor(3)), 0);
 
   // At generation 30 the medians are apart: each column holds its line within 2 px of the axis.
   for (size_t k = 0; k < 2; ++k) {
-    const TuningBand& b = series[k].generations[30];
+    const offline::TuningBand& b = series[k].generations[30];
     const auto column = static_cast<int>(std::lround(x.Pixel(30)));
     int sum = 0, n = 0;
     for (int row = y0; row < y1; ++row) {
-      if (Pixel(image, column, row) == TuningSeriesColor(k)) {
+      if (Pixel(image, column, row) == offline::TuningSeriesColor(k)) {
         sum += row;
         ++n;
       }
@@ -592,7 +595,7 @@ TEST(TuningPlotImageTest, PngHasTheSizeTheSeriesColoursAndMediansWhereTheAxisPut
     const auto band_row = static_cast<int>(std::lround((y.Pixel(b.median) + y.Pixel(b.q1)) / 2));
     ASSERT_GT(y.Pixel(b.q1) - y.Pixel(b.median), 8.0);
     const auto p = Pixel(image, column, band_row);
-    const Rgb c = TuningSeriesColor(k);
+    const Rgb c = offline::TuningSeriesColor(k);
     EXPECT_NE(p, c);
     EXPECT_NE(p, (Rgb{255, 255, 255}));
     for (size_t ch = 0; ch < 3; ++ch) {
@@ -604,25 +607,25 @@ TEST(TuningPlotImageTest, PngHasTheSizeTheSeriesColoursAndMediansWhereTheAxisPut
 }
 
 TEST(TuningPlotImageTest, DegenerateInputsRender) {
-  TuningPlotOptions options;
+  offline::TuningPlotOptions options;
   options.width = 640;
   options.height = 400;
-  const std::vector<std::vector<TuningSeries>> cases{
+  const std::vector<std::vector<offline::TuningSeries>> cases{
       {},
       {{"60 rays", {}}},
       {{"one", {{-1.2, -1.0, -0.9}}}},
-      {{"flat", std::vector<TuningBand>(12, {-1.5, -1.5, -1.5})}},
+      {{"flat", std::vector<offline::TuningBand>(12, {-1.5, -1.5, -1.5})}},
       {{"nan", {{kNaN, kNaN, kNaN}, {-2, -1.5, -1}, {kNaN, kInf, -kInf}, {-2, -1.4, -1}}}},
   };
   for (size_t i = 0; i < cases.size(); ++i) {
     const io::RgbImage image =
-        ThroughPng(TuningPlotImage(cases[i], options), "degenerate" + std::to_string(i));
+        ThroughPng(offline::TuningPlotImage(cases[i], options), "degenerate" + std::to_string(i));
     ASSERT_EQ(image.width, 640) << i;
     ASSERT_EQ(image.height, 400) << i;
-    const Area area = PlotArea(ParseXml(TuningPlotSvg(cases[i], options)));
+    const Area area = PlotArea(ParseXml(offline::TuningPlotSvg(cases[i], options)));
     // Left of the legend.
-    const int in_plot =
-        CountColor(image, 0, 0, static_cast<int>(area.x1), image.height, TuningSeriesColor(0));
+    const int in_plot = CountColor(image, 0, 0, static_cast<int>(area.x1), image.height,
+                                   offline::TuningSeriesColor(0));
     if (i >= 2) {
       EXPECT_GT(in_plot, 20) << i;  // the marker or the line
     } else {

@@ -1,4 +1,4 @@
-#include "hw_link/virtual_marxbot.hpp"
+#include "sim/virtual_marxbot.hpp"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -14,19 +14,19 @@
 #include "engine/io/robot_json.hpp"
 #include "engine/io/tum.hpp"
 #include "hw_link/aseba.hpp"
-#include "hw_link/experiment.hpp"
 #include "hw_link/frame_decoder.hpp"
 #include "hw_link/link.hpp"
 #include "hw_link/transports.hpp"
+#include "sim/experiment_writer.hpp"
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
 #include "test_support.hpp"
 
-namespace slam::hw {
+namespace slam::sim {
 namespace {
 
-CanFrame FrameWithId(uint32_t id, uint8_t len) {
-  CanFrame f;
+hw::CanFrame FrameWithId(uint32_t id, uint8_t len) {
+  hw::CanFrame f;
   f.id = id;
   f.len = len;
   return f;
@@ -36,7 +36,7 @@ TEST(CanBusModelTest, LowestIdWinsAndEachNodeKeepsItsOrder) {
   CanBusModel bus;
   bus.Send({FrameWithId(0x102, 8), FrameWithId(0x202, 8)}, 0.0);  // node 2
   bus.Send({FrameWithId(0x101, 8), FrameWithId(0x201, 6)}, 0.0);  // node 1
-  std::vector<std::pair<double, CanFrame>> out;
+  std::vector<std::pair<double, hw::CanFrame>> out;
   bus.Deliver(1.0, out);
   ASSERT_EQ(out.size(), 4u);
   // Slot 1: 0x101 vs 0x102; slot 2: 0x102 vs 0x201; slot 3: 0x201 vs 0x202; then 0x202.
@@ -56,7 +56,7 @@ TEST(CanBusModelTest, LowestIdWinsAndEachNodeKeepsItsOrder) {
 TEST(CanBusModelTest, DeliversOnlyTransmissionsStartingBeforeTheHorizon) {
   CanBusModel bus;
   bus.Send({FrameWithId(0x101, 8)}, 0.5);
-  std::vector<std::pair<double, CanFrame>> out;
+  std::vector<std::pair<double, hw::CanFrame>> out;
   bus.Deliver(0.5, out);
   EXPECT_TRUE(out.empty());
   EXPECT_EQ(bus.pending(), 1u);
@@ -83,14 +83,14 @@ class ExperimentTest : public ::testing::Test {
 };
 
 /// Every event a link delivers from `source`, until the source ends.
-std::vector<RobotEvent> DrainLink(std::unique_ptr<FrameSource> source,
-                                  const RobotDescription& robot, LinkStatus* status) {
-  LinkOptions options;
+std::vector<RobotEvent> DrainLink(std::unique_ptr<hw::FrameSource> source,
+                                  const RobotDescription& robot, hw::LinkStatus* status) {
+  hw::LinkOptions options;
   options.queue_capacity = 1 << 16;  // the whole run: no drop in these tests
-  Link link(std::move(source), robot, options);
+  hw::Link link(std::move(source), robot, options);
   link.Start();
   std::vector<RobotEvent> events;
-  LinkEvent event;
+  hw::LinkEvent event;
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
   while (!link.Drained() && std::chrono::steady_clock::now() < deadline) {
     while (link.PopWait(event, std::chrono::milliseconds(5))) events.push_back(event.event);
@@ -140,11 +140,11 @@ TEST_F(ExperimentTest, RecordedExperimentReadBackThroughTheLinkGivesTheSimulator
 
   auto robot = io::LoadRobot((dir_ / "robot.json").string());
   ASSERT_TRUE(robot.ok()) << robot.Message();
-  auto source = OpenCandumpReplay((dir_ / "can.log").string());
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(source));
-  LinkStatus status;
-  const auto events =
-      DrainLink(std::move(std::get<std::unique_ptr<FrameSource>>(source)), robot.value(), &status);
+  auto source = hw::OpenCandumpReplay((dir_ / "can.log").string());
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(source));
+  hw::LinkStatus status;
+  const auto events = DrainLink(std::move(std::get<std::unique_ptr<hw::FrameSource>>(source)),
+                                robot.value(), &status);
   ExpectSameEvents(events, made, static_cast<double>(kSimulationEpochUs) * 1e-6);
   EXPECT_EQ(status.frames, summary.frames);
   EXPECT_EQ(status.reassembly.Rejected(), 0u);
@@ -152,11 +152,11 @@ TEST_F(ExperimentTest, RecordedExperimentReadBackThroughTheLinkGivesTheSimulator
   EXPECT_EQ(status.queue_drops, 0u);
 
   // The same through the thread-less decoder that replays use.
-  auto again = OpenCandumpReplay((dir_ / "can.log").string());
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(again));
-  FrameDecoder decoder(robot.value());
+  auto again = hw::OpenCandumpReplay((dir_ / "can.log").string());
+  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(again));
+  hw::FrameDecoder decoder(robot.value());
   std::vector<RobotEvent> direct;
-  EXPECT_FALSE(DecodeToEnd(*std::get<std::unique_ptr<FrameSource>>(again), decoder,
+  EXPECT_FALSE(DecodeToEnd(*std::get<std::unique_ptr<hw::FrameSource>>(again), decoder,
                            [&](const RobotEvent& e) { direct.push_back(e); }));
   ExpectSameEvents(direct, made, static_cast<double>(kSimulationEpochUs) * 1e-6);
   EXPECT_EQ(decoder.frames(), summary.frames);
@@ -212,7 +212,7 @@ TEST_F(ExperimentTest, LiveVirtualMarxbotSpeaksTheSameFrames) {
   options.duration_s = config_.duration_s;
   auto source = std::make_unique<VirtualMarxbotSource>(world_, "cluttered", robot_, config_,
                                                        options);
-  LinkStatus status;
+  hw::LinkStatus status;
   const auto events = DrainLink(std::move(source), robot_, &status);
   const sim::ScenarioOutput made = sim::RunScenario(world_, robot_, config_);
   // The live source stops at the duration: the last readings' frames end after it.
@@ -231,15 +231,15 @@ TEST_F(ExperimentTest, LiveVirtualMarxbotIsPacedInRealTime) {
   options.speed = 4.0;
   options.duration_s = 1.0;  // 1 s of robot time at 4x: about 250 ms
   VirtualMarxbotSource source(world_, "cluttered", robot_, config_, options);
-  std::vector<TimedFrame> frames;
+  std::vector<hw::TimedFrame> frames;
   const auto start = std::chrono::steady_clock::now();
-  ReadOutcome outcome;
-  for (int i = 0; i < 1000 && outcome.status != ReadStatus::kEnd; ++i) {
+  hw::ReadOutcome outcome;
+  for (int i = 0; i < 1000 && outcome.status != hw::ReadStatus::kEnd; ++i) {
     outcome = source.Read(frames, std::chrono::milliseconds(20));
   }
   const double elapsed =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  EXPECT_EQ(outcome.status, ReadStatus::kEnd);
+  EXPECT_EQ(outcome.status, hw::ReadStatus::kEnd);
   EXPECT_GE(elapsed, 0.2);
   EXPECT_LT(elapsed, 1.0);
   // 1 s: about 50 odometry + 60 scanner events of two frames each.
@@ -257,16 +257,16 @@ TEST_F(ExperimentTest, TheVirtualMarxbotKeepsTheLastMinuteOfGroundTruthOnly) {
   options.duration_s = 75.0;
   config_.duration_s = 75.0;
   VirtualMarxbotSource source(world_, "cluttered", robot_, config_, options);
-  std::vector<TimedFrame> frames;
+  std::vector<hw::TimedFrame> frames;
   std::vector<TimedPose> read;  // what a reader copying as they come gets
   size_t next = 0;
-  ReadOutcome outcome;
-  for (int i = 0; i < 100000 && outcome.status != ReadStatus::kEnd; ++i) {
+  hw::ReadOutcome outcome;
+  for (int i = 0; i < 100000 && outcome.status != hw::ReadStatus::kEnd; ++i) {
     frames.clear();
     outcome = source.Read(frames, std::chrono::milliseconds(20));
     next = source.GroundTruthSince(next, read);
   }
-  ASSERT_EQ(outcome.status, ReadStatus::kEnd);
+  ASSERT_EQ(outcome.status, hw::ReadStatus::kEnd);
   const double rate = config_.tracker_rate_hz;
   EXPECT_NEAR(static_cast<double>(next), 75.0 * rate, 10.0);  // the tracker runs on a little
   EXPECT_EQ(read.size(), next);  // nothing missed by a reader keeping up
@@ -281,4 +281,4 @@ TEST_F(ExperimentTest, TheVirtualMarxbotKeepsTheLastMinuteOfGroundTruthOnly) {
 }
 
 }  // namespace
-}  // namespace slam::hw
+}  // namespace slam::sim

@@ -14,8 +14,8 @@
 
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/params_json.hpp"
-#include "hw_link/experiment_reader.hpp"
-#include "tools/evaluation.hpp"
+#include "offline/evaluation.hpp"
+#include "offline/experiment_reader.hpp"
 
 namespace {
 
@@ -71,7 +71,7 @@ int main(int argc, char** argv) {
                "largest budget, halves its mean ATE, and mean q improves with the budget");
   CLI11_PARSE(app, argc, argv);
 
-  slam::tools::EvaluationPlan plan;
+  slam::offline::EvaluationPlan plan;
   plan.budgets = budgets;
   std::sort(plan.budgets.begin(), plan.budgets.end());
   plan.budgets.erase(std::unique(plan.budgets.begin(), plan.budgets.end()), plan.budgets.end());
@@ -95,7 +95,7 @@ int main(int argc, char** argv) {
     plan.params = loaded.value();
   }
   std::string error;
-  const std::vector<std::string> dirs = slam::tools::FindExperimentDirs(inputs, error);
+  const std::vector<std::string> dirs = slam::offline::FindExperimentDirs(inputs, error);
   if (dirs.empty()) return Fail(error);
   std::error_code ec;
   fs::create_directories(out_dir, ec);
@@ -103,9 +103,9 @@ int main(int argc, char** argv) {
   if (maps) plan.outputs_dir = (fs::path(out_dir) / "runs").string();
 
   // Decode every experiment once.
-  std::vector<slam::hw::Experiment> experiments;
+  std::vector<slam::offline::Experiment> experiments;
   for (const std::string& dir : dirs) {
-    slam::hw::ExperimentLoad load = slam::hw::LoadExperiment(dir);
+    slam::offline::ExperimentLoad load = slam::offline::LoadExperiment(dir);
     if (!load.ok()) return Fail("cannot read " + dir + ":\n" + load.error);
     std::fprintf(stderr, "%s: %zu scans, %.0f s\n", load.experiment->meta.name.c_str(),
                  load.experiment->scans.size(), load.experiment->duration_s());
@@ -113,8 +113,8 @@ int main(int argc, char** argv) {
   }
 
   const auto start = std::chrono::steady_clock::now();
-  const auto runs = slam::tools::Evaluate(
-      experiments, plan, [&](const slam::tools::EvaluationRun& run, size_t done, size_t total) {
+  const auto runs = slam::offline::Evaluate(
+      experiments, plan, [&](const slam::offline::EvaluationRun& run, size_t done, size_t total) {
         const double elapsed =
             std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
         const auto& s = run.summary;
@@ -134,12 +134,11 @@ int main(int argc, char** argv) {
     all.push_back(run.summary);
     write_errors = write_errors || !run.errors.empty();
   }
-  const std::string md = slam::tools::EvaluationMarkdown(experiments, runs);
+  const std::string md = slam::offline::EvaluationMarkdown(experiments, runs);
   const fs::path out(out_dir);
-  for (const auto& [name, text] :
-       {std::pair<std::string, std::string>{"results.md", md},
-        {"results.csv", slam::tools::EvaluationCsv(experiments, runs)},
-        {"runs.json", all.dump(2) + "\n"}}) {
+  for (const auto& [name, text] : {std::pair<std::string, std::string>{"results.md", md},
+                                   {"results.csv", slam::offline::EvaluationCsv(experiments, runs)},
+                                   {"runs.json", all.dump(2) + "\n"}}) {
     if (auto e = slam::io::WriteFileAtomic((out / name).string(), text)) return Fail(*e);
   }
   std::cout << md;
@@ -148,6 +147,6 @@ int main(int argc, char** argv) {
                std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(),
                out_dir.c_str());
   if (write_errors) return 1;
-  if (require && !slam::tools::CheckEvaluation(runs).all_pass()) return 3;
+  if (require && !slam::offline::CheckEvaluation(runs).all_pass()) return 3;
   return 0;
 }

@@ -18,8 +18,8 @@
 #include "engine/scan_assembler.hpp"
 #include "hw_link/frame_decoder.hpp"
 #include "hw_link/link.hpp"
-#include "hw_link/source_spec.hpp"
 #include "hw_link/status_json.hpp"
+#include "server/source_spec.hpp"
 
 namespace {
 
@@ -75,7 +75,7 @@ int main(int argc, char** argv) {
     std::cerr << "slam-link: " << robot.Message() << "\n";
     return 1;
   }
-  slam::hw::SourceSpecOptions options;
+  slam::server::SourceSpecOptions options;
   options.paced = !as_fast;
   if (as_fast) {
     if (spec.rfind("sim:", 0) == 0 && seconds <= 0.0) {
@@ -84,7 +84,7 @@ int main(int argc, char** argv) {
     }
     options.duration_s = seconds;
   }
-  auto opened = slam::hw::OpenSourceSpec(spec, robot.value(), options);
+  auto opened = slam::server::OpenSourceSpec(spec, robot.value(), options);
   if (auto* error = std::get_if<std::string>(&opened)) {
     std::cerr << "slam-link: " << *error << "\n";
     return 1;

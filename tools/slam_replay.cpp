@@ -17,9 +17,9 @@
 #include <vector>
 
 #include "engine/io/params_json.hpp"
-#include "hw_link/experiment_reader.hpp"
-#include "scheduler/replay.hpp"
-#include "tools/replay_report.hpp"
+#include "offline/experiment_reader.hpp"
+#include "offline/replay.hpp"
+#include "offline/replay_report.hpp"
 
 namespace {
 
@@ -124,9 +124,9 @@ int main(int argc, char** argv) {
   }
 
   const auto load_start = std::chrono::steady_clock::now();
-  slam::hw::ExperimentLoad load = slam::hw::LoadExperiment(experiment_dir);
+  slam::offline::ExperimentLoad load = slam::offline::LoadExperiment(experiment_dir);
   if (!load.ok()) return Fail("cannot replay " + experiment_dir + ":\n" + load.error);
-  const slam::hw::Experiment& experiment = *load.experiment;
+  const slam::offline::Experiment& experiment = *load.experiment;
   const double load_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - load_start).count();
   if (!quiet) {
@@ -140,7 +140,7 @@ int main(int argc, char** argv) {
   std::filesystem::create_directories(out_dir, ec);
   if (ec) return Fail("cannot create " + out_dir + ": " + ec.message());
 
-  slam::ReplayOptions options;
+  slam::offline::ReplayOptions options;
   options.params = params;
   options.config.seed = seed;
   options.budget.rays_per_scan = budget;
@@ -154,12 +154,12 @@ int main(int argc, char** argv) {
   options.refine = !no_refine;
   ProgressLine progress(experiment.meta.name + (no_refine ? " (odometry only)" : ""));
   if (!quiet) options.progress = [&](size_t done, size_t total) { progress.Update(done, total); };
-  const slam::ReplayResult run =
-      slam::Replay(experiment.robot, experiment.scans, experiment.ground_truth, options);
+  const slam::offline::ReplayResult run =
+      slam::offline::Replay(experiment.robot, experiment.scans, experiment.ground_truth, options);
 
-  slam::tools::ReplayOutputs outputs =
-      slam::tools::WriteReplayOutputs(out_dir, experiment, run, no_refine, options.budget);
-  Json summary = slam::tools::ReplaySummary(experiment, run, options);
+  slam::offline::ReplayOutputs outputs =
+      slam::offline::WriteReplayOutputs(out_dir, experiment, run, no_refine, options.budget);
+  Json summary = slam::offline::ReplaySummary(experiment, run, options);
   summary["out"] = out_dir;
   std::cout << summary.dump(2) << "\n";
   for (const std::string& e : outputs.errors) std::cerr << "slam-replay: " << e << "\n";

@@ -18,7 +18,7 @@
 
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/robot_json.hpp"
-#include "hw_link/experiment.hpp"
+#include "sim/experiment_writer.hpp"
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
 
@@ -117,13 +117,13 @@ int main(int argc, char** argv) {
   std::atomic<size_t> done{0};
   std::atomic<bool> failed{false};
   std::mutex io_mutex;
-  std::vector<slam::hw::ExperimentSummary> summaries(jobs.size());
+  std::vector<slam::sim::ExperimentSummary> summaries(jobs.size());
   tbb::parallel_for(size_t{0}, jobs.size(), [&](size_t i) {
     const Job& job = jobs[i];
     slam::sim::ScenarioConfig config = base;
     config.seed = job.seed;
-    const auto error = slam::hw::WriteSimulatedExperiment(job.dir, job.world, job.world_name,
-                                                          robot.value(), config, &summaries[i]);
+    const auto error = slam::sim::WriteSimulatedExperiment(job.dir, job.world, job.world_name,
+                                                           robot.value(), config, &summaries[i]);
     const std::lock_guard lock(io_mutex);
     if (error) {
       failed = true;

@@ -18,10 +18,10 @@
 
 #include "engine/io/json_reader.hpp"
 #include "engine/io/params_json.hpp"
-#include "hw_link/experiment_reader.hpp"
-#include "scheduler/tuner.hpp"
-#include "tools/evaluation.hpp"
-#include "tools/tuning_report.hpp"
+#include "offline/evaluation.hpp"
+#include "offline/experiment_reader.hpp"
+#include "offline/tuner.hpp"
+#include "offline/tuning_report.hpp"
 
 namespace {
 
@@ -94,7 +94,7 @@ int main(int argc, char** argv) {
       "--out after every generation; run the same command again to resume an interrupted study."};
   std::vector<std::string> inputs;
   std::string out_dir, start_path;
-  slam::TuningSettings settings;
+  slam::offline::TuningSettings settings;
   std::string policy_name = "fixed";
   int jobs = 0;
   bool restart = false, quiet = false;
@@ -141,12 +141,12 @@ int main(int argc, char** argv) {
   }
 
   std::string error;
-  const std::vector<std::string> dirs = slam::tools::FindExperimentDirs(inputs, error);
+  const std::vector<std::string> dirs = slam::offline::FindExperimentDirs(inputs, error);
   if (dirs.empty()) return Fail(error);
   // Decoded once, held in memory for every evaluation.
-  std::vector<slam::hw::Experiment> experiments;
+  std::vector<slam::offline::Experiment> experiments;
   for (const std::string& dir : dirs) {
-    slam::hw::ExperimentLoad load = slam::hw::LoadExperiment(dir);
+    slam::offline::ExperimentLoad load = slam::offline::LoadExperiment(dir);
     if (!load.ok()) return Fail("cannot read " + dir + ":\n" + load.error);
     if (load.experiment->ground_truth.empty()) {
       return Fail(dir + ": no groundtruth.tum: the fitness needs the ground-truth trajectory");
@@ -157,9 +157,9 @@ int main(int argc, char** argv) {
     }
     experiments.push_back(std::move(*load.experiment));
   }
-  std::vector<slam::TuningExperiment> tuning;
+  std::vector<slam::offline::TuningExperiment> tuning;
   std::vector<std::string> names;
-  for (const slam::hw::Experiment& e : experiments) {
+  for (const slam::offline::Experiment& e : experiments) {
     tuning.push_back({e.meta.name, &e.robot, &e.scans, &e.ground_truth});
     names.push_back(e.meta.name);
   }
@@ -167,16 +167,16 @@ int main(int argc, char** argv) {
   std::error_code ec;
   fs::create_directories(out_dir, ec);
   if (ec) return Fail("cannot create " + out_dir + ": " + ec.message());
-  slam::TuningState state = slam::NewTuningState(settings, tuning);
+  slam::offline::TuningState state = slam::offline::NewTuningState(settings, tuning);
   const std::string results_path = (fs::path(out_dir) / "results.json").string();
   if (!restart && fs::exists(results_path, ec)) {
     const auto json = slam::io::detail::ReadJsonFile(results_path);
     if (!json.ok()) return Fail("cannot resume: " + json.Message() + "\n(use --restart to start over)");
-    auto saved = slam::tools::TuningStateFromJson(json.value());
+    auto saved = slam::offline::TuningStateFromJson(json.value());
     if (!saved.ok()) {
       return Fail("cannot resume from " + results_path + ":\n" + saved.Message() + "\n(use --restart to start over)");
     }
-    const auto conflicts = slam::tools::ResumeConflicts(saved.value(), settings, names);
+    const auto conflicts = slam::offline::ResumeConflicts(saved.value(), settings, names);
     if (!conflicts.empty()) {
       std::string text = out_dir + " holds a study with other settings:";
       for (const std::string& c : conflicts) text += "\n  " + c;
@@ -185,7 +185,7 @@ int main(int argc, char** argv) {
     state = std::move(saved).value();
     state.settings.evolution.generations = settings.evolution.generations;
     size_t finished = 0;
-    for (const slam::BudgetRun& run : state.budgets) finished += run.generations.size();
+    for (const slam::offline::BudgetRun& run : state.budgets) finished += run.generations.size();
     if (!quiet) std::fprintf(stderr, "resuming %s: %zu generations already done\n", out_dir.c_str(), finished);
   }
 
@@ -193,17 +193,17 @@ int main(int argc, char** argv) {
   std::signal(SIGTERM, OnSignal);
   ProgressBar bar;
   std::string status;
-  slam::TuningCallbacks callbacks;
+  slam::offline::TuningCallbacks callbacks;
   callbacks.cancel = &g_cancel;
   bool write_failed = false;
-  callbacks.generation_done = [&](const slam::TuningState& s, int64_t budget) {
-    for (const std::string& e : slam::tools::WriteTuningOutputs(out_dir, s)) {
+  callbacks.generation_done = [&](const slam::offline::TuningState& s, int64_t budget) {
+    for (const std::string& e : slam::offline::WriteTuningOutputs(out_dir, s)) {
       std::cerr << "slam-tune: " << e << "\n";
       write_failed = true;
     }
-    for (const slam::BudgetRun& run : s.budgets) {
+    for (const slam::offline::BudgetRun& run : s.budgets) {
       if (run.budget != budget || run.generations.empty()) continue;
-      const slam::GenerationSummary& g = run.generations.back();
+      const slam::offline::GenerationSummary& g = run.generations.back();
       char text[160];
       std::snprintf(text, sizeof(text), "budget %lld generation %d/%d: median %.4f, IQR %.4f-%.4f, best %.4f",
                     static_cast<long long>(budget), g.generation + 1, s.settings.evolution.generations,
@@ -215,8 +215,8 @@ int main(int argc, char** argv) {
   if (!quiet) callbacks.progress = [&](double done, double total) { bar.Update(done, total, status); };
 
   const auto start = std::chrono::steady_clock::now();
-  const bool finished = slam::RunTuning(tuning, state, jobs, callbacks);
-  for (const std::string& e : slam::tools::WriteTuningOutputs(out_dir, state)) {
+  const bool finished = slam::offline::RunTuning(tuning, state, jobs, callbacks);
+  for (const std::string& e : slam::offline::WriteTuningOutputs(out_dir, state)) {
     std::cerr << "slam-tune: " << e << "\n";
     write_failed = true;
   }
@@ -226,7 +226,7 @@ int main(int argc, char** argv) {
                     ": run the same command again to resume",
                 130);
   }
-  std::cout << slam::tools::Table2Markdown(state) << "\n" << slam::tools::Table3Markdown(state);
+  std::cout << slam::offline::Table2Markdown(state) << "\n" << slam::offline::Table3Markdown(state);
   std::fprintf(stderr, "slam-tune: done in %s (%.0f s); results in %s\n", Duration(wall).c_str(), wall, out_dir.c_str());
   return write_failed ? 1 : 0;
 }

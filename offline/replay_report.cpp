@@ -1,4 +1,4 @@
-#include "tools/replay_report.hpp"
+#include "offline/replay_report.hpp"
 
 #include <cstdio>
 
@@ -10,12 +10,12 @@
 #include "hw_link/status_json.hpp"
 #include "sim/map_quality.hpp"
 
-namespace slam::tools {
+namespace slam::offline {
 namespace {
 
 using Json = nlohmann::json;
 
-Json CountersJson(const hw::ExperimentCounters& c) {
+Json CountersJson(const offline::ExperimentCounters& c) {
   return {{"bad_lines", c.bad_lines},
           {"ignored_lines", c.ignored_lines},
           {"clock_jumps", c.clock_jumps},
@@ -30,7 +30,8 @@ std::string BudgetLabel(const BudgetSettings& budget) {
   if (budget.mode == QuotaMode::kCpuShare) {
     std::snprintf(text, sizeof(text), "%.3g of a core", budget.cpu_share);
   } else {
-    std::snprintf(text, sizeof(text), "%lld rays/scan", static_cast<long long>(budget.rays_per_scan));
+    std::snprintf(text, sizeof(text), "%lld rays/scan",
+                  static_cast<long long>(budget.rays_per_scan));
   }
   return std::string(text) + (budget.policy == BudgetPolicy::kAdaptive ? ", adaptive" : "");
 }
@@ -57,7 +58,8 @@ Json SchedulerSummary(const ReplayResult& run) {
   j["over_quota_scans"] = over;
   j["quota_mean"] = static_cast<double>(quota_total) / n;
   j["scans_filling_quota"] = filling;
-  j["quota_used_mean"] = filling > 0 ? Json(used_share / static_cast<double>(filling)) : Json(nullptr);
+  j["quota_used_mean"] =
+      filling > 0 ? Json(used_share / static_cast<double>(filling)) : Json(nullptr);
   j["quota_used_min"] = filling > 0 ? Json(used_share_min) : Json(nullptr);
   j["particles_mean"] = particles_sum / n;
   j["particles_max"] = particles_max;
@@ -73,7 +75,7 @@ std::string Centimetres(double metres) {
 
 }  // namespace
 
-nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResult& run,
+nlohmann::json ReplaySummary(const offline::Experiment& experiment, const ReplayResult& run,
                              const ReplayOptions& options) {
   Json j;
   j["experiment"] = experiment.meta.name;
@@ -95,7 +97,8 @@ nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResul
   } else {
     j["q"] = j["e"] = j["ate_rmse_m"] = nullptr;
   }
-  const auto odometry = EvaluateTrajectory(DeadReckoning(experiment.scans), experiment.ground_truth);
+  const auto odometry =
+      EvaluateTrajectory(DeadReckoning(experiment.scans), experiment.ground_truth);
   j["odometry_ate_rmse_m"] = odometry ? Json(odometry->ate_rmse_m) : Json(nullptr);
   j["scans"] = run.scans;
   j["rays_total"] = run.rays_total;
@@ -108,15 +111,15 @@ nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResul
   j["wall_s"] = run.wall_s;
   j["cpu_s"] = run.cpu_s;
   j["ray_kernel"] = BestWindowKernelName();  // the timings depend on it, the answers do not
-  j["ns_per_ray"] = run.rays_total > 0 ? 1e9 * run.cpu_s / static_cast<double>(run.rays_total) : 0.0;
-  j["cpu_ms_per_scan"] =
-      run.scans > 0 ? 1000.0 * run.cpu_s / static_cast<double>(run.scans) : 0.0;
+  j["ns_per_ray"] =
+      run.rays_total > 0 ? 1e9 * run.cpu_s / static_cast<double>(run.rays_total) : 0.0;
+  j["cpu_ms_per_scan"] = run.scans > 0 ? 1000.0 * run.cpu_s / static_cast<double>(run.scans) : 0.0;
   j["realtime_factor"] = run.wall_s > 0.0 ? experiment.duration_s() / run.wall_s : 0.0;
   j["frames"] = experiment.counters.frames;
   j["frames_rejected"] = experiment.counters.FramesRejected();
   if (experiment.world && run.quality) {
-    const sim::MapQuality m =
-        sim::EvaluateMap(run.map, run.quality->alignment, *experiment.world, experiment.ground_truth);
+    const sim::MapQuality m = sim::EvaluateMap(run.map, run.quality->alignment, *experiment.world,
+                                               experiment.ground_truth);
     j["map_quality"] = {{"precision", m.precision},
                         {"recall", m.recall},
                         {"f1", m.f1},
@@ -133,7 +136,7 @@ nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResul
   return j;
 }
 
-ReplayOutputs WriteReplayOutputs(const std::string& dir, const hw::Experiment& experiment,
+ReplayOutputs WriteReplayOutputs(const std::string& dir, const offline::Experiment& experiment,
                                  const ReplayResult& run, bool odometry_only,
                                  const BudgetSettings& budget) {
   ReplayOutputs outputs;
@@ -152,16 +155,16 @@ ReplayOutputs WriteReplayOutputs(const std::string& dir, const hw::Experiment& e
     layers.push_back({"odometry only", DeadReckoning(experiment.scans), {150, 150, 150}});
   }
   if (run.quality) {
-    layers.push_back({"ground truth, aligned (ATE " + Centimetres(run.quality->ate_rmse_m) + ")",
-                      TransformTrajectory(run.quality->alignment.Inverse(), experiment.ground_truth),
-                      {0, 90, 255}});
+    layers.push_back(
+        {"ground truth, aligned (ATE " + Centimetres(run.quality->ate_rmse_m) + ")",
+         TransformTrajectory(run.quality->alignment.Inverse(), experiment.ground_truth),
+         {0, 90, 255}});
   }
-  layers.push_back({odometry_only ? "odometry only (phase B off)"
-                                  : "SLAM, " + BudgetLabel(budget),
+  layers.push_back({odometry_only ? "odometry only (phase B off)" : "SLAM, " + BudgetLabel(budget),
                     run.trajectory,
                     {230, 0, 0}});
   check(io::WritePng(base + "map.png", io::RenderMapPicture(run.map, layers, 3)));
   return outputs;
 }
 
-}  // namespace slam::tools
+}  // namespace slam::offline

@@ -6,15 +6,14 @@
 // like Table III), fig10.svg and fig10.png (median and interquartile band per generation), and
 // params/<budget>.json (the best parameters, for slam-replay and slam-evaluate --params).
 
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
-#include <nlohmann/json.hpp>
-
 #include "engine/io/result.hpp"
-#include "scheduler/tuner.hpp"
+#include "offline/tuner.hpp"
 
-namespace slam::tools {
+namespace slam::offline {
 
 /// The whole state as results.json holds it.
 nlohmann::json TuningStateToJson(const TuningState& state);
@@ -37,4 +36,4 @@ std::string Table3Markdown(const TuningState& state);
 /// Writes every output file into `dir` (each atomically); returns the files that failed.
 std::vector<std::string> WriteTuningOutputs(const std::string& dir, const TuningState& state);
 
-}  // namespace slam::tools
+}  // namespace slam::offline

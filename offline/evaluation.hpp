@@ -6,20 +6,20 @@
 #include <cstdint>
 #include <functional>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
-#include <nlohmann/json.hpp>
-
 #include "engine/params.hpp"
-#include "hw_link/experiment_reader.hpp"
+#include "offline/experiment_reader.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 
-namespace slam::tools {
+namespace slam::offline {
 
 /// The experiment directories named by `paths`: each is an experiment (it holds a can.log) or a
 /// dataset of them (its subdirectories holding one, sorted). Empty with `error` set otherwise.
-std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& paths, std::string& error);
+std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& paths,
+                                            std::string& error);
 
 struct EvaluationPlan {
   std::vector<int64_t> budgets{8125, 16250, 32500, 65000};
@@ -30,15 +30,15 @@ struct EvaluationPlan {
   BudgetPolicy policy = BudgetPolicy::kFixed;
   int max_particles = BudgetSettings{}.max_particles;
   uint64_t seed = 1;
-  int jobs = 0;               // concurrent replays; 0: one per core
-  std::string outputs_dir;    // when set: each run's map and trajectory in a subdirectory
+  int jobs = 0;             // concurrent replays; 0: one per core
+  std::string outputs_dir;  // when set: each run's map and trajectory in a subdirectory
 };
 
 struct EvaluationRun {
   size_t experiment = 0;  // index into the experiments
   int64_t budget = 0;
   bool refine = true;
-  nlohmann::json summary;  // slam-replay's JSON summary of the run
+  nlohmann::json summary;           // slam-replay's JSON summary of the run
   std::vector<std::string> errors;  // files that could not be written
 };
 
@@ -48,29 +48,29 @@ std::vector<EvaluationRun> PlanRuns(size_t experiments, const EvaluationPlan& pl
 /// Replays every run. `on_done(run, done, total)` is called after each, from one thread at a
 /// time, in completion order. Returns the runs in PlanRuns order.
 std::vector<EvaluationRun> Evaluate(
-    const std::vector<hw::Experiment>& experiments, const EvaluationPlan& plan,
+    const std::vector<offline::Experiment>& experiments, const EvaluationPlan& plan,
     const std::function<void(const EvaluationRun&, size_t, size_t)>& on_done = {});
 
 /// One row per run: experiment, world, mode, budget, ATE, q, e, map precision and recall,
 /// real-time factor, CPU ms per scan, rays per scan.
-std::string EvaluationCsv(const std::vector<hw::Experiment>& experiments,
+std::string EvaluationCsv(const std::vector<offline::Experiment>& experiments,
                           const std::vector<EvaluationRun>& runs);
 
 /// Means per budget and mode, ATE per experiment, and the checks of the issue tracker's
 /// quality bar (SLAM beats odometry-only everywhere at the largest budget; mean SLAM ATE under
 /// half of odometry-only's; mean q improving from the smallest to the largest budget).
-std::string EvaluationMarkdown(const std::vector<hw::Experiment>& experiments,
+std::string EvaluationMarkdown(const std::vector<offline::Experiment>& experiments,
                                const std::vector<EvaluationRun>& runs);
 
 /// The checks of EvaluationMarkdown, for tools and tests.
 struct EvaluationChecks {
   int64_t largest_budget = 0;
   int experiments_compared = 0;
-  int slam_beats_odometry = 0;     // experiments where SLAM at the largest budget has lower ATE
-  double mean_ate_slam_m = 0.0;     // at the largest budget
+  int slam_beats_odometry = 0;   // experiments where SLAM at the largest budget has lower ATE
+  double mean_ate_slam_m = 0.0;  // at the largest budget
   double mean_ate_odometry_m = 0.0;
   int64_t smallest_budget = 0;
-  double mean_q_smallest = 0.0;    // SLAM's mean q at the smallest and largest budgets
+  double mean_q_smallest = 0.0;  // SLAM's mean q at the smallest and largest budgets
   double mean_q_largest = 0.0;
   bool all_pass() const {
     return experiments_compared > 0 && slam_beats_odometry == experiments_compared &&
@@ -80,4 +80,4 @@ struct EvaluationChecks {
 
 EvaluationChecks CheckEvaluation(const std::vector<EvaluationRun>& runs);
 
-}  // namespace slam::tools
+}  // namespace slam::offline

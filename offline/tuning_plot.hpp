@@ -11,7 +11,7 @@
 
 #include "engine/io/map_image.hpp"
 
-namespace slam {
+namespace slam::offline {
 
 /// The population's fitness at one generation: first quartile, median, third quartile.
 struct TuningBand {
@@ -49,4 +49,4 @@ std::string TuningPlotSvg(const std::vector<TuningSeries>& series,
 io::RgbImage TuningPlotImage(const std::vector<TuningSeries>& series,
                              const TuningPlotOptions& options = {});
 
-}  // namespace slam
+}  // namespace slam::offline

@@ -12,7 +12,7 @@
 #include "engine/params.hpp"
 #include "engine/random.hpp"
 
-namespace slam {
+namespace slam::offline {
 
 /// One tuned parameter: its JSON key, mutation sigma and search bounds.
 struct ParameterSpec {
@@ -65,4 +65,4 @@ std::vector<Individual> NextGeneration(const std::vector<Individual>& previous,
                                        const EvolutionConfig& config, uint64_t stream,
                                        int generation);
 
-}  // namespace slam
+}  // namespace slam::offline

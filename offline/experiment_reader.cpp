@@ -1,4 +1,4 @@
-#include "hw_link/experiment_reader.hpp"
+#include "offline/experiment_reader.hpp"
 
 #include <cmath>
 #include <filesystem>
@@ -11,10 +11,10 @@
 #include "hw_link/frame_decoder.hpp"
 #include "hw_link/transports.hpp"
 
-namespace slam::hw {
+namespace slam::offline {
 namespace {
 
-uint64_t Counter(const SourceCounters& counters, const std::string& name) {
+uint64_t Counter(const hw::SourceCounters& counters, const std::string& name) {
   for (const auto& [key, value] : counters) {
     if (key == name) return value;
   }
@@ -26,7 +26,7 @@ uint64_t Counter(const SourceCounters& counters, const std::string& name) {
 struct ClockSegment {
   double logged_first = 0.0;  // the log's times of its first and last frame
   double logged_last = 0.0;
-  double shift = 0.0;         // logged - replay time
+  double shift = 0.0;  // logged - replay time
 };
 
 // A jump changes the shift by at least 1 s (a step back) or 4 s (a step ahead); rounding of
@@ -38,7 +38,7 @@ constexpr double kSegmentSlackS = 0.2;
 
 class LogClock {
  public:
-  void Observe(const TimedFrame& frame) {
+  void Observe(const hw::TimedFrame& frame) {
     if (!frame.source_t) return;
     const double logged = *frame.source_t;
     const double shift = logged - frame.t;
@@ -69,8 +69,8 @@ class LogClock {
       int homes = 0;
       for (size_t k = 0; k < segments_.size(); ++k) {
         const ClockSegment& s = segments_[k];
-        const double from = k == 0 ? -std::numeric_limits<double>::infinity()
-                                   : s.logged_first - kSegmentSlackS;
+        const double from =
+            k == 0 ? -std::numeric_limits<double>::infinity() : s.logged_first - kSegmentSlackS;
         const double to = k + 1 == segments_.size() ? std::numeric_limits<double>::infinity()
                                                     : s.logged_last + kSegmentSlackS;
         if (pose.t >= from && pose.t <= to) {
@@ -144,18 +144,18 @@ ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig&
     return load;
   }
 
-  OpenResult opened = OpenCandumpReplay(file("can.log"));
+  hw::OpenResult opened = hw::OpenCandumpReplay(file("can.log"));
   if (auto* message = std::get_if<std::string>(&opened)) {
     load.error = *message;
     return load;
   }
-  FrameSource& source = *std::get<std::unique_ptr<FrameSource>>(opened);
-  FrameDecoder decoder(experiment.robot);
+  hw::FrameSource& source = *std::get<std::unique_ptr<hw::FrameSource>>(opened);
+  hw::FrameDecoder decoder(experiment.robot);
   ScanAssembler assembler(experiment.robot, assembler_config);
   LogClock clock;
   const auto failure = DecodeToEnd(
       source, decoder, [&](const RobotEvent& event) { assembler.Add(event, experiment.scans); },
-      [&](const TimedFrame& frame) { clock.Observe(frame); });
+      [&](const hw::TimedFrame& frame) { clock.Observe(frame); });
   if (failure) {
     load.error = file("can.log") + ": " + *failure;
     return load;
@@ -163,7 +163,7 @@ ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig&
 
   ExperimentCounters& counters = experiment.counters;
   counters.frames = decoder.frames();
-  const SourceCounters source_counters = source.Counters();
+  const hw::SourceCounters source_counters = source.Counters();
   counters.bad_lines = Counter(source_counters, "bad_lines");
   counters.ignored_lines = Counter(source_counters, "ignored_lines");
   counters.reassembly = decoder.reassembly();
@@ -188,4 +188,4 @@ ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig&
   return load;
 }
 
-}  // namespace slam::hw
+}  // namespace slam::offline

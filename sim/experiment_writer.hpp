@@ -11,7 +11,7 @@
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
 
-namespace slam::hw {
+namespace slam::sim {
 
 /// Simulated time 0 is this instant in the recordings (2023-11-14T22:13:20Z), so that logs
 /// look like candump's (seconds since the epoch).
@@ -28,11 +28,10 @@ struct ExperimentSummary {
 
 /// Simulates `config` in `world` and writes the experiment into `dir` (created if needed; files
 /// are replaced atomically). `world_name` goes into meta.json. An error message on failure.
-std::optional<std::string> WriteSimulatedExperiment(const std::string& dir,
-                                                    const sim::World& world,
+std::optional<std::string> WriteSimulatedExperiment(const std::string& dir, const World& world,
                                                     const std::string& world_name,
                                                     const RobotDescription& robot,
-                                                    const sim::ScenarioConfig& config,
+                                                    const ScenarioConfig& config,
                                                     ExperimentSummary* summary = nullptr);
 
-}  // namespace slam::hw
+}  // namespace slam::sim

@@ -1,4 +1,4 @@
-#include "tools/evaluation.hpp"
+#include "offline/evaluation.hpp"
 
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -12,10 +12,10 @@
 #include <mutex>
 #include <numeric>
 
-#include "scheduler/replay.hpp"
-#include "tools/replay_report.hpp"
+#include "offline/replay.hpp"
+#include "offline/replay_report.hpp"
 
-namespace slam::tools {
+namespace slam::offline {
 namespace {
 
 using Json = nlohmann::json;
@@ -81,7 +81,8 @@ std::vector<double> Column(const std::vector<EvaluationRun>& runs, int64_t budge
 
 }  // namespace
 
-std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& paths, std::string& error) {
+std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& paths,
+                                            std::string& error) {
   std::vector<std::string> dirs;
   for (const std::string& path : paths) {
     std::error_code ec;
@@ -94,7 +95,8 @@ std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& path
       return {};
     }
     std::vector<std::string> found;
-    for (const std::filesystem::directory_entry& entry : std::filesystem::directory_iterator(path, ec)) {
+    for (const std::filesystem::directory_entry& entry :
+         std::filesystem::directory_iterator(path, ec)) {
       if (entry.is_directory() && std::filesystem::exists(entry.path() / "can.log")) {
         found.push_back(entry.path().string());
       }
@@ -127,7 +129,7 @@ std::vector<EvaluationRun> PlanRuns(size_t experiments, const EvaluationPlan& pl
 }
 
 std::vector<EvaluationRun> Evaluate(
-    const std::vector<hw::Experiment>& experiments, const EvaluationPlan& plan,
+    const std::vector<offline::Experiment>& experiments, const EvaluationPlan& plan,
     const std::function<void(const EvaluationRun&, size_t, size_t)>& on_done) {
   std::vector<EvaluationRun> runs = PlanRuns(experiments.size(), plan);
   // The costliest runs first (SLAM at large budgets), so that the last ones to finish are short.
@@ -146,7 +148,7 @@ std::vector<EvaluationRun> Evaluate(
         tbb::blocked_range<size_t>(0, order.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
           for (size_t k = r.begin(); k != r.end(); ++k) {
             EvaluationRun& run = runs[order[k]];
-            const hw::Experiment& experiment = experiments[run.experiment];
+            const offline::Experiment& experiment = experiments[run.experiment];
             ReplayOptions options;
             const auto tuned = plan.params_by_budget.find(run.budget);
             options.params = tuned != plan.params_by_budget.end() ? tuned->second : plan.params;
@@ -182,24 +184,25 @@ std::vector<EvaluationRun> Evaluate(
   return runs;
 }
 
-std::string EvaluationCsv(const std::vector<hw::Experiment>& experiments,
+std::string EvaluationCsv(const std::vector<offline::Experiment>& experiments,
                           const std::vector<EvaluationRun>& runs) {
   std::string csv =
       "experiment,world,mode,budget,ate_rmse_m,q,e,odometry_ate_rmse_m,map_precision,"
       "map_recall,realtime_factor,cpu_ms_per_scan,rays_per_scan_mean,rays_per_scan_max,scans\n";
   for (const EvaluationRun& r : runs) {
-    const hw::Experiment& e = experiments[r.experiment];
+    const offline::Experiment& e = experiments[r.experiment];
     const Json& s = r.summary;
     csv += e.meta.name + "," + e.meta.world + "," + (r.refine ? "slam" : "odometry") + "," +
            std::to_string(r.budget) + "," + Format("%.6f", Number(s, "ate_rmse_m")) + "," +
            Format("%.4f", Number(s, "q")) + "," + Format("%.6f", Number(s, "e")) + "," +
            Format("%.6f", Number(s, "odometry_ate_rmse_m")) + "," +
-           Format("%.4f", MapNumber(s, "precision")) + "," + Format("%.4f", MapNumber(s, "recall")) +
-           "," + Format("%.1f", Number(s, "realtime_factor")) + "," +
+           Format("%.4f", MapNumber(s, "precision")) + "," +
+           Format("%.4f", MapNumber(s, "recall")) + "," +
+           Format("%.1f", Number(s, "realtime_factor")) + "," +
            Format("%.3f", Number(s, "cpu_ms_per_scan")) + "," +
            Format("%.0f", Number(s, "rays_per_scan_mean")) + "," +
-           Format("%.0f", Number(s, "rays_per_scan_max")) + "," + Format("%.0f", Number(s, "scans")) +
-           "\n";
+           Format("%.0f", Number(s, "rays_per_scan_max")) + "," +
+           Format("%.0f", Number(s, "scans")) + "\n";
   }
   return csv;
 }
@@ -232,12 +235,13 @@ EvaluationChecks CheckEvaluation(const std::vector<EvaluationRun>& runs) {
   return checks;
 }
 
-std::string EvaluationMarkdown(const std::vector<hw::Experiment>& experiments,
+std::string EvaluationMarkdown(const std::vector<offline::Experiment>& experiments,
                                const std::vector<EvaluationRun>& runs) {
   const std::vector<int64_t> budgets = Budgets(runs);
   std::string md;
-  md += "| rays/scan | mode | ATE RMSE cm, mean | worst | q cm², mean | e, mean | map precision | "
-        "map recall | real-time factor | CPU ms/scan |\n";
+  md +=
+      "| rays/scan | mode | ATE RMSE cm, mean | worst | q cm², mean | e, mean | map precision | "
+      "map recall | real-time factor | CPU ms/scan |\n";
   md += "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
   for (int64_t budget : budgets) {
     for (bool refine : {true, false}) {
@@ -284,9 +288,10 @@ std::string EvaluationMarkdown(const std::vector<hw::Experiment>& experiments,
     md += "\nChecks at " + std::to_string(c.largest_budget) + " rays/scan:\n\n";
     md += "- SLAM beats odometry-only on " + std::to_string(c.slam_beats_odometry) + " of " +
           std::to_string(c.experiments_compared) + " experiments.\n";
-    md += "- Mean ATE, SLAM / odometry-only: " + Format("%.2f", 100.0 * c.mean_ate_slam_m) +
-          " / " + Format("%.2f", 100.0 * c.mean_ate_odometry_m) + " cm = " +
-          Format("%.2f", c.mean_ate_slam_m / c.mean_ate_odometry_m) + " (bar: under 0.5).\n";
+    md += "- Mean ATE, SLAM / odometry-only: " + Format("%.2f", 100.0 * c.mean_ate_slam_m) + " / " +
+          Format("%.2f", 100.0 * c.mean_ate_odometry_m) +
+          " cm = " + Format("%.2f", c.mean_ate_slam_m / c.mean_ate_odometry_m) +
+          " (bar: under 0.5).\n";
     md += "- Mean q from " + std::to_string(c.smallest_budget) + " to " +
           std::to_string(c.largest_budget) + " rays/scan: " + Format("%.2f", c.mean_q_smallest) +
           " -> " + Format("%.2f", c.mean_q_largest) + " cm² (" +
@@ -296,4 +301,4 @@ std::string EvaluationMarkdown(const std::vector<hw::Experiment>& experiments,
   return md;
 }
 
-}  // namespace slam::tools
+}  // namespace slam::offline

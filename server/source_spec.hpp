@@ -12,17 +12,17 @@
 #include "engine/robot.hpp"
 #include "hw_link/transports.hpp"
 
-namespace slam::hw {
+namespace slam::server {
 
 struct SourceSpecOptions {
-  bool paced = true;     // sim and candump: in real time (times speed); false: as fast as read
+  bool paced = true;  // sim and candump: in real time (times speed); false: as fast as read
   double speed = 1.0;
-  uint64_t seed = 1;     // sim: the simulation's seed
+  uint64_t seed = 1;        // sim: the simulation's seed
   double duration_s = 0.0;  // sim: 0 = endless
 };
 
 /// The source `spec` names, or a one-line error (unknown kind, bad port, missing file, ...).
-OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& robot,
-                          const SourceSpecOptions& options = {});
+hw::OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& robot,
+                              const SourceSpecOptions& options = {});
 
-}  // namespace slam::hw
+}  // namespace slam::server

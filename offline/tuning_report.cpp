@@ -1,4 +1,4 @@
-#include "tools/tuning_report.hpp"
+#include "offline/tuning_report.hpp"
 
 #include <cmath>
 #include <cstdio>
@@ -7,9 +7,9 @@
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/map_image.hpp"
 #include "engine/io/params_json.hpp"
-#include "tools/tuning_plot.hpp"
+#include "offline/tuning_plot.hpp"
 
-namespace slam::tools {
+namespace slam::offline {
 namespace {
 
 using Json = nlohmann::json;
@@ -112,7 +112,8 @@ Json TuningStateToJson(const TuningState& state) {
 io::Result<TuningState> TuningStateFromJson(const Json& json) {
   try {
     if (json.value("format", std::string()) != kFormat) {
-      return ConfigErrors{{"/format", std::string("not \"") + kFormat + "\": not a slam-tune result"}};
+      return ConfigErrors{
+          {"/format", std::string("not \"") + kFormat + "\": not a slam-tune result"}};
     }
     TuningState state;
     const Json& s = json.at("settings");
@@ -135,7 +136,8 @@ io::Result<TuningState> TuningStateFromJson(const Json& json) {
       const std::string at = "/budgets/" + std::to_string(b);
       BudgetRun run;
       run.budget = budgets[b].at("budget").get<int64_t>();
-      if (run.budget != state.settings.budgets[b]) throw ReadError{at + "/budget", "not the settings' budget"};
+      if (run.budget != state.settings.budgets[b])
+        throw ReadError{at + "/budget", "not the settings' budget"};
       const Json& generations = budgets[b].at("generations");
       for (size_t g = 0; g < generations.size(); ++g) {
         const Json& gj = generations.at(g);
@@ -144,10 +146,12 @@ io::Result<TuningState> TuningStateFromJson(const Json& json) {
         if (summary.generation != static_cast<int>(g)) {
           throw ReadError{at + "/generations/" + std::to_string(g), "generations out of order"};
         }
-        summary.fitness = {gj.at("min").get<double>(), gj.at("q1").get<double>(), gj.at("median").get<double>(),
-                           gj.at("q3").get<double>(), gj.at("max").get<double>()};
+        summary.fitness = {gj.at("min").get<double>(), gj.at("q1").get<double>(),
+                           gj.at("median").get<double>(), gj.at("q3").get<double>(),
+                           gj.at("max").get<double>()};
         summary.evaluations = gj.at("evaluations").get<int>();
-        summary.best = IndividualAt(gj.at("best"), at + "/generations/" + std::to_string(g) + "/best");
+        summary.best =
+            IndividualAt(gj.at("best"), at + "/generations/" + std::to_string(g) + "/best");
         run.generations.push_back(summary);
       }
       if (!run.generations.empty()) {
@@ -156,7 +160,8 @@ io::Result<TuningState> TuningStateFromJson(const Json& json) {
       }
       const Json& population = budgets[b].at("population");
       for (size_t i = 0; i < population.size(); ++i) {
-        run.population.push_back(IndividualAt(population.at(i), at + "/population/" + std::to_string(i)));
+        run.population.push_back(
+            IndividualAt(population.at(i), at + "/population/" + std::to_string(i)));
       }
       if (!run.generations.empty() &&
           (run.population.size() != static_cast<size_t>(state.settings.evolution.population) ||
@@ -180,10 +185,12 @@ std::vector<std::string> ResumeConflicts(const TuningState& saved, const TuningS
   a.erase("generations");
   b.erase("generations");
   for (const auto& [key, value] : b.items()) {
-    if (a[key] != value) conflicts.push_back(key + ": saved " + a[key].dump() + ", asked " + value.dump());
+    if (a[key] != value)
+      conflicts.push_back(key + ": saved " + a[key].dump() + ", asked " + value.dump());
   }
   if (saved.experiments != experiments) {
-    conflicts.push_back("experiments: saved " + Json(saved.experiments).dump() + ", asked " + Json(experiments).dump());
+    conflicts.push_back("experiments: saved " + Json(saved.experiments).dump() + ", asked " +
+                        Json(experiments).dump());
   }
   return conflicts;
 }
@@ -193,7 +200,8 @@ std::string Table2Markdown(const TuningState& state) {
   md += "Evolution strategy: population " + std::to_string(state.settings.evolution.population) +
         ", elitism " + Fixed(100.0 * state.settings.evolution.elite_fraction, 0) + " %, seed " +
         std::to_string(state.settings.evolution.seed) + ", policy " +
-        std::string(ToString(state.settings.policy)) + ", " + std::to_string(state.experiments.size()) +
+        std::string(ToString(state.settings.policy)) + ", " +
+        std::to_string(state.experiments.size()) +
         " experiments. Fitness: mean of e = log(1 - q) (lower is better).\n\n";
   md += "| parameter | default |";
   std::string rule = "|---|---:|";
@@ -204,31 +212,39 @@ std::string Table2Markdown(const TuningState& state) {
   md += "\n" + rule + "\n";
   const auto& specs = TunedParameters();
   for (size_t i = 0; i < specs.size(); ++i) {
-    md += "| `" + std::string(specs[i].key) + "` | " + ParameterText(specs[i], GetParameter(state.settings.start, i)) + " |";
+    md += "| `" + std::string(specs[i].key) + "` | " +
+          ParameterText(specs[i], GetParameter(state.settings.start, i)) + " |";
     for (const BudgetRun& run : state.budgets) {
-      md += run.generations.empty() ? " - |"
-                                    : " " + ParameterText(specs[i], GetParameter(run.generations.back().best.params, i)) + " |";
+      md += run.generations.empty()
+                ? " - |"
+                : " " +
+                      ParameterText(specs[i], GetParameter(run.generations.back().best.params, i)) +
+                      " |";
     }
     md += "\n";
   }
   md += "| best fitness | |";
   for (const BudgetRun& run : state.budgets) {
-    md += run.generations.empty() ? " - |" : " " + Fixed(run.generations.back().best.fitness, 4) + " |";
+    md += run.generations.empty() ? " - |"
+                                  : " " + Fixed(run.generations.back().best.fitness, 4) + " |";
   }
   md += "\n| generations | |";
-  for (const BudgetRun& run : state.budgets) md += " " + std::to_string(run.generations.size()) + " |";
+  for (const BudgetRun& run : state.budgets)
+    md += " " + std::to_string(run.generations.size()) + " |";
   md += "\n";
   return md;
 }
 
 std::string Table3Markdown(const TuningState& state) {
   std::string md = "# Mann-Whitney U between budgets (like the paper's Table III)\n\n";
-  md += "Two-sided p-values between the fitness values of the last generations (exact permutation "
-        "distribution with ties when the samples total 120 or fewer, else the normal approximation "
-        "with tie correction). Small p: the budgets' final populations differ.\n\n";
+  md +=
+      "Two-sided p-values between the fitness values of the last generations (exact permutation "
+      "distribution with ties when the samples total 120 or fewer, else the normal approximation "
+      "with tie correction). Small p: the budgets' final populations differ.\n\n";
   std::vector<const BudgetRun*> done;
   for (const BudgetRun& run : state.budgets) {
-    if (!run.generations.empty() && !run.generations.back().fitness_values.empty()) done.push_back(&run);
+    if (!run.generations.empty() && !run.generations.back().fitness_values.empty())
+      done.push_back(&run);
   }
   if (done.size() < 2) return md + "Fewer than two budgets have a generation yet.\n";
   md += "| budget |";
@@ -253,8 +269,9 @@ std::string Table3Markdown(const TuningState& state) {
   }
   md += "\nLast generations:";
   for (const BudgetRun* run : done) {
-    md += " " + std::to_string(run->budget) + " at generation " + std::to_string(run->generations.back().generation) +
-          " (median " + Fixed(run->generations.back().fitness.median, 4) + ")" + (run == done.back() ? "." : ";");
+    md += " " + std::to_string(run->budget) + " at generation " +
+          std::to_string(run->generations.back().generation) + " (median " +
+          Fixed(run->generations.back().fitness.median, 4) + ")" + (run == done.back() ? "." : ";");
   }
   return md + "\n";
 }
@@ -262,7 +279,8 @@ std::string Table3Markdown(const TuningState& state) {
 std::vector<std::string> WriteTuningOutputs(const std::string& dir, const TuningState& state) {
   std::vector<std::string> errors;
   const auto write = [&](const std::string& name, const std::string& text) {
-    if (auto error = io::WriteFileAtomic((std::filesystem::path(dir) / name).string(), text)) errors.push_back(*error);
+    if (auto error = io::WriteFileAtomic((std::filesystem::path(dir) / name).string(), text))
+      errors.push_back(*error);
   };
   write("results.json", TuningStateToJson(state).dump(1) + "\n");
   write("table2.md", Table2Markdown(state));
@@ -272,13 +290,16 @@ std::vector<std::string> WriteTuningOutputs(const std::string& dir, const Tuning
   for (const BudgetRun& run : state.budgets) {
     TuningSeries s;
     s.label = std::to_string(run.budget) + " rays/scan";
-    for (const GenerationSummary& g : run.generations) s.generations.push_back({g.fitness.q1, g.fitness.median, g.fitness.q3});
+    for (const GenerationSummary& g : run.generations)
+      s.generations.push_back({g.fitness.q1, g.fitness.median, g.fitness.q3});
     series.push_back(std::move(s));
   }
   TuningPlotOptions options;
-  options.title = "Fitness per generation (" + std::string(ToString(state.settings.policy)) + " policy)";
+  options.title =
+      "Fitness per generation (" + std::string(ToString(state.settings.policy)) + " policy)";
   write("fig10.svg", TuningPlotSvg(series, options));
-  if (auto error = io::WritePng((std::filesystem::path(dir) / "fig10.png").string(), TuningPlotImage(series, options))) {
+  if (auto error = io::WritePng((std::filesystem::path(dir) / "fig10.png").string(),
+                                TuningPlotImage(series, options))) {
     errors.push_back(*error);
   }
 
@@ -291,9 +312,10 @@ std::vector<std::string> WriteTuningOutputs(const std::string& dir, const Tuning
   }
   for (const BudgetRun& run : state.budgets) {
     if (run.generations.empty()) continue;
-    write("params/" + std::to_string(run.budget) + ".json", io::ParamsToJson(run.generations.back().best.params).dump(2) + "\n");
+    write("params/" + std::to_string(run.budget) + ".json",
+          io::ParamsToJson(run.generations.back().best.params).dump(2) + "\n");
   }
   return errors;
 }
 
-}  // namespace slam::tools
+}  // namespace slam::offline

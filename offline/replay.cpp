@@ -1,12 +1,12 @@
-#include "scheduler/replay.hpp"
+#include "offline/replay.hpp"
+
+#include <time.h>
 
 #include <algorithm>
 #include <chrono>
 #include <ctime>
-#include <time.h>
 
-
-namespace slam {
+namespace slam::offline {
 namespace {
 
 /// CPU time so far: the whole process's when the engine may use worker threads, else this
@@ -89,4 +89,4 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   return result;
 }
 
-}  // namespace slam
+}  // namespace slam::offline

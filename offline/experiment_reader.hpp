@@ -29,15 +29,15 @@
 #include "hw_link/frame_source.hpp"
 #include "sim/world.hpp"
 
-namespace slam::hw {
+namespace slam::offline {
 
 /// What decoding can.log counted.
 struct ExperimentCounters {
-  uint64_t frames = 0;           // frames read from the log
-  uint64_t bad_lines = 0;        // garbled log lines skipped
-  uint64_t ignored_lines = 0;    // comments and blank lines
-  ReassemblyCounters reassembly;
-  DecoderCounters decoder;
+  uint64_t frames = 0;         // frames read from the log
+  uint64_t bad_lines = 0;      // garbled log lines skipped
+  uint64_t ignored_lines = 0;  // comments and blank lines
+  hw::ReassemblyCounters reassembly;
+  hw::DecoderCounters decoder;
   ScanAssemblerCounters assembler;
   uint64_t clock_jumps = 0;  // steps of the log's clock taken out of the replay's time
   /// Ground-truth poses left out: stamped inside a clock jump (or a silence taken for one) or
@@ -46,9 +46,7 @@ struct ExperimentCounters {
 
   /// Frames, lines and messages rejected anywhere on the way: garbled lines, frames the Aseba
   /// reassembly dropped, messages the decoder did not recognise.
-  uint64_t FramesRejected() const {
-    return bad_lines + reassembly.Rejected() + decoder.Rejected();
-  }
+  uint64_t FramesRejected() const { return bad_lines + reassembly.Rejected() + decoder.Rejected(); }
 };
 
 struct Experiment {
@@ -59,8 +57,8 @@ struct Experiment {
   /// In the replay's time (the log's with clock jumps taken out, as the scans'); empty without
   /// groundtruth.tum.
   std::vector<TimedPose> ground_truth;
-  std::optional<sim::World> world;      // simulated experiments only
-  double t_first = 0.0;                 // times of the first and last frame of can.log
+  std::optional<sim::World> world;  // simulated experiments only
+  double t_first = 0.0;             // times of the first and last frame of can.log
   double t_last = 0.0;
   ExperimentCounters counters;
 
@@ -77,4 +75,4 @@ struct ExperimentLoad {
 /// Reads and decodes the experiment in `dir`.
 ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig& assembler = {});
 
-}  // namespace slam::hw
+}  // namespace slam::offline

@@ -1,4 +1,4 @@
-#include "scheduler/statistics.hpp"
+#include "offline/statistics.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -8,7 +8,7 @@
 #include <utility>
 #include <vector>
 
-namespace slam {
+namespace slam::offline {
 namespace {
 
 // Above this pooled size the exact distribution gives way to the normal approximation; at the
@@ -179,4 +179,4 @@ MannWhitneyResult MannWhitneyU(const std::vector<double>& a, const std::vector<d
   return result;
 }
 
-}  // namespace slam
+}  // namespace slam::offline

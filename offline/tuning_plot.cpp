@@ -1,4 +1,4 @@
-#include "tools/tuning_plot.hpp"
+#include "offline/tuning_plot.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -8,7 +8,7 @@
 
 #include "engine/io/canvas.hpp"
 
-namespace slam {
+namespace slam::offline {
 namespace {
 
 using io::Canvas;
@@ -412,4 +412,4 @@ io::RgbImage TuningPlotImage(const std::vector<TuningSeries>& series,
   return canvas.Take();
 }
 
-}  // namespace slam
+}  // namespace slam::offline

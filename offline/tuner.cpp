@@ -1,14 +1,14 @@
-#include "scheduler/tuner.hpp"
-
-#include <algorithm>
-#include <mutex>
+#include "offline/tuner.hpp"
 
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
-#include "scheduler/replay.hpp"
+#include <algorithm>
+#include <mutex>
 
-namespace slam {
+#include "offline/replay.hpp"
+
+namespace slam::offline {
 namespace {
 
 /// Replays of one budget cost about budget rays per scan: the unit of progress.
@@ -18,7 +18,8 @@ double Work(const std::vector<TuningExperiment>& experiments, int64_t budget) {
   return scans * static_cast<double>(budget);
 }
 
-GenerationSummary Summarize(const std::vector<Individual>& population, int generation, int evaluations) {
+GenerationSummary Summarize(const std::vector<Individual>& population, int generation,
+                            int evaluations) {
   GenerationSummary summary;
   summary.generation = generation;
   summary.evaluations = evaluations;
@@ -30,7 +31,8 @@ GenerationSummary Summarize(const std::vector<Individual>& population, int gener
 
 }  // namespace
 
-TuningState NewTuningState(const TuningSettings& settings, const std::vector<TuningExperiment>& experiments) {
+TuningState NewTuningState(const TuningSettings& settings,
+                           const std::vector<TuningExperiment>& experiments) {
   TuningState state;
   state.settings = settings;
   for (const TuningExperiment& e : experiments) state.experiments.push_back(e.name);
@@ -114,7 +116,8 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
         individual.fitness = n_exp > 0 ? sum / static_cast<double>(n_exp) : 0.0;
         individual.evaluated = true;
       }
-      run.generations.push_back(Summarize(population, generation, static_cast<int>(pending.size())));
+      run.generations.push_back(
+          Summarize(population, generation, static_cast<int>(pending.size())));
       run.population = std::move(population);
       if (callbacks.generation_done) callbacks.generation_done(state, run.budget);
     }
@@ -122,4 +125,4 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
   return true;
 }
 
-}  // namespace slam
+}  // namespace slam::offline

@@ -1,4 +1,4 @@
-#include "hw_link/experiment.hpp"
+#include "sim/experiment_writer.hpp"
 
 #include <cmath>
 #include <filesystem>
@@ -9,27 +9,26 @@
 #include "engine/io/robot_json.hpp"
 #include "engine/io/tum.hpp"
 #include "hw_link/candump.hpp"
-#include "hw_link/virtual_marxbot.hpp"
+#include "sim/virtual_marxbot.hpp"
 
-namespace slam::hw {
+namespace slam::sim {
 
-std::optional<std::string> WriteSimulatedExperiment(const std::string& dir,
-                                                    const sim::World& world,
+std::optional<std::string> WriteSimulatedExperiment(const std::string& dir, const World& world,
                                                     const std::string& world_name,
                                                     const RobotDescription& robot,
-                                                    const sim::ScenarioConfig& config,
+                                                    const ScenarioConfig& config,
                                                     ExperimentSummary* summary) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) return "cannot create " + dir + ": " + ec.message();
 
-  const sim::ScenarioOutput output = sim::RunScenario(world, robot, config);
+  const ScenarioOutput output = RunScenario(world, robot, config);
   const auto frames = SimulatedFrames(robot, output);
   std::string log;
   log.reserve(frames.size() * 48);
   for (const auto& [t, frame] : frames) {
-    log += FormatCandumpLine(kSimulationEpochUs + std::llround(t * 1e6), kSimulatedInterface,
-                             frame);
+    log += hw::FormatCandumpLine(kSimulationEpochUs + std::llround(t * 1e6), kSimulatedInterface,
+                                 frame);
     log += '\n';
   }
   std::vector<TimedPose> truth = output.ground_truth;
@@ -49,7 +48,7 @@ std::optional<std::string> WriteSimulatedExperiment(const std::string& dir,
         {"can.log", log},
         {"groundtruth.tum", io::FormatTum(truth)},
         {"meta.json", meta.dump(2) + "\n"},
-        {"world.json", sim::WorldToJson(world)}}) {
+        {"world.json", WorldToJson(world)}}) {
     if (auto error = io::WriteFileAtomic(base + name, text)) return error;
   }
   if (summary != nullptr) {
@@ -60,4 +59,4 @@ std::optional<std::string> WriteSimulatedExperiment(const std::string& dir,
   return std::nullopt;
 }
 
-}  // namespace slam::hw
+}  // namespace slam::sim

@@ -1,5 +1,5 @@
 #pragma once
-// The virtual marXbot: the simulated robot (sim::Simulator) on the other side of the link,
+// The virtual marXbot: the simulated robot (Simulator) on the other side of the link,
 // emitting exactly the real robot's frames (DESIGN section 5) through the Aseba fragmenter and a
 // model of the CAN bus, so that everything downstream is exercised.
 
@@ -18,7 +18,7 @@
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
 
-namespace slam::hw {
+namespace slam::sim {
 
 /// A classic CAN bus: each node sends its frames in order; when several nodes have a frame
 /// ready, the lowest id wins arbitration; a frame is received when its transmission ends.
@@ -28,50 +28,50 @@ class CanBusModel {
 
   /// Queues one node's frames, ready to send from time t (seconds). Calls come with
   /// non-decreasing t, and t not before the last Deliver's `until`.
-  void Send(const std::vector<CanFrame>& frames, double t);
+  void Send(const std::vector<hw::CanFrame>& frames, double t);
 
   /// Appends (reception time, frame), in bus order, for every transmission starting before
   /// `until`.
-  void Deliver(double until, std::vector<std::pair<double, CanFrame>>& out);
+  void Deliver(double until, std::vector<std::pair<double, hw::CanFrame>>& out);
 
   /// Frames queued and not yet delivered.
   size_t pending() const;
 
   /// Time on the bus of one frame (bits including a typical amount of stuffing / bit rate).
-  double FrameSeconds(const CanFrame& frame) const;
+  double FrameSeconds(const hw::CanFrame& frame) const;
 
  private:
   struct Queued {
     double ready_t;
-    CanFrame frame;
+    hw::CanFrame frame;
   };
   double bitrate_bps_;
-  double bus_t_ = 0.0;                             // the bus is idle from this time
+  double bus_t_ = 0.0;                            // the bus is idle from this time
   std::map<uint32_t, std::deque<Queued>> nodes_;  // by source node (the id's low byte)
 };
 
 /// Every frame of a simulated run, in bus order, with reception times in seconds of simulated
 /// time (the readings' times are when each node hands its event to the bus).
-std::vector<std::pair<double, CanFrame>> SimulatedFrames(const RobotDescription& robot,
-                                                         const sim::ScenarioOutput& output);
+std::vector<std::pair<double, hw::CanFrame>> SimulatedFrames(const RobotDescription& robot,
+                                                             const ScenarioOutput& output);
 
 struct VirtualMarxbotOptions {
-  bool paced = true;          // true: in real time (times speed); false: as fast as read
+  bool paced = true;  // true: in real time (times speed); false: as fast as read
   double speed = 1.0;
-  double duration_s = 0.0;    // 0: runs until stopped; otherwise kEnd after this
+  double duration_s = 0.0;  // 0: runs until stopped; otherwise kEnd after this
 };
 
 /// The virtual marXbot as a live FrameSource. Frame times are simulated seconds since its start
 /// (t and source_t); receive_ns is when Read handed the frame over.
-class VirtualMarxbotSource : public FrameSource {
+class VirtualMarxbotSource : public hw::FrameSource {
  public:
-  VirtualMarxbotSource(const sim::World& world, std::string world_name,
-                       const RobotDescription& robot, const sim::ScenarioConfig& config,
-                       const VirtualMarxbotOptions& options);
+  VirtualMarxbotSource(const World& world, std::string world_name, const RobotDescription& robot,
+                       const ScenarioConfig& config, const VirtualMarxbotOptions& options);
 
-  ReadOutcome Read(std::vector<TimedFrame>& out, std::chrono::milliseconds timeout) override;
+  hw::ReadOutcome Read(std::vector<hw::TimedFrame>& out,
+                       std::chrono::milliseconds timeout) override;
   std::string Describe() const override;
-  SourceCounters Counters() const override;
+  hw::SourceCounters Counters() const override;
 
   /// Ground-truth poses kept, the newest: the reader (slamd's service, once a scan) keeps its own
   /// copy. Keeping them all grew slamd by 55 KB a minute (30 poses a second) for nothing.
@@ -90,16 +90,16 @@ class VirtualMarxbotSource : public FrameSource {
   std::string world_name_;
   RobotDescription robot_;
   VirtualMarxbotOptions options_;
-  sim::Simulator simulator_;
+  Simulator simulator_;
   CanBusModel bus_;
-  std::deque<std::pair<double, CanFrame>> ready_;  // delivered by the bus, not yet read
-  int64_t start_ns_ = 0;                            // steady time of the first Read
+  std::deque<std::pair<double, hw::CanFrame>> ready_;  // delivered by the bus, not yet read
+  int64_t start_ns_ = 0;                               // steady time of the first Read
   bool started_ = false;
   uint64_t events_ = 0;
   uint64_t frames_ = 0;
   mutable std::mutex truth_mutex_;
   std::deque<TimedPose> ground_truth_;  // the newest poses, guarded by truth_mutex_
-  size_t truth_dropped_ = 0;             // older poses, no longer kept (guarded too)
+  size_t truth_dropped_ = 0;            // older poses, no longer kept (guarded too)
 };
 
-}  // namespace slam::hw
+}  // namespace slam::sim

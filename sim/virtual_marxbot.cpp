@@ -1,4 +1,4 @@
-#include "hw_link/virtual_marxbot.hpp"
+#include "sim/virtual_marxbot.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -8,25 +8,25 @@
 #include "hw_link/aseba.hpp"
 #include "hw_link/event_decoder.hpp"
 
-namespace slam::hw {
+namespace slam::sim {
 namespace {
 
-constexpr double kStuffingFactor = 1.1;   // typical bit stuffing on this traffic
+constexpr double kStuffingFactor = 1.1;    // typical bit stuffing on this traffic
 constexpr double kFrameOverheadBits = 47;  // standard frame without data, with inter-frame space
 constexpr double kUnpacedChunkS = 0.2;     // simulated time per Read when not paced
 
-std::vector<CanFrame> Frames(const AsebaMessage& m) {
-  return FragmentAseba(m.source, m.type, m.payload);
+std::vector<hw::CanFrame> Frames(const hw::AsebaMessage& m) {
+  return hw::FragmentAseba(m.source, m.type, m.payload);
 }
 
 /// Hands a simulation's readings to the bus in time order (odometry first at equal times).
-void SendReadings(const RobotDescription& robot, const sim::ScenarioOutput& output,
-                  CanBusModel& bus, uint64_t* events) {
-  for (const RobotEvent& event : sim::MergeEvents(output.odometry, output.scanner)) {
-    const AsebaMessage message =
+void SendReadings(const RobotDescription& robot, const ScenarioOutput& output, CanBusModel& bus,
+                  uint64_t* events) {
+  for (const RobotEvent& event : MergeEvents(output.odometry, output.scanner)) {
+    const hw::AsebaMessage message =
         std::holds_alternative<OdometryReading>(event)
-            ? EncodeOdometry(robot, std::get<OdometryReading>(event))
-            : EncodeScanner(robot, std::get<ScannerReading>(event));
+            ? hw::EncodeOdometry(robot, std::get<OdometryReading>(event))
+            : hw::EncodeScanner(robot, std::get<ScannerReading>(event));
     bus.Send(Frames(message), message.t);
     if (events != nullptr) ++*events;
   }
@@ -34,11 +34,11 @@ void SendReadings(const RobotDescription& robot, const sim::ScenarioOutput& outp
 
 }  // namespace
 
-void CanBusModel::Send(const std::vector<CanFrame>& frames, double t) {
-  for (const CanFrame& frame : frames) nodes_[frame.id & 0xFF].push_back({t, frame});
+void CanBusModel::Send(const std::vector<hw::CanFrame>& frames, double t) {
+  for (const hw::CanFrame& frame : frames) nodes_[frame.id & 0xFF].push_back({t, frame});
 }
 
-double CanBusModel::FrameSeconds(const CanFrame& frame) const {
+double CanBusModel::FrameSeconds(const hw::CanFrame& frame) const {
   return std::round(kStuffingFactor * (kFrameOverheadBits + 8.0 * frame.len)) / bitrate_bps_;
 }
 
@@ -48,7 +48,7 @@ size_t CanBusModel::pending() const {
   return n;
 }
 
-void CanBusModel::Deliver(double until, std::vector<std::pair<double, CanFrame>>& out) {
+void CanBusModel::Deliver(double until, std::vector<std::pair<double, hw::CanFrame>>& out) {
   for (;;) {
     // The earliest time any head frame is ready.
     double earliest = std::numeric_limits<double>::infinity();
@@ -64,25 +64,25 @@ void CanBusModel::Deliver(double until, std::vector<std::pair<double, CanFrame>>
       if (queue.empty() || queue.front().ready_t > start) continue;
       if (winner == nullptr || queue.front().frame.id < winner->front().frame.id) winner = &queue;
     }
-    const CanFrame frame = winner->front().frame;
+    const hw::CanFrame frame = winner->front().frame;
     winner->pop_front();
     bus_t_ = start + FrameSeconds(frame);
     out.emplace_back(bus_t_, frame);
   }
 }
 
-std::vector<std::pair<double, CanFrame>> SimulatedFrames(const RobotDescription& robot,
-                                                         const sim::ScenarioOutput& output) {
+std::vector<std::pair<double, hw::CanFrame>> SimulatedFrames(const RobotDescription& robot,
+                                                             const ScenarioOutput& output) {
   CanBusModel bus;
   SendReadings(robot, output, bus, nullptr);
-  std::vector<std::pair<double, CanFrame>> frames;
+  std::vector<std::pair<double, hw::CanFrame>> frames;
   bus.Deliver(std::numeric_limits<double>::max(), frames);
   return frames;
 }
 
-VirtualMarxbotSource::VirtualMarxbotSource(const sim::World& world, std::string world_name,
+VirtualMarxbotSource::VirtualMarxbotSource(const World& world, std::string world_name,
                                            const RobotDescription& robot,
-                                           const sim::ScenarioConfig& config,
+                                           const ScenarioConfig& config,
                                            const VirtualMarxbotOptions& options)
     : world_name_(std::move(world_name)),
       robot_(robot),
@@ -90,10 +90,10 @@ VirtualMarxbotSource::VirtualMarxbotSource(const sim::World& world, std::string 
       simulator_(world, robot, config) {}
 
 void VirtualMarxbotSource::Advance(double until_s) {
-  sim::ScenarioOutput output;
+  ScenarioOutput output;
   while (simulator_.time() <= until_s) simulator_.Step(output);
   SendReadings(robot_, output, bus_, &events_);
-  std::vector<std::pair<double, CanFrame>> delivered;
+  std::vector<std::pair<double, hw::CanFrame>> delivered;
   // Readings made so far are at times before simulator_.time(): everything starting before it
   // has been arbitrated against every frame that could compete.
   bus_.Deliver(simulator_.time(), delivered);
@@ -110,9 +110,9 @@ void VirtualMarxbotSource::Advance(double until_s) {
   }
 }
 
-ReadOutcome VirtualMarxbotSource::Read(std::vector<TimedFrame>& out,
-                                       std::chrono::milliseconds timeout) {
-  const int64_t now = SteadyNowNs();
+hw::ReadOutcome VirtualMarxbotSource::Read(std::vector<hw::TimedFrame>& out,
+                                           std::chrono::milliseconds timeout) {
+  const int64_t now = hw::SteadyNowNs();
   if (!started_) {
     started_ = true;
     start_ns_ = now;
@@ -127,8 +127,8 @@ ReadOutcome VirtualMarxbotSource::Read(std::vector<TimedFrame>& out,
       // Nothing due yet: wait for the next frame, at most the timeout.
       double next_due = ready_.empty() ? horizon : std::min(ready_.front().first, horizon);
       if (bounded) next_due = std::min(next_due, std::max(target, options_.duration_s));
-      std::this_thread::sleep_for(std::chrono::duration<double>((next_due - target) /
-                                                                options_.speed));
+      std::this_thread::sleep_for(
+          std::chrono::duration<double>((next_due - target) / options_.speed));
       target = next_due;
     }
   } else {
@@ -136,10 +136,10 @@ ReadOutcome VirtualMarxbotSource::Read(std::vector<TimedFrame>& out,
     Advance(target);
   }
   if (bounded) target = std::min(target, options_.duration_s);
-  const int64_t receive_ns = SteadyNowNs();
+  const int64_t receive_ns = hw::SteadyNowNs();
   while (!ready_.empty() && ready_.front().first <= target &&
          !(bounded && ready_.front().first > options_.duration_s)) {
-    TimedFrame frame;
+    hw::TimedFrame frame;
     frame.frame = ready_.front().second;
     frame.t = ready_.front().first;
     frame.source_t = frame.t;
@@ -150,14 +150,14 @@ ReadOutcome VirtualMarxbotSource::Read(std::vector<TimedFrame>& out,
   }
   if (bounded && (ready_.empty() || ready_.front().first > options_.duration_s) &&
       simulator_.time() > options_.duration_s) {
-    return {ReadStatus::kEnd, "the simulated run reached its duration"};
+    return {hw::ReadStatus::kEnd, "the simulated run reached its duration"};
   }
   return {};
 }
 
 std::string VirtualMarxbotSource::Describe() const { return "sim:" + world_name_; }
 
-SourceCounters VirtualMarxbotSource::Counters() const {
+hw::SourceCounters VirtualMarxbotSource::Counters() const {
   return {{"events", events_}, {"frames", frames_}, {"bus_backlog", bus_.pending()}};
 }
 
@@ -177,4 +177,4 @@ size_t VirtualMarxbotSource::GroundTruthSince(size_t first, std::vector<TimedPos
   return made;
 }
 
-}  // namespace slam::hw
+}  // namespace slam::sim

@@ -1,4 +1,4 @@
-#include "scheduler/evolution.hpp"
+#include "offline/evolution.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -6,7 +6,7 @@
 
 #include "engine/random.hpp"
 
-namespace slam {
+namespace slam::offline {
 namespace {
 
 // Random streams: generation 0's mutations, and every later generation's choices.
@@ -33,46 +33,77 @@ const std::vector<ParameterSpec>& TunedParameters() {
 
 double GetParameter(const SlamParams& p, size_t index) {
   switch (index) {
-    case 0: return p.dist_error_ratio;
-    case 1: return p.dist_error_const_m;
-    case 2: return p.angle_error_ratio;
-    case 3: return p.angle_error_const_deg;
-    case 4: return p.min_pos_uncertainty_m;
-    case 5: return p.min_angle_uncertainty_deg;
-    case 6: return p.resampling_period_scans;
-    case 7: return p.angle_between_scans_deg;
-    default: return p.particles;
+    case 0:
+      return p.dist_error_ratio;
+    case 1:
+      return p.dist_error_const_m;
+    case 2:
+      return p.angle_error_ratio;
+    case 3:
+      return p.angle_error_const_deg;
+    case 4:
+      return p.min_pos_uncertainty_m;
+    case 5:
+      return p.min_angle_uncertainty_deg;
+    case 6:
+      return p.resampling_period_scans;
+    case 7:
+      return p.angle_between_scans_deg;
+    default:
+      return p.particles;
   }
 }
 
 void SetParameter(SlamParams& p, size_t index, double value) {
   switch (index) {
-    case 0: p.dist_error_ratio = value; break;
-    case 1: p.dist_error_const_m = value; break;
-    case 2: p.angle_error_ratio = value; break;
-    case 3: p.angle_error_const_deg = value; break;
-    case 4: p.min_pos_uncertainty_m = value; break;
-    case 5: p.min_angle_uncertainty_deg = value; break;
-    case 6: p.resampling_period_scans = static_cast<int>(value); break;
-    case 7: p.angle_between_scans_deg = value; break;
-    default: p.particles = static_cast<int>(value); break;
+    case 0:
+      p.dist_error_ratio = value;
+      break;
+    case 1:
+      p.dist_error_const_m = value;
+      break;
+    case 2:
+      p.angle_error_ratio = value;
+      break;
+    case 3:
+      p.angle_error_const_deg = value;
+      break;
+    case 4:
+      p.min_pos_uncertainty_m = value;
+      break;
+    case 5:
+      p.min_angle_uncertainty_deg = value;
+      break;
+    case 6:
+      p.resampling_period_scans = static_cast<int>(value);
+      break;
+    case 7:
+      p.angle_between_scans_deg = value;
+      break;
+    default:
+      p.particles = static_cast<int>(value);
+      break;
   }
 }
 
 int EvolutionConfig::elites() const {
-  return std::clamp(static_cast<int>(std::lround(elite_fraction * population)), 1, std::max(1, population));
+  return std::clamp(static_cast<int>(std::lround(elite_fraction * population)), 1,
+                    std::max(1, population));
 }
 
 ConfigErrors Validate(const EvolutionConfig& config) {
   ConfigErrors errors;
   if (config.population < 2 || config.population > 100000) {
-    errors.push_back({"/population", std::to_string(config.population) + " is outside [2, 100000]"});
+    errors.push_back(
+        {"/population", std::to_string(config.population) + " is outside [2, 100000]"});
   }
   if (config.generations < 1 || config.generations > 100000) {
-    errors.push_back({"/generations", std::to_string(config.generations) + " is outside [1, 100000]"});
+    errors.push_back(
+        {"/generations", std::to_string(config.generations) + " is outside [1, 100000]"});
   }
   if (!(config.elite_fraction > 0.0 && config.elite_fraction < 1.0)) {
-    errors.push_back({"/elite_fraction", std::to_string(config.elite_fraction) + " is outside (0, 1)"});
+    errors.push_back(
+        {"/elite_fraction", std::to_string(config.elite_fraction) + " is outside (0, 1)"});
   }
   return errors;
 }
@@ -110,14 +141,16 @@ std::vector<Individual> NextGeneration(const std::vector<Individual>& previous,
                                        int generation) {
   const std::vector<Individual> ranked = Ranked(previous);
   const size_t elites = std::min(ranked.size(), static_cast<size_t>(config.elites()));
-  std::vector<Individual> next(ranked.begin(), ranked.begin() + static_cast<std::ptrdiff_t>(elites));
+  std::vector<Individual> next(ranked.begin(),
+                               ranked.begin() + static_cast<std::ptrdiff_t>(elites));
   for (int i = static_cast<int>(elites); i < config.population; ++i) {
-    Rng rng = Rng::ForStream(config.seed, kStreamEvolution + stream, static_cast<uint64_t>(generation),
-                             static_cast<uint64_t>(i));
-    const size_t parent = std::min(elites - 1, static_cast<size_t>(rng.Uniform() * static_cast<double>(elites)));
+    Rng rng = Rng::ForStream(config.seed, kStreamEvolution + stream,
+                             static_cast<uint64_t>(generation), static_cast<uint64_t>(i));
+    const size_t parent =
+        std::min(elites - 1, static_cast<size_t>(rng.Uniform() * static_cast<double>(elites)));
     next.push_back({Mutate(ranked[parent].params, rng), 0.0, false});
   }
   return next;
 }
 
-}  // namespace slam
+}  // namespace slam::offline

@@ -4,7 +4,7 @@
 
 #include <vector>
 
-namespace slam {
+namespace slam::offline {
 
 /// Minimum, quartiles, median and maximum of a sample.
 struct FiveNumbers {
@@ -27,4 +27,4 @@ struct MannWhitneyResult {
 /// Preconditions: both samples non-empty, no NaN.
 MannWhitneyResult MannWhitneyU(const std::vector<double>& a, const std::vector<double>& b);
 
-}  // namespace slam
+}  // namespace slam::offline

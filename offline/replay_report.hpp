@@ -1,21 +1,22 @@
 #pragma once
-// What slam-replay and slam-reference report about one replay: the JSON summary (DESIGN
-// section 6 keys and more) and the files (trajectory.tum, map.pgm + map.yaml, map.png).
+// What slam-replay and slam-evaluate (the reference table) report about one replay: the JSON
+// summary (DESIGN section 6 keys and more) and the files (trajectory.tum, map.pgm + map.yaml,
+// map.png).
 
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
-#include "hw_link/experiment_reader.hpp"
-#include "scheduler/replay.hpp"
+#include "offline/experiment_reader.hpp"
+#include "offline/replay.hpp"
 
-namespace slam::tools {
+namespace slam::offline {
 
 /// The JSON summary of a replay: q, e, ate_rmse_m (null without ground truth), scans,
 /// rays_total, rays_per_scan_max, budget, wall_s, realtime_factor, frames, frames_rejected, and
 /// the odometry-only ATE, map quality against world.json (when present), the parameters and
 /// every decoding counter.
-nlohmann::json ReplaySummary(const hw::Experiment& experiment, const ReplayResult& run,
+nlohmann::json ReplaySummary(const offline::Experiment& experiment, const ReplayResult& run,
                              const ReplayOptions& options);
 
 struct ReplayOutputs {
@@ -23,8 +24,8 @@ struct ReplayOutputs {
 };
 
 /// Writes trajectory.tum, map.pgm, map.yaml and map.png into `dir` (atomically, each).
-ReplayOutputs WriteReplayOutputs(const std::string& dir, const hw::Experiment& experiment,
+ReplayOutputs WriteReplayOutputs(const std::string& dir, const offline::Experiment& experiment,
                                  const ReplayResult& run, bool odometry_only,
                                  const BudgetSettings& budget);
 
-}  // namespace slam::tools
+}  // namespace slam::offline

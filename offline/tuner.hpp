@@ -15,11 +15,11 @@
 #include "engine/pose.hpp"
 #include "engine/robot.hpp"
 #include "engine/scan.hpp"
-#include "scheduler/evolution.hpp"
+#include "offline/evolution.hpp"
+#include "offline/statistics.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
-#include "scheduler/statistics.hpp"
 
-namespace slam {
+namespace slam::offline {
 
 /// A decoded experiment with ground truth (not owned).
 struct TuningExperiment {
@@ -31,18 +31,18 @@ struct TuningExperiment {
 
 struct TuningSettings {
   std::vector<int64_t> budgets{8125, 16250, 32500, 65000};
-  EvolutionConfig evolution;   // its seed also seeds every replay
+  EvolutionConfig evolution;  // its seed also seeds every replay
   BudgetPolicy policy = BudgetPolicy::kFixed;
   int max_particles = BudgetSettings{}.max_particles;
-  SlamParams start;            // generation 0's first individual (Table II defaults)
+  SlamParams start;  // generation 0's first individual (Table II defaults)
 };
 
 struct GenerationSummary {
   int generation = 0;
-  FiveNumbers fitness;               // over the whole population
-  Individual best;                   // best so far (elitism keeps it)
+  FiveNumbers fitness;                 // over the whole population
+  Individual best;                     // best so far (elitism keeps it)
   std::vector<double> fitness_values;  // every individual's, in population order
-  int evaluations = 0;               // individuals evaluated in this generation (elites are not)
+  int evaluations = 0;                 // individuals evaluated in this generation (elites are not)
 };
 
 struct BudgetRun {
@@ -58,7 +58,8 @@ struct TuningState {
 };
 
 /// A fresh state for `settings` over these experiments.
-TuningState NewTuningState(const TuningSettings& settings, const std::vector<TuningExperiment>& experiments);
+TuningState NewTuningState(const TuningSettings& settings,
+                           const std::vector<TuningExperiment>& experiments);
 
 /// Fitness of one parameter set at one budget: the mean of e over the experiments, each replayed
 /// on this thread with the settings' policy and seed. Preconditions: params valid, every
@@ -84,4 +85,4 @@ struct TuningCallbacks {
 bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& state, int jobs,
                const TuningCallbacks& callbacks = {});
 
-}  // namespace slam
+}  // namespace slam::offline

@@ -4,8 +4,8 @@
 // inputs and seed give the same trajectory and map, with the engine's parallel path or without
 // (CPU-share mode depends on measured time by design).
 
-#include <cstdint>
 #include <atomic>
+#include <cstdint>
 #include <functional>
 #include <optional>
 #include <utility>
@@ -20,14 +20,14 @@
 #include "engine/slam.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 
-namespace slam {
+namespace slam::offline {
 
 struct ReplayOptions {
   SlamParams params;
-  SlamConfig config;            // seed and parallel among others
-  BudgetSettings budget;        // rays per scan or CPU share, fixed or adaptive policy
+  SlamConfig config;      // seed and parallel among others
+  BudgetSettings budget;  // rays per scan or CPU share, fixed or adaptive policy
   SchedulerConfig scheduler;
-  bool refine = true;           // false: phase B off, odometry-only mapping
+  bool refine = true;  // false: phase B off, odometry-only mapping
   /// Called after every scan with (scans done, scans in all); may be empty.
   std::function<void(size_t, size_t)> progress;
   /// When it becomes true, the scan in progress skips its remaining refinement candidates and
@@ -38,17 +38,18 @@ struct ReplayOptions {
 };
 
 struct ReplayResult {
-  std::vector<TimedPose> trajectory;  // best particle's, from the first scan's start
-  OccupancyGrid map;                  // best particle's
+  std::vector<TimedPose> trajectory;         // best particle's, from the first scan's start
+  OccupancyGrid map;                         // best particle's
   std::optional<TrajectoryQuality> quality;  // against the ground truth, when there is one
-  int64_t scans = 0;  // scans replayed (fewer than given when cancelled)
+  int64_t scans = 0;                         // scans replayed (fewer than given when cancelled)
   bool cancelled = false;
   int64_t rays_total = 0;
   int64_t rays_per_scan_max = 0;
   int64_t resamplings = 0;
   std::vector<PlanRecord> plans;  // one per scan: the scheduler's plan and what it used
   double wall_s = 0.0;
-  double cpu_s = 0.0;  // CPU time of the run: this thread's with a serial engine, else the process's
+  double cpu_s =
+      0.0;  // CPU time of the run: this thread's with a serial engine, else the process's
 
   explicit ReplayResult(OccupancyGrid final_map) : map(std::move(final_map)) {}
 };
@@ -64,4 +65,4 @@ std::vector<TimedPose> DeadReckoning(const std::vector<Scan>& scans);
 ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scans,
                     const std::vector<TimedPose>& ground_truth, const ReplayOptions& options);
 
-}  // namespace slam
+}  // namespace slam::offline

@@ -1,13 +1,13 @@
-#include "hw_link/source_spec.hpp"
+#include "server/source_spec.hpp"
 
 #include <charconv>
 #include <filesystem>
 #include <memory>
 
-#include "hw_link/virtual_marxbot.hpp"
+#include "sim/virtual_marxbot.hpp"
 #include "sim/world.hpp"
 
-namespace slam::hw {
+namespace slam::server {
 namespace {
 
 constexpr const char* kForms =
@@ -23,8 +23,8 @@ bool ParsePort(const std::string& text, uint16_t& port) {
 
 }  // namespace
 
-OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& robot,
-                          const SourceSpecOptions& options) {
+hw::OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& robot,
+                              const SourceSpecOptions& options) {
   const size_t colon = spec.find(':');
   if (colon == std::string::npos || colon + 1 == spec.size()) {
     return "source '" + spec + "': expected " + kForms;
@@ -38,26 +38,25 @@ OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& robot
       for (const std::string& e : world.errors) error += e + "; ";
       return error.substr(0, error.size() - 2);
     }
-    const std::string name = sim::BuiltinArena(value)
-                                 ? value
-                                 : std::filesystem::path(value).stem().string();
+    const std::string name =
+        sim::BuiltinArena(value) ? value : std::filesystem::path(value).stem().string();
     sim::ScenarioConfig config;
     config.seed = options.seed;
     config.duration_s = options.duration_s > 0.0 ? options.duration_s : 1.0;
-    VirtualMarxbotOptions vm;
+    sim::VirtualMarxbotOptions vm;
     vm.paced = options.paced;
     vm.speed = options.speed;
     vm.duration_s = options.duration_s;
-    return std::make_unique<VirtualMarxbotSource>(*world.world, name, robot, config, vm);
+    return std::make_unique<sim::VirtualMarxbotSource>(*world.world, name, robot, config, vm);
   }
   if (kind == "candump") {
-    CandumpReplayOptions replay;
+    hw::CandumpReplayOptions replay;
     replay.paced = options.paced;
     replay.speed = options.speed;
-    return OpenCandumpReplay(value, replay);
+    return hw::OpenCandumpReplay(value, replay);
   }
-  if (kind == "slcan") return OpenSlcan(value);
-  if (kind == "socketcan") return OpenSocketCan(value);
+  if (kind == "slcan") return hw::OpenSlcan(value);
+  if (kind == "socketcan") return hw::OpenSocketCan(value);
   if (kind == "udp") {
     // udp:[ADDRESS:]PORT[,from=SENDER]: loopback unless an address is given.
     std::string address = "127.0.0.1";
@@ -81,9 +80,9 @@ OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& robot
     if (!ParsePort(port_text, port)) {
       return "source '" + spec + "': '" + port_text + "' is not a UDP port (0..65535)";
     }
-    return OpenUdp(port, address, sender);
+    return hw::OpenUdp(port, address, sender);
   }
   return "source '" + spec + "': unknown kind '" + kind + "'; expected " + kForms;
 }
 
-}  // namespace slam::hw
+}  // namespace slam::server
