@@ -1,5 +1,5 @@
-// bench-summary: the summary table of scripts/bench (DESIGN section 8's targets), computed from
-// the Google Benchmark JSON files of the suites (--benchmark_out_format=json).
+// bench-summary: the summary table of scripts/bench (docs/design.md section 9's targets), computed
+// from the Google Benchmark JSON files of the suites (--benchmark_out_format=json).
 //   bench-summary OUT_DIR            reads OUT_DIR/*.json
 //   bench-summary a.json b.json ...  reads these files
 // Prints Markdown on stdout; a benchmark that did not run gives "-". Exit status 1 when a
@@ -116,7 +116,7 @@ void PrintHelp() {
          "rays/s per core, ms per scan at each paper budget, the real-time factor of a\n"
          "300 s replay at 65000 rays/scan, the share of one core the paper's 65000 rays/scan\n"
          "at 1.5 scans/s needs, Aseba frames/s, tile PNG encodings/s and slamd requests/s,\n"
-         "each against DESIGN section 8's target where there is one.\n";
+         "each against docs/design.md section 9's target where there is one.\n";
 }
 
 }  // namespace
@@ -176,7 +176,7 @@ int main(int argc, char** argv) {
   std::optional<double> share;
   if (ms65000) share = *ms65000 * kPaperScanRate / 1000.0;
 
-  std::cout << "| what | measured | target (DESIGN 8) | met |\n|---|---:|---:|:-:|\n";
+  std::cout << "| what | measured | target (design 9) | met |\n|---|---:|---:|:-:|\n";
   const auto row = [](const std::string& what, const std::string& value, const std::string& target,
                       const std::string& met) {
     std::cout << "| " << what << " | " << value << " | " << target << " | " << met << " |\n";

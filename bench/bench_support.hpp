@@ -71,7 +71,7 @@ inline const SimulatedRun& Run(const std::string& arena, double duration_s, uint
   return *slot;
 }
 
-/// The run the engine benchmarks use: the "rooms" arena, seed 2 (README's example experiment).
+/// The run the engine benchmarks use: the "rooms" arena, seed 2 (the README's example experiment).
 inline const SimulatedRun& RoomsRun(double duration_s) { return Run("rooms", duration_s, 2); }
 
 /// Engine settings for benchmarks: the defaults, parallel as asked.

@@ -1,5 +1,6 @@
 #pragma once
-// The tunable parameters of the SLAM (paper Table II) with the defaults of DESIGN section 3.
+// The tunable parameters of the SLAM (paper Table II) with the defaults of docs/design.md
+// section 3.
 
 #include "engine/config_error.hpp"
 

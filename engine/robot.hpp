@@ -1,6 +1,6 @@
 #pragma once
-// The plain description of a robot (robot.json, DESIGN section 5) and the robot-event types.
-// The engine uses the description it is given; reading it from JSON is engine/io's job.
+// The plain description of a robot (robot.json, docs/design.md section 5) and the robot-event
+// types. The engine uses the description it is given; reading it from JSON is engine/io's job.
 
 #include <array>
 #include <cstdint>

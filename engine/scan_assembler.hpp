@@ -1,5 +1,5 @@
 #pragma once
-// Robot events -> scans (DESIGN section 2): scanner samples grouped into half turns of the
+// Robot events -> scans (docs/design.md section 2): scanner samples grouped into half turns of the
 // platform (one scan each), every sample posed by dead reckoning from the odometry and gyro
 // around it. Works incrementally on events in arrival order, as the link delivers them; the
 // recorded-experiment replay and the live server use the same code.

@@ -1,6 +1,6 @@
 #pragma once
-// Aseba messages over CAN (DESIGN section 5, notes/can-aseba.md): the fragmenter that cuts a
-// message into frames and the per-source reassembler that puts them back together.
+// Aseba messages over CAN (docs/design.md section 5, docs/design.md appendix A): the fragmenter
+// that cuts a message into frames and the per-source reassembler that puts them back together.
 
 #include <array>
 #include <cstdint>

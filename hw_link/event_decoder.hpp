@@ -1,5 +1,5 @@
 #pragma once
-// Aseba messages <-> robot events, as robot.json configures them (DESIGN section 5):
+// Aseba messages <-> robot events, as robot.json configures them (docs/design.md section 5):
 //   base (node, event):    seq, left ticks lo, hi, right ticks lo, hi, gyro z   (6 words)
 //   scanner (node, event): seq, platform angle, s0, s1, s2, s3, rectifier mV    (7 words)
 

@@ -1,7 +1,7 @@
 #pragma once
 // Replays a set of recorded experiments at several budgets, with and without phase B, and
-// tabulates the results (the README's reference table). Runs go in parallel, one thread each,
-// and give the same numbers whatever the number of jobs (only the timings differ).
+// tabulates the results (the reference table of docs/performance.md). Runs go in parallel, one
+// thread each, and give the same numbers whatever the number of jobs (only the timings differ).
 
 #include <cstdint>
 #include <functional>

@@ -15,8 +15,8 @@ constexpr uint64_t kStreamEvolution = 0x45530000;  // "ES"
 }  // namespace
 
 const std::vector<ParameterSpec>& TunedParameters() {
-  // Sigmas: DESIGN section 3 (paper Table II). Bounds: the physically meaningful range, within
-  // Validate(SlamParams); a minimum uncertainty of 0 would make refinement a no-op.
+  // Sigmas: docs/design.md section 3 (paper Table II). Bounds: the physically meaningful range,
+  // within Validate(SlamParams); a minimum uncertainty of 0 would make refinement a no-op.
   static const std::vector<ParameterSpec> specs = {
       {"dist_error_ratio", 0.01, 0.0, 0.5, false},
       {"dist_error_const_m", 0.002, 0.0, 0.1, false},

@@ -1,9 +1,9 @@
 #pragma once
 // The paper's evolution strategy over the SLAM parameters (section VI-B): a population of
 // parameter sets; each generation keeps the best quarter unchanged (elitism) and fills the rest
-// with Gaussian mutations of them (sigmas of DESIGN section 3), clamped to bounds, the integer
-// parameters rounded. Every random draw depends only on (seed, stream, generation), so a run
-// gives the same result whatever the thread count, and resumes exactly from a saved generation.
+// with Gaussian mutations of them (sigmas of docs/design.md section 3), clamped to bounds, the
+// integer parameters rounded. Every random draw depends only on (seed, stream, generation), so a
+// run gives the same result whatever the thread count, and resumes exactly from a saved generation.
 
 #include <cstdint>
 #include <string_view>

@@ -1,7 +1,8 @@
 #pragma once
-// Reading recorded experiments (DESIGN section 5) for replays and the tuner: the directory's
-// files are checked, can.log goes through the same decoding as live data (candump replay ->
-// Aseba reassembly -> event decoder -> scan assembler), nothing is dropped for lack of time.
+// Reading recorded experiments (docs/design.md section 5) for replays and the tuner: the
+// directory's files are checked, can.log goes through the same decoding as live data (candump
+// replay -> Aseba reassembly -> event decoder -> scan assembler), nothing is dropped for lack of
+// time.
 //
 // What is an error and what is a counted skip:
 // - robot.json, can.log and meta.json are required; a missing, unreadable or malformed one is

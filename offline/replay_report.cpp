@@ -80,7 +80,8 @@ nlohmann::json ReplaySummary(const offline::Experiment& experiment, const Replay
   Json j;
   j["experiment"] = experiment.meta.name;
   j["dir"] = experiment.dir;
-  // budget: rays per scan in that mode (the DESIGN contract), null under a CPU share.
+  // budget: rays per scan in that mode (the contract of docs/design.md section 6), null under a CPU
+  // share.
   const BudgetSettings& budget = options.budget;
   j["budget"] = budget.mode == QuotaMode::kRaysPerScan ? Json(budget.rays_per_scan) : Json(nullptr);
   j["quota_mode"] = std::string(ToString(budget.mode));

@@ -1,7 +1,7 @@
 #pragma once
 // What slam-replay and slam-evaluate (the reference table) report about one replay: the JSON
-// summary (DESIGN section 6 keys and more) and the files (trajectory.tum, map.pgm + map.yaml,
-// map.png).
+// summary (docs/design.md section 6 keys and more) and the files (trajectory.tum, map.pgm +
+// map.yaml, map.png).
 
 #include <nlohmann/json.hpp>
 #include <string>

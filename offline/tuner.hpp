@@ -1,6 +1,6 @@
 #pragma once
-// The offline tuner (DESIGN section 4, paper section VI-B): for each ray budget on its own, the
-// evolution strategy searches the SLAM parameters that minimise the mean of e = log(1 - q) over
+// The offline tuner (docs/design.md section 4, paper section VI-B): for each ray budget on its own,
+// the evolution strategy searches the SLAM parameters that minimise the mean of e = log(1 - q) over
 // recorded experiments held in memory. Evaluations run in parallel under oneTBB; results depend
 // only on the settings and seed, never on the thread count. The state after every generation is
 // complete enough to resume from.

@@ -1,6 +1,6 @@
 #pragma once
-// The online ray-budget scheduler (DESIGN section 4): before each scan it turns the quota (rays
-// per scan, or a share of one core converted through the measured cost per ray) into the
+// The online ray-budget scheduler (docs/design.md section 4): before each scan it turns the quota
+// (rays per scan, or a share of one core converted through the measured cost per ray) into the
 // engine's plan, under the fixed (paper) or adaptive policy; after the scan it records what the
 // plan used. Settings may be changed from any thread and apply from the next scan.
 
@@ -65,7 +65,8 @@ struct FilterState {
   bool refined = false;               // the scan was matched (ambiguity is meaningful)
 };
 
-/// The adaptive policy's particle count for the next scan (documented rule, README "Scheduler"):
+/// The adaptive policy's particle count for the next scan (documented rule, docs/design.md section
+/// 4):
 /// - the candidates could not tell poses apart (ambiguity >= grow): the belief is spread or
 ///   multimodal, which only more hypotheses can carry (as KLD-sampling grows the set with the
 ///   belief's spread), so the count doubles;

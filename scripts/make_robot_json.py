@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""Writes config/marxbot.robot.json: the marXbot description of DESIGN section 5.
+"""Writes config/marxbot.robot.json: the marXbot description of docs/design.md section 5.
 
-The calibration tables come from the Sharp response curves of notes/sensors.md (single-beam
+The calibration tables come from the Sharp response curves of docs/design.md appendix B (single-beam
 parts of the same ranges), read by a 3.3 V 10-bit ADC: raw = round(V / 3.3 * 1023).
 
     short GP2Y3A001K0F  d_cm = 2.076 / (V/5 - 0.011)    table 4 cm .. 35 cm, 0.5 cm steps
@@ -104,7 +104,7 @@ def dumps(value, indent=0):
 
 
 def check(description):
-    """The spot values DESIGN section 5 quotes, and the table invariants."""
+    """The spot values docs/design.md section 5 quotes, and the table invariants."""
     types = description["sensor_types"]
     assert types["short"]["calibration"][0] == [822, 0.04], types["short"]["calibration"][0]
     assert types["long"]["calibration"][0] == [760, 0.2], types["long"]["calibration"][0]

@@ -993,7 +993,7 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
                                                          httplib::Response& res) {
   using R = httplib::Server::HandlerResponse;
   // Brotli at maximum quality costs far more CPU than it saves on loopback or a robot's Wi-Fi;
-  // gzip is cheap. (notes/httplib-0.11.md, point 7)
+  // gzip is cheap. (docs/design.md appendix C, point 7)
   if (auto it = req.headers.find("Accept-Encoding"); it != req.headers.end()) {
     if (Lower(it->second).find("br") != std::string::npos) it->second = "gzip";
   }

@@ -1,8 +1,8 @@
 #pragma once
-// slamd's HTTP server (DESIGN section 7, docs/http-api.md): REST control of the budget and the
-// parameters, map tiles and whole-map exports, the event stream, tuning jobs, /metrics and the
+// slamd's HTTP server (docs/design.md section 7, docs/http-api.md): REST control of the budget and
+// the parameters, map tiles and whole-map exports, the event stream, tuning jobs, /metrics and the
 // web page. Built on Debian's cpp-httplib 0.11.4 with every pitfall of
-// ../shared/notes/httplib-0.11.md handled: a sized thread pool, a cap on event streams,
+// docs/design.md appendix C handled: a sized thread pool, a cap on event streams,
 // providers that wake up to notice disconnects, a short keep-alive, body limits enforced before
 // the body is read (chunked and compressed bodies refused), no brotli, no SO_REUSEPORT.
 

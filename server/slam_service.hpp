@@ -1,6 +1,6 @@
 #pragma once
 // The live SLAM of slamd: the link thread's events -> scans -> the engine under the ray-budget
-// scheduler, on a thread of its own (DESIGN section 2). After every scan it publishes an
+// scheduler, on a thread of its own (docs/design.md section 2). After every scan it publishes an
 // immutable snapshot; readers (HTTP threads) take the latest one and never make it wait.
 // Commands from readers (budget, parameters, reset) are applied by the SLAM thread between
 // scans.

@@ -1,6 +1,6 @@
-// slamd: the SLAM server on the robot (DESIGN sections 6-7, docs/http-api.md). The link thread
-// reads the robot (or the virtual marXbot), the SLAM thread maps under the ray-budget scheduler,
-// and the HTTP server streams the map to the browser page and takes REST control.
+// slamd: the SLAM server on the robot (docs/design.md sections 6-7, docs/http-api.md). The link
+// thread reads the robot (or the virtual marXbot), the SLAM thread maps under the ray-budget
+// scheduler, and the HTTP server streams the map to the browser page and takes REST control.
 //   slamd                                   virtual marXbot in the "rooms" arena, page on :8080
 //   slamd --source slcan:/dev/ttyACM0 --state-dir /var/lib/slamd
 

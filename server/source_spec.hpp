@@ -1,9 +1,10 @@
 #pragma once
-// Opening a frame source from its command-line form (slamd --source, DESIGN section 6):
+// Opening a frame source from its command-line form (slamd --source, docs/design.md section 6):
 //   sim:WORLD          the virtual marXbot in a built-in arena or a world.json file
 //   candump:FILE       a candump -l log
 //   slcan:DEVICE       an slcan adapter (tty or pseudo-terminal)
-//   udp:PORT           cannelloni datagrams on PORT (any address), or udp:ADDRESS:PORT
+//   udp:PORT           cannelloni datagrams on PORT of loopback, or udp:ADDRESS:PORT, with
+//                      ,from=SENDER to take datagrams from that sender only
 //   socketcan:IFACE    a SocketCAN interface
 
 #include <cstdint>

@@ -1,6 +1,6 @@
 #pragma once
-// Recorded experiments (DESIGN section 5): a directory with robot.json, can.log (candump -l),
-// groundtruth.tum, meta.json and, for simulated worlds, world.json. This writes the simulated
+// Recorded experiments (docs/design.md section 5): a directory with robot.json, can.log (candump
+// -l), groundtruth.tum, meta.json and, for simulated worlds, world.json. This writes the simulated
 // ones; the virtual marXbot's frames go through the same fragmenter and bus model as live.
 
 #include <cstdint>

@@ -1,7 +1,7 @@
 #pragma once
 // The virtual marXbot: the simulated robot (Simulator) on the other side of the link,
-// emitting exactly the real robot's frames (DESIGN section 5) through the Aseba fragmenter and a
-// model of the CAN bus, so that everything downstream is exercised.
+// emitting exactly the real robot's frames (docs/design.md section 5) through the Aseba fragmenter
+// and a model of the CAN bus, so that everything downstream is exercised.
 
 #include <cstdint>
 #include <deque>

@@ -1,7 +1,7 @@
 #pragma once
-// Simulated worlds: walls as line segments and round obstacles as circles, in metres (DESIGN
-// section 5, world.json), with exact ray casting for the simulated sensors and the built-in
-// arenas of about 2 m modelled on the paper's Fig. 9.
+// Simulated worlds: walls as line segments and round obstacles as circles, in metres
+// (docs/design.md section 5, world.json), with exact ray casting for the simulated sensors and the
+// built-in arenas of about 2 m modelled on the paper's Fig. 9.
 
 #include <array>
 #include <optional>

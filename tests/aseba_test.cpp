@@ -14,7 +14,7 @@ namespace {
 using testing::Frame;
 using testing::Remote;
 
-// The worked example of notes/can-aseba.md: node 2, event 0x0020, words
+// The worked example of docs/design.md appendix A: node 2, event 0x0020, words
 // [1, 0x4000, 300, 512, 280, 490, 6500].
 const std::vector<uint16_t> kExampleWords{1, 0x4000, 300, 512, 280, 490, 6500};
 

@@ -156,7 +156,7 @@ TEST(ShippedConfig, DefaultRobotMatchesDesign) {
   EXPECT_EQ(robot.scanner.sensors[1].type, "long");
   EXPECT_EQ(robot.scanner.sensors[3].angle_deg, 270.0);
 
-  // DESIGN section 5: 4 cm reads 822 on the short sensor, 20 cm reads 760 on the long one.
+  // docs/design.md section 5: 4 cm reads 822 on the short sensor, 20 cm reads 760 on the long one.
   const SensorTypeDescription& short_type = robot.sensor_types.at("short");
   const SensorTypeDescription& long_type = robot.sensor_types.at("long");
   ASSERT_FALSE(short_type.calibration.empty());

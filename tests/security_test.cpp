@@ -571,7 +571,7 @@ TEST_F(SecuredSlamd, OnlyThePagesOwnFilesAreServed) {
 }
 
 TEST(WebRoot, TheShippedPageHasNoSymbolicLinks) {
-  // The static handler follows symbolic links inside the web root (notes/httplib-0.11.md,
+  // The static handler follows symbolic links inside the web root (docs/design.md appendix C,
   // point 10): the page slamd ships must have none, or a link could serve any file.
   const fs::path web = fs::path(SLAM_SOURCE_DIR) / "web";
   ASSERT_TRUE(fs::is_directory(web)) << web;

@@ -1,6 +1,6 @@
 // slam-evaluate: replays recorded experiments at several ray budgets, with and without phase B,
 // in parallel, and writes the results as a table (Markdown and CSV) plus every run's JSON
-// summary. scripts/reference runs it on the reference set for the README.
+// summary. scripts/reference runs it on the reference set (docs/performance.md).
 
 #include <CLI/CLI.hpp>
 #include <algorithm>

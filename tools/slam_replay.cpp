@@ -1,5 +1,5 @@
-// slam-replay: runs the SLAM on a recorded experiment (DESIGN sections 5-6) through the same
-// decoding as live data, prints a JSON summary on stdout and writes trajectory.tum, map.pgm +
+// slam-replay: runs the SLAM on a recorded experiment (docs/design.md sections 5-6) through the
+// same decoding as live data, prints a JSON summary on stdout and writes trajectory.tum, map.pgm +
 // map.yaml (ROS map_server) and map.png (the map with the trajectories, like the paper's Fig. 9).
 
 #include <tbb/global_control.h>

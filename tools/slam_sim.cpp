@@ -1,4 +1,4 @@
-// slam-sim: writes recorded experiments of the virtual marXbot (DESIGN section 6).
+// slam-sim: writes recorded experiments of the virtual marXbot (docs/design.md section 6).
 //   slam-sim --world NAME|FILE --duration S --seed N --out DIR    one experiment
 //   slam-sim dataset --out DIR                                     the reference set
 // The same arguments always write the same files.

@@ -1,8 +1,8 @@
-// slam-tune: the offline parameter tuner (DESIGN sections 4 and 6). For every ray budget on its
-// own, the paper's evolution strategy searches the parameters minimising the mean of
-// e = log(1 - q) over recorded experiments. Writes results.json, table2.md, table3.md,
-// fig10.svg, fig10.png and params/<budget>.json after every generation; an interrupted run
-// resumes from its output directory.
+// slam-tune: the offline parameter tuner (docs/design.md sections 4 and 6). For every ray budget on
+// its own, the paper's evolution strategy searches the parameters minimising the mean of e = log(1
+// - q) over recorded experiments. Writes results.json, table2.md, table3.md, fig10.svg, fig10.png
+// and params/<budget>.json after every generation; an interrupted run resumes from its output
+// directory.
 
 #include <unistd.h>
 

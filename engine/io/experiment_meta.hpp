@@ -1,5 +1,5 @@
 #pragma once
-// meta.json of a recorded experiment (DESIGN section 5): {"name", "world", "duration_s",
+// meta.json of a recorded experiment (docs/design.md section 5): {"name", "world", "duration_s",
 // "source": "sim"|"robot", "seed"}. Only "name" is required. Unlike robot.json and parameters,
 // unknown keys are allowed: meta.json is a record that recorders may extend, not configuration.
 

@@ -1,5 +1,5 @@
 #pragma once
-// SLAM parameters (paper Table II, DESIGN section 3) <-> JSON: files, and merge patches
+// SLAM parameters (paper Table II, docs/design.md section 3) <-> JSON: files, and merge patches
 // (RFC 7396) as the HTTP API's PATCH /api/v1/params sends them.
 
 #include <nlohmann/json.hpp>

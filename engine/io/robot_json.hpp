@@ -1,6 +1,6 @@
 #pragma once
-// robot.json (DESIGN section 5) <-> RobotDescription. Strict: unknown keys, missing keys and
-// wrong types are errors with the JSON pointer of the culprit; the result is validated.
+// robot.json (docs/design.md section 5) <-> RobotDescription. Strict: unknown keys, missing keys
+// and wrong types are errors with the JSON pointer of the culprit; the result is validated.
 
 #include <nlohmann/json.hpp>
 #include <string>
