@@ -194,39 +194,54 @@ int main(int argc, char** argv) {
   const bool avx512_here = here("2"), avx2_here = here("3");
   const std::string best_path = avx512_here ? "2" : avx2_here ? "3" : "1";
   const auto matching = items(window_rays + best_path + "/engine:1");
-  row(std::string("matching rays/s per core, <= 1.5 m at 1 cm, engine's map, through a MatchWindow as the "
-                  "engine casts them (") +
-          (avx512_here ? "AVX-512 kernel" : avx2_here ? "AVX2 kernel" : "portable kernel") + ")",
+  row(std::string(
+          "matching rays/s per core, <= 1.5 m at 1 cm, engine's map, through a MatchWindow as the "
+          "engine casts them (") +
+          (avx512_here ? "AVX-512 kernel"
+           : avx2_here ? "AVX2 kernel"
+                       : "portable kernel") +
+          ")",
       Rate(matching), ">= 20 M", Verdict(matching, 20e6, true));
   const auto portable = items(window_rays + "1/engine:1");
-  row(std::string("same rays, AVX-512 kernel (eight rays per instruction)") + (avx512_here ? "" : ": not on this processor"),
+  row(std::string("same rays, AVX-512 kernel (eight rays per instruction)") +
+          (avx512_here ? "" : ": not on this processor"),
       avx512_here ? Rate(items(window_rays + "2/engine:1")) : "-", "", "");
-  row(std::string("same rays, AVX2 kernel (four rays per instruction)") + (avx2_here ? "" : ": not on this processor"),
+  row(std::string("same rays, AVX2 kernel (four rays per instruction)") +
+          (avx2_here ? "" : ": not on this processor"),
       avx2_here ? Rate(items(window_rays + "3/engine:1")) : "-", "", "");
   row("same rays, portable kernel (two rays in flight; any processor)", Rate(portable), "", "");
   row("same rays, every batch in another window (cold caches), fastest / portable kernel",
-      Rate(items(window_rays + best_path + "/engine:0")) + " / " + Rate(items(window_rays + "1/engine:0")), "", "");
+      Rate(items(window_rays + best_path + "/engine:0")) + " / " +
+          Rate(items(window_rays + "1/engine:0")),
+      "", "");
   const auto window_build = r.RealMs("BM_MatchWindowBuild/fill:2/length_cm:150");
-  row("building that MatchWindow (3.4 m x 3.4 m, once per particle and scan), ms", Ms(window_build), "", "");
+  row("building that MatchWindow (3.4 m x 3.4 m, once per particle and scan), ms", Ms(window_build),
+      "", "");
   const auto tiles = items(window_rays + "0/engine:1");
   row("same rays, batches through the grid's tiles (particles with few rays)", Rate(tiles), "", "");
   row("random rays from the run's poses, one at a time through the tiles (CastToObstacle)",
       Rate(items("BM_MatchingRay/fill:2/length_cm:150")), "", "");
   const auto plain = items("BM_MatchingRayPlain/fill:2/length_cm:150");
-  row("same random rays, cell-by-cell traversal (the oracle; the engine before issue 7)", Rate(plain), "", "");
+  row("same random rays, cell-by-cell traversal (the oracle; the engine before issue 7)",
+      Rate(plain), "", "");
   const auto ratio = [](std::optional<double> a, std::optional<double> b) {
     return a && b && *b > 0 ? Fixed(*a / *b, 2) + "x" : std::string("-");
   };
-  row("speed-up of the fastest kernel over the portable one / the tiles (same rays) / the cell-by-cell traversal "
+  row("speed-up of the fastest kernel over the portable one / the tiles (same rays) / the "
+      "cell-by-cell traversal "
       "(similar rays), same run",
-      ratio(matching, portable) + " / " + ratio(matching, tiles) + " / " + ratio(matching, plain), "", "");
+      ratio(matching, portable) + " / " + ratio(matching, tiles) + " / " + ratio(matching, plain),
+      "", "");
   const std::string room_rays = "BM_MatchingRayWindow/fill:1/length_cm:150/path:";
   const auto room = items(room_rays + best_path + "/engine:1");
-  row("matching rays/s per core, <= 1.5 m at 1 cm, drawn 3 m room, window (fastest / portable kernel) / tiles",
-      Rate(room) + " / " + Rate(items(room_rays + "1/engine:1")) + " / " + Rate(items(room_rays + "0/engine:1")),
+  row("matching rays/s per core, <= 1.5 m at 1 cm, drawn 3 m room, window (fastest / portable "
+      "kernel) / tiles",
+      Rate(room) + " / " + Rate(items(room_rays + "1/engine:1")) + " / " +
+          Rate(items(room_rays + "0/engine:1")),
       "", "");
   const auto room_plain = items("BM_MatchingRayPlain/fill:1/length_cm:150");
-  row("speed-up of the window over the cell-by-cell traversal there, same run", ratio(room, room_plain), "", "");
+  row("speed-up of the window over the cell-by-cell traversal there, same run",
+      ratio(room, room_plain), "", "");
   row("matching rays/s per core, one scan, 512 candidates",
       Rate(items("BM_MatchScan/candidates:512/threads:1/real_time")), "", "");
   row("update rays/s per core, 0.75 m reading, engine's map",

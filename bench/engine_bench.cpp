@@ -184,7 +184,8 @@ void BM_MatchingRayBatch(benchmark::State& state) {
   std::vector<std::vector<RayQuery>> batches;
   for (size_t b = 0; b < m.rays.size(); b += kBatch) {
     std::vector<RayQuery>& batch = batches.emplace_back();
-    for (size_t i = b; i < b + kBatch; ++i) batch.push_back({m.rays[i].origin, m.rays[i].direction, m.max_range});
+    for (size_t i = b; i < b + kBatch; ++i)
+      batch.push_back({m.rays[i].origin, m.rays[i].direction, m.max_range});
   }
   std::vector<RayHit> hits;
   size_t i = 0;
@@ -236,12 +237,15 @@ struct WindowRays {
     for (size_t w = 0; w < kWindows; ++w) {
       const Vec2 centre = m.rays[w].origin;
       const CellIndex c = m.grid.geometry().CellOf(centre);
-      bounds.push_back({CellIndex{c.x - kHalf, c.y - kHalf}, CellIndex{c.x + kHalf - 1, c.y + kHalf - 1}});
-      if (build) windows.emplace_back(m.grid, m.threshold, bounds.back().first, bounds.back().second);
+      bounds.push_back(
+          {CellIndex{c.x - kHalf, c.y - kHalf}, CellIndex{c.x + kHalf - 1, c.y + kHalf - 1}});
+      if (build)
+        windows.emplace_back(m.grid, m.threshold, bounds.back().first, bounds.back().second);
       std::vector<RayQuery> base;
       for (size_t i = 0; i < kBatch; ++i) {
         const Ray& r = m.rays[(w * kBatch + i) % m.rays.size()];
-        base.push_back({centre + Vec2(rng.Gaussian(0.05), rng.Gaussian(0.05)), r.direction, m.max_range});
+        base.push_back(
+            {centre + Vec2(rng.Gaussian(0.05), rng.Gaussian(0.05)), r.direction, m.max_range});
       }
       for (size_t k = 0; k < kCandidates; ++k) {
         const Vec2 shift(rng.Gaussian(0.02), rng.Gaussian(0.02));
@@ -252,7 +256,8 @@ struct WindowRays {
         };
         std::vector<RayQuery>& batch = batches.emplace_back();
         for (const RayQuery& q : base) {
-          batch.push_back({centre + rotate(q.origin - centre) + shift, rotate(q.direction), q.max_range_m});
+          batch.push_back(
+              {centre + rotate(q.origin - centre) + shift, rotate(q.direction), q.max_range_m});
         }
       }
     }
@@ -287,7 +292,10 @@ void BM_MatchWindowBuild(benchmark::State& state) {
   }
   Items(state, cells, (std::string("cells ") + FillName(w.m.fill)).c_str());
 }
-BENCHMARK(BM_MatchWindowBuild)->ArgNames({"fill", "length_cm"})->Args({kRoom, 150})->Args({kMapped, 150});
+BENCHMARK(BM_MatchWindowBuild)
+    ->ArgNames({"fill", "length_cm"})
+    ->Args({kRoom, 150})
+    ->Args({kMapped, 150});
 
 // What BM_MatchingRayWindow casts through.
 enum RayPath : int64_t { kTiles = 0, kWindowPortable = 1, kWindowAvx512 = 2, kWindowAvx2 = 3 };
@@ -295,17 +303,17 @@ enum RayPath : int64_t { kTiles = 0, kWindowPortable = 1, kWindowAvx512 = 2, kWi
 // Matching rays cast 64 at a time through the grid's tiles (CastToObstacles on the grid, path 0)
 // or through a built MatchWindow around their origins with the portable kernel (path 1), the
 // AVX-512 one (path 2) or the AVX2 one (path 3; where the processor lacks a kernel it runs the
-// portable one and says so in its label): the ratios in one run. engine 1: as the engine casts them, each window's 64
-// candidates in a row right after the window was built (built again, untimed, before its first
-// batch: the window is warm in the caches, as the engine's is); engine 0: every batch in another
-// window, built long before (cold in the caches, the worst case).
+// portable one and says so in its label): the ratios in one run. engine 1: as the engine casts
+// them, each window's 64 candidates in a row right after the window was built (built again,
+// untimed, before its first batch: the window is warm in the caches, as the engine's is); engine 0:
+// every batch in another window, built long before (cold in the caches, the worst case).
 void BM_MatchingRayWindow(benchmark::State& state) {
   WindowRays w(state);
   const int64_t path = state.range(2);
   const bool engine_order = state.range(3) != 0;
   const WindowKernel kernel = path == kWindowAvx512 ? WindowKernel::kAvx512
-                              : path == kWindowAvx2  ? WindowKernel::kAvx2
-                                                     : WindowKernel::kPortable;
+                              : path == kWindowAvx2 ? WindowKernel::kAvx2
+                                                    : WindowKernel::kPortable;
   std::vector<RayHit> hits;
   size_t i = 0;
   int64_t cells = 0, jumps = 0;
@@ -330,13 +338,16 @@ void BM_MatchingRayWindow(benchmark::State& state) {
   }
   w.m.Report(state, state.iterations() * static_cast<int64_t>(WindowRays::kBatch), cells, jumps);
   if (path != kTiles && !WindowKernelAvailable(kernel)) {
-    state.SetLabel(std::string(FillName(w.m.fill)) + (path == kWindowAvx2 ? ", no AVX2" : ", no AVX-512") +
-                   " here: portable kernel");
+    state.SetLabel(std::string(FillName(w.m.fill)) +
+                   (path == kWindowAvx2 ? ", no AVX2" : ", no AVX-512") + " here: portable kernel");
   }
 }
 BENCHMARK(BM_MatchingRayWindow)
     ->ArgNames({"fill", "length_cm", "path", "engine"})
-    ->ArgsProduct({{kRoom, kMapped}, {30, 75, 150}, {kTiles, kWindowPortable, kWindowAvx512, kWindowAvx2}, {0, 1}});
+    ->ArgsProduct({{kRoom, kMapped},
+                   {30, 75, 150},
+                   {kTiles, kWindowPortable, kWindowAvx512, kWindowAvx2},
+                   {0, 1}});
 
 // Update rays with the long sensor's profile for a reading at range(1) cm, on a map of fill
 // range(0) (the map keeps changing: cells saturate at the clamp, as in a long run).

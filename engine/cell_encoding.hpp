@@ -11,11 +11,12 @@ namespace slam {
 using LogOdds = int16_t;
 
 inline constexpr double kLogOddsScale = 1000.0;  // 1 unit = 0.001 in natural log odds
-inline constexpr int kLogOddsLimit = 16000;       // |l| <= 16 (p in [1e-7, 1 - 1e-7])
+inline constexpr int kLogOddsLimit = 16000;      // |l| <= 16 (p in [1e-7, 1 - 1e-7])
 
 /// Encodes a natural log-odds value (clamped).
 inline LogOdds EncodeLogOdds(double l) {
-  const double scaled = std::clamp(l * kLogOddsScale, -double{kLogOddsLimit}, double{kLogOddsLimit});
+  const double scaled =
+      std::clamp(l * kLogOddsScale, -double{kLogOddsLimit}, double{kLogOddsLimit});
   return static_cast<LogOdds>(std::lround(scaled));
 }
 

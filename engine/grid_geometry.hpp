@@ -48,7 +48,8 @@ inline bool InMapBound(TileIndex t) {
 class GridGeometry {
  public:
   /// Precondition: resolution_m > 0 (validated by GridConfig::Validate).
-  explicit GridGeometry(double resolution_m) : resolution_(resolution_m), inv_(1.0 / resolution_m) {}
+  explicit GridGeometry(double resolution_m)
+      : resolution_(resolution_m), inv_(1.0 / resolution_m) {}
 
   double resolution() const { return resolution_; }
 
@@ -69,9 +70,7 @@ class GridGeometry {
   /// The tile holding a cell (floor division, correct for negative cells).
   static TileIndex TileOf(CellIndex c) { return {c.x >> kTileSizeLog2, c.y >> kTileSizeLog2}; }
   /// The first (lower-left) cell of a tile.
-  static CellIndex TileOrigin(TileIndex t) {
-    return {t.x * kTileSize, t.y * kTileSize};
-  }
+  static CellIndex TileOrigin(TileIndex t) { return {t.x * kTileSize, t.y * kTileSize}; }
   /// Index of a cell inside its tile's row-major array (row = y).
   static int OffsetInTile(CellIndex c) {
     return ((c.y & (kTileSize - 1)) << kTileSizeLog2) | (c.x & (kTileSize - 1));

@@ -76,7 +76,8 @@ Tile& OccupancyGrid::MutableTile(TileIndex t) {
     AcquireSoleOwnership(slot);
   }
   slot->version = write_version_;
-  slot->occupied_blocks.store(kUnknownSummary, std::memory_order_relaxed);  // being written (held alone)
+  slot->occupied_blocks.store(kUnknownSummary,
+                              std::memory_order_relaxed);  // being written (held alone)
   return *slot;
 }
 
@@ -100,7 +101,8 @@ void OccupancyGrid::EnsureCovers(TileIndex t) {
   for (int64_t v = 0; v < height_; ++v) {
     for (int64_t u = 0; u < width_; ++u) {
       const int64_t nu = origin_.x + u - x0, nv = origin_.y + v - y0;
-      slots[static_cast<size_t>(nv * w + nu)] = std::move(slots_[static_cast<size_t>(v * width_ + u)]);
+      slots[static_cast<size_t>(nv * w + nu)] =
+          std::move(slots_[static_cast<size_t>(v * width_ + u)]);
     }
   }
   slots_ = std::move(slots);
@@ -126,13 +128,15 @@ uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows) {
     uint64_t any = 0;
     for (int i = 0; i < kBlockSize; ++i) any |= rows[static_cast<size_t>(by * kBlockSize + i)];
     for (int bx = 0; bx < kBlocksPerSide; ++bx) {
-      if (((any >> (bx * kBlockSize)) & 0xFF) != 0) mask |= uint64_t{1} << (by * kBlocksPerSide + bx);
+      if (((any >> (bx * kBlockSize)) & 0xFF) != 0)
+        mask |= uint64_t{1} << (by * kBlocksPerSide + bx);
     }
   }
   return mask;
 }
 
-void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above, std::vector<uint8_t>& scratch) {
+void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above,
+              std::vector<uint8_t>& scratch) {
   // Doubling the offset (1, 2, ..., 64) instead of one sequential scan each way: the same
   // minimum, in loops without a carried dependency. Each pass reads one copy of the row and
   // writes the other; the copies are padded with far cells on both sides, which never lower a
@@ -155,9 +159,11 @@ void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above, std:
         dst[x] = std::min(src[x], static_cast<uint8_t>(std::min(src[x - s], src[x + s]) + step));
       }
     } else if (from_below) {
-      for (size_t x = 0; x < width; ++x) dst[x] = std::min(src[x], static_cast<uint8_t>(src[x - s] + step));
+      for (size_t x = 0; x < width; ++x)
+        dst[x] = std::min(src[x], static_cast<uint8_t>(src[x - s] + step));
     } else if (from_above) {
-      for (size_t x = 0; x < width; ++x) dst[x] = std::min(src[x], static_cast<uint8_t>(src[x + s] + step));
+      for (size_t x = 0; x < width; ++x)
+        dst[x] = std::min(src[x], static_cast<uint8_t>(src[x + s] + step));
     } else {
       break;
     }
@@ -174,7 +180,8 @@ void RelaxFromRow(uint8_t* row, const uint8_t* near, uint8_t* scratch, size_t wi
   std::copy(near, near + width, scratch);
   for (size_t x = 1; x < width; ++x) scratch[x] = std::min(scratch[x], near[x - 1]);
   for (size_t x = 0; x + 1 < width; ++x) scratch[x] = std::min(scratch[x], near[x + 1]);
-  for (size_t x = 0; x < width; ++x) row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x] + 1));
+  for (size_t x = 0; x < width; ++x)
+    row[x] = std::min(row[x], static_cast<uint8_t>(scratch[x] + 1));
 }
 
 /// In place on a width x height array (0 on occupied cells, kClearanceFar elsewhere): the
@@ -200,7 +207,8 @@ void ChessboardDistance(uint8_t* d, int width, int height) {
 
 }  // namespace
 
-void ComputeClearance(const std::array<uint64_t, kTileSize>& rows, std::array<uint8_t, kTileCells>& clearance) {
+void ComputeClearance(const std::array<uint64_t, kTileSize>& rows,
+                      std::array<uint8_t, kTileCells>& clearance) {
   for (size_t y = 0; y < kTileSize; ++y) {
     for (size_t x = 0; x < kTileSize; ++x) {
       clearance[y * kTileSize + x] = ((rows[y] >> x) & 1) != 0 ? 0 : kClearanceFar;
@@ -233,7 +241,8 @@ std::vector<TileRef> OccupancyGrid::Tiles() const {
     for (int64_t u = 0; u < width_; ++u) {
       const auto& slot = slots_[static_cast<size_t>(v * width_ + u)];
       if (slot) {
-        tiles.push_back({{static_cast<int32_t>(origin_.x + u), static_cast<int32_t>(origin_.y + v)}, slot});
+        tiles.push_back(
+            {{static_cast<int32_t>(origin_.x + u), static_cast<int32_t>(origin_.y + v)}, slot});
       }
     }
   }
@@ -241,7 +250,8 @@ std::vector<TileRef> OccupancyGrid::Tiles() const {
 }
 
 int OccupancyGrid::TileCount() const {
-  return static_cast<int>(std::count_if(slots_.begin(), slots_.end(), [](const auto& s) { return s != nullptr; }));
+  return static_cast<int>(
+      std::count_if(slots_.begin(), slots_.end(), [](const auto& s) { return s != nullptr; }));
 }
 
 uint64_t OccupancyGrid::Version() const {

@@ -70,10 +70,12 @@ uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows);
 /// |x - j| < 128 (a farther j never lowers a value). `scratch` is working memory, grown as
 /// needed (keep it across calls). Shared by the tiles' clearance and the MatchWindow's free
 /// squares.
-void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above, std::vector<uint8_t>& scratch);
+void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above,
+              std::vector<uint8_t>& scratch);
 /// The chessboard distance of every cell to the nearest of those cells (kClearanceFar when
 /// there is none), see Tile::clearance.
-void ComputeClearance(const std::array<uint64_t, kTileSize>& rows, std::array<uint8_t, kTileCells>& clearance);
+void ComputeClearance(const std::array<uint64_t, kTileSize>& rows,
+                      std::array<uint8_t, kTileCells>& clearance);
 
 /// A tile of a grid as handed to readers (exporters, the server): immutable and shared.
 struct TileRef {

@@ -38,7 +38,9 @@ class OdometryIntegrator {
   /// The pose after the last reading (the origin before any).
   const Pose2& pose() const { return pose_; }
   /// Time of the last reading, if any.
-  std::optional<double> time() const { return last_ ? std::optional<double>(last_->t) : std::nullopt; }
+  std::optional<double> time() const {
+    return last_ ? std::optional<double>(last_->t) : std::nullopt;
+  }
 
  private:
   BaseDescription base_;

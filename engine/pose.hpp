@@ -1,9 +1,8 @@
 #pragma once
 // 2D rigid poses (REP-103: x forward, y left, theta counter-clockwise, SI units).
 
-#include <cmath>
-
 #include <Eigen/Core>
+#include <cmath>
 
 namespace slam {
 

@@ -22,8 +22,8 @@ std::vector<TimedPose> TransformTrajectory(const RigidTransform2& transform,
   out.reserve(trajectory.size());
   for (const TimedPose& p : trajectory) {
     const Vec2 position = transform.Apply(p.pose.translation());
-    out.push_back({p.t,
-                   {position.x(), position.y(), NormalizeAngle(p.pose.theta + transform.rotation_rad)}});
+    out.push_back(
+        {p.t, {position.x(), position.y(), NormalizeAngle(p.pose.theta + transform.rotation_rad)}});
   }
   return out;
 }
@@ -51,7 +51,8 @@ RigidTransform2 AlignRigid2D(const std::vector<Vec2>& source, const std::vector<
 }
 
 std::optional<Pose2> PoseAt(const std::vector<TimedPose>& trajectory, double t) {
-  if (trajectory.empty() || t < trajectory.front().t || t > trajectory.back().t) return std::nullopt;
+  if (trajectory.empty() || t < trajectory.front().t || t > trajectory.back().t)
+    return std::nullopt;
   const auto after = std::lower_bound(trajectory.begin(), trajectory.end(), t,
                                       [](const TimedPose& p, double time) { return p.t < time; });
   if (after->t == t || after == trajectory.begin()) return after->pose;
@@ -78,7 +79,7 @@ std::optional<TrajectoryQuality> EvaluateTrajectory(const std::vector<TimedPose>
   }
   const double mean_sq_m2 = sum_sq / static_cast<double>(source.size());
   quality.matched = static_cast<int>(source.size());
-  quality.q_cm2 = -mean_sq_m2 * 1e4;  // eq. 8 with positions in centimetres
+  quality.q_cm2 = -mean_sq_m2 * 1e4;          // eq. 8 with positions in centimetres
   quality.e = std::log(1.0 - quality.q_cm2);  // eq. 9
   quality.ate_rmse_m = std::sqrt(mean_sq_m2);
   return quality;

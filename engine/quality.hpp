@@ -29,10 +29,10 @@ RigidTransform2 AlignRigid2D(const std::vector<Vec2>& source, const std::vector<
 std::optional<Pose2> PoseAt(const std::vector<TimedPose>& trajectory, double t);
 
 struct TrajectoryQuality {
-  double q_cm2 = 0.0;       // eq. 8: minus the mean squared residual, positions in centimetres
-  double e = 0.0;           // eq. 9: log(1 - q)
-  double ate_rmse_m = 0.0;  // sqrt of the mean squared residual, metres
-  int matched = 0;          // reference poses inside the estimate's time span
+  double q_cm2 = 0.0;         // eq. 8: minus the mean squared residual, positions in centimetres
+  double e = 0.0;             // eq. 9: log(1 - q)
+  double ate_rmse_m = 0.0;    // sqrt of the mean squared residual, metres
+  int matched = 0;            // reference poses inside the estimate's time span
   RigidTransform2 alignment;  // maps the estimate onto the reference
 };
 

@@ -28,23 +28,23 @@ RayHit CastToObstaclePlain(const OccupancyGrid& grid, const Vec2& origin, const 
   // Cache the current tile: consecutive cells of a ray almost always share it.
   TileIndex cached_index{std::numeric_limits<int32_t>::min(), 0};
   const Tile* cached = nullptr;
-  result.cells = TraverseCells(grid.geometry(), origin, direction, max_range_m,
-                               [&](CellIndex c, double enter_m, double exit_m) {
-                                 const TileIndex t = GridGeometry::TileOf(c);
-                                 if (!(t == cached_index)) {
-                                   cached_index = t;
-                                   cached = grid.FindTile(t);
-                                 }
-                                 if (cached != nullptr &&
-                                     cached->cells[static_cast<size_t>(GridGeometry::OffsetInTile(c))] >
-                                         occupied_above) {
-                                   result.distance_m = enter_m;
-                                   result.exit_m = exit_m;
-                                   result.hit = true;
-                                   return false;
-                                 }
-                                 return true;
-                               });
+  result.cells = TraverseCells(
+      grid.geometry(), origin, direction, max_range_m,
+      [&](CellIndex c, double enter_m, double exit_m) {
+        const TileIndex t = GridGeometry::TileOf(c);
+        if (!(t == cached_index)) {
+          cached_index = t;
+          cached = grid.FindTile(t);
+        }
+        if (cached != nullptr &&
+            cached->cells[static_cast<size_t>(GridGeometry::OffsetInTile(c))] > occupied_above) {
+          result.distance_m = enter_m;
+          result.exit_m = exit_m;
+          result.hit = true;
+          return false;
+        }
+        return true;
+      });
   return result;
 }
 
@@ -59,8 +59,8 @@ inline int32_t FloorToInt(double v) {
 /// What a matching ray learns of the cell it is in: whether it stops there, and how far it may
 /// move without looking.
 struct Probe {
-  bool occupied;  // above the threshold
-  int clearance;  // every cell within clearance - 1 (chessboard) is free, up to the limits
+  bool occupied;         // above the threshold
+  int clearance;         // every cell within clearance - 1 (chessboard) is free, up to the limits
   int32_t end_u, end_v;  // the ray's limits (exclusive) of what `clearance` knows about
 };
 
@@ -76,7 +76,8 @@ class TileField {
  public:
   using Cursor = RayStart;
 
-  TileField(const OccupancyGrid& grid, LogOdds occupied_above) : grid_(grid), occupied_above_(occupied_above) {}
+  TileField(const OccupancyGrid& grid, LogOdds occupied_above)
+      : grid_(grid), occupied_above_(occupied_above) {}
 
   static Cursor CursorFor(const RayStart& start) { return start; }
 
@@ -89,7 +90,7 @@ class TileField {
     const uint64_t mask = tile->occupied_blocks.load(std::memory_order_acquire);
     // A missing tile, or one without a cell above the threshold, is crossed in one jump; a
     // tile whose summary is stale, cell by cell.
-    const uint8_t* clearance = mask == 0                  ? kNothingNear.data()
+    const uint8_t* clearance = mask == 0                 ? kNothingNear.data()
                                : mask == kUnknownSummary ? kUnknownNear.data()
                                                          : tile->clearance.data();
     const int32_t x = u ^ c.flip_x, y = v ^ c.flip_y;
@@ -122,11 +123,13 @@ class WindowField {
     int64_t base, step_u, step_v;
   };
 
-  explicit WindowField(const MatchWindow& window) : squares_(window.free_squares()), window_(window) {}
+  explicit WindowField(const MatchWindow& window)
+      : squares_(window.free_squares()), window_(window) {}
 
   Cursor CursorFor(const RayStart& start) const {
     const int quadrant = (start.flip_x != 0 ? 1 : 0) | (start.flip_y != 0 ? 2 : 0);
-    return {quadrant * window_.cells() + window_.IndexOf({start.u0 ^ start.flip_x, start.v0 ^ start.flip_y}),
+    return {quadrant * window_.cells() +
+                window_.IndexOf({start.u0 ^ start.flip_x, start.v0 ^ start.flip_y}),
             start.flip_x != 0 ? -1 : 1, start.flip_y != 0 ? -window_.width() : window_.width()};
   }
 
@@ -156,8 +159,8 @@ template <typename Field>
 class FastRay {
  public:
   /// Preconditions: direction has unit length; max_range_m > 0.
-  FastRay(const Field& field, const GridGeometry& geometry, const Vec2& origin, const Vec2& direction,
-          double max_range_m)
+  FastRay(const Field& field, const GridGeometry& geometry, const Vec2& origin,
+          const Vec2& direction, double max_range_m)
       : res_(geometry.resolution()), length_(max_range_m / res_) {
     result_ = RayHit{max_range_m, max_range_m, false, 0, 0};
     const Vec2 g = geometry.ToGrid(origin);
@@ -185,7 +188,8 @@ class FastRay {
     const Probe probe = field.At(cursor_, u_, v_);
     if (probe.occupied) {
       // A hit, unless the ray only touches the cell (crosses it over zero length).
-      const double t_leave = std::min(std::min((u_ + 1 - ox_) * ix_, (v_ + 1 - oy_) * iy_), length_);
+      const double t_leave =
+          std::min(std::min((u_ + 1 - ox_) * ix_, (v_ + 1 - oy_) * iy_), length_);
       if (t_leave > t_) {
         result_.distance_m = t_ * res_;
         result_.exit_m = t_leave * res_;
@@ -196,7 +200,8 @@ class FastRay {
     // Every cell within k - 1 of this one (up to the field's limits) is free: out of that
     // square at once (out of this cell when k <= 1).
     const int reach = std::max(probe.clearance, 1);
-    return !LeaveBox(std::min(u_ + reach, probe.end_u), std::min(v_ + reach, probe.end_v), probe.clearance >= 2);
+    return !LeaveBox(std::min(u_ + reach, probe.end_u), std::min(v_ + reach, probe.end_v),
+                     probe.clearance >= 2);
   }
 
  private:
@@ -215,8 +220,10 @@ class FastRay {
     // (positions are >= 0: truncation is floor).
     const double slack = GridWalk::kCornerEpsilon * (1.0 + t_exit);
     const bool corner = std::abs(exit_u - exit_v) <= slack;
-    const int32_t along_u = std::clamp(static_cast<int32_t>(ox_ + ax_ * (t_exit + slack)), u_, end_u - 1);
-    const int32_t along_v = std::clamp(static_cast<int32_t>(oy_ + ay_ * (t_exit + slack)), v_, end_v - 1);
+    const int32_t along_u =
+        std::clamp(static_cast<int32_t>(ox_ + ax_ * (t_exit + slack)), u_, end_u - 1);
+    const int32_t along_v =
+        std::clamp(static_cast<int32_t>(oy_ + ay_ * (t_exit + slack)), v_, end_v - 1);
     // Selected with masks: written as conditionals, the compiler branches around the
     // computation of along_u or along_v, and the branch is mispredicted half the time.
     const int32_t across_u = -static_cast<int32_t>(corner | (exit_u < exit_v));  // all ones or 0
@@ -263,8 +270,9 @@ RayHit CastOne(const Field& field, const GridGeometry& geometry, const RayQuery&
 /// their independent chains (more lanes cost more in bookkeeping than they gain, measured
 /// with BM_MatchingRayBatch).
 template <typename Field, typename Fast, typename Single>
-void CastInPairs(const Field& field, const GridGeometry& geometry, const std::vector<RayQuery>& rays,
-                 std::vector<RayHit>& hits, const Fast& fast, const Single& single) {
+void CastInPairs(const Field& field, const GridGeometry& geometry,
+                 const std::vector<RayQuery>& rays, std::vector<RayHit>& hits, const Fast& fast,
+                 const Single& single) {
   hits.resize(rays.size());
   size_t i = 0;
   for (; i + 1 < rays.size(); i += 2) {
@@ -298,18 +306,24 @@ RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, const Vec2&
     return CastToObstaclePlain(grid, origin, direction, max_range_m, occupied_above);
   }
   if (!grid.HasTiles()) return RayHit{max_range_m, max_range_m, false, 0, 0};  // nothing to hit
-  return CastOne(TileField(grid, occupied_above), grid.geometry(), {origin, direction, max_range_m});
+  return CastOne(TileField(grid, occupied_above), grid.geometry(),
+                 {origin, direction, max_range_m});
 }
 
-void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& rays, LogOdds occupied_above,
-                     std::vector<RayHit>& hits) {
+void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& rays,
+                     LogOdds occupied_above, std::vector<RayHit>& hits) {
   CastInPairs(
       TileField(grid, occupied_above), grid.geometry(), rays, hits,
-      [&](const RayQuery& q) { return grid.HasTiles() && UsesFastPath(q.max_range_m, occupied_above); },
-      [&](const RayQuery& q) { return CastToObstacle(grid, q.origin, q.direction, q.max_range_m, occupied_above); });
+      [&](const RayQuery& q) {
+        return grid.HasTiles() && UsesFastPath(q.max_range_m, occupied_above);
+      },
+      [&](const RayQuery& q) {
+        return CastToObstacle(grid, q.origin, q.direction, q.max_range_m, occupied_above);
+      });
 }
 
-MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, CellIndex lo, CellIndex hi)
+MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, CellIndex lo,
+                         CellIndex hi)
     : grid_(&grid),
       occupied_above_(occupied_above),
       x0_(lo.x),
@@ -334,8 +348,10 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
         continue;
       }
       const CellIndex origin = GridGeometry::TileOrigin({tx, ty});
-      const int32_t x_begin = std::max(origin.x, lo.x), x_end = std::min(origin.x + kTileSize - 1, hi.x);
-      const int32_t y_begin = std::max(origin.y, lo.y), y_end = std::min(origin.y + kTileSize - 1, hi.y);
+      const int32_t x_begin = std::max(origin.x, lo.x),
+                    x_end = std::min(origin.x + kTileSize - 1, hi.x);
+      const int32_t y_begin = std::max(origin.y, lo.y),
+                    y_end = std::min(origin.y + kTileSize - 1, hi.y);
       for (int32_t y = y_begin; y <= y_end; ++y) {
         uint8_t* out = free.data() + IndexOf({x_begin, y});
         if (tile == nullptr) {
@@ -370,12 +386,17 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
         // a = min(next[x], next[x +- 1], 126) + 1 on free cells (the edge's beyond is free).
         if (back_x) {
           row[0] = std::min(next[0], static_cast<uint8_t>(kClearanceFar - 1));
-          for (size_t x = 1; x < w; ++x) row[x] = std::min(std::min(next[x], next[x - 1]), static_cast<uint8_t>(kClearanceFar - 1));
+          for (size_t x = 1; x < w; ++x)
+            row[x] =
+                std::min(std::min(next[x], next[x - 1]), static_cast<uint8_t>(kClearanceFar - 1));
         } else {
-          for (size_t x = 0; x + 1 < w; ++x) row[x] = std::min(std::min(next[x], next[x + 1]), static_cast<uint8_t>(kClearanceFar - 1));
+          for (size_t x = 0; x + 1 < w; ++x)
+            row[x] =
+                std::min(std::min(next[x], next[x + 1]), static_cast<uint8_t>(kClearanceFar - 1));
           row[w - 1] = std::min(next[w - 1], static_cast<uint8_t>(kClearanceFar - 1));
         }
-        for (size_t x = 0; x < w; ++x) row[x] = occupancy[x] == 0 ? uint8_t{0} : static_cast<uint8_t>(row[x] + 1);
+        for (size_t x = 0; x < w; ++x)
+          row[x] = occupancy[x] == 0 ? uint8_t{0} : static_cast<uint8_t>(row[x] + 1);
       }
       RelaxRow(row, w, back_x, !back_x, scratch);  // from the far side only
     }
@@ -385,7 +406,8 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
 bool MatchWindow::Covers(const RayQuery& q) const {
   if (!(q.max_range_m > 0) || !std::isfinite(q.max_range_m)) return false;
   const GridGeometry& geometry = grid_->geometry();
-  const Vec2 a = geometry.ToGrid(q.origin), b = geometry.ToGrid(q.origin + q.direction * q.max_range_m);
+  const Vec2 a = geometry.ToGrid(q.origin),
+             b = geometry.ToGrid(q.origin + q.direction * q.max_range_m);
   const std::array<double, 4> box = CoverBox();
   const auto inside = [&](const Vec2& p) {
     return p.x() >= box[0] && p.y() >= box[1] && p.x() <= box[2] && p.y() <= box[3];
@@ -414,7 +436,8 @@ WindowKernel BestKernel() {
     const char* cap = std::getenv("SLAM_RAY_KERNEL");
     const std::string wanted = cap != nullptr ? cap : "avx512";
     if (wanted == "portable") return WindowKernel::kPortable;
-    if (wanted != "avx2" && WindowKernelAvailable(WindowKernel::kAvx512)) return WindowKernel::kAvx512;
+    if (wanted != "avx2" && WindowKernelAvailable(WindowKernel::kAvx512))
+      return WindowKernel::kAvx512;
     if (WindowKernelAvailable(WindowKernel::kAvx2)) return WindowKernel::kAvx2;
     return WindowKernel::kPortable;
   }();
@@ -434,8 +457,8 @@ const char* BestWindowKernelName() {
   }
 }
 
-void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits,
-                     WindowKernel kernel) {
+void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays,
+                     std::vector<RayHit>& hits, WindowKernel kernel) {
   const OccupancyGrid& grid = window.grid();
   const WindowField field(window);
   const auto through_grid = [&](const RayQuery& q) {
@@ -452,10 +475,13 @@ void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& ray
   }
   CastInPairs(
       field, grid.geometry(), rays, hits, [&](const RayQuery& q) { return window.Covers(q); },
-      [&](const RayQuery& q) { return window.Covers(q) ? CastOne(field, grid.geometry(), q) : through_grid(q); });
+      [&](const RayQuery& q) {
+        return window.Covers(q) ? CastOne(field, grid.geometry(), q) : through_grid(q);
+      });
 }
 
-int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle, const UpdateProfile& profile) {
+int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle,
+                   const UpdateProfile& profile) {
   if (profile.delta.empty() || profile.step_m <= 0) return 0;
   const Vec2 direction(std::cos(angle), std::sin(angle));
   const double inv_step = 1.0 / profile.step_m;
@@ -467,7 +493,8 @@ int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle, const 
                 [&](CellIndex c, double enter_m, double exit_m) {
                   const size_t size = profile.delta.size();
                   if (static_cast<size_t>(enter_m * inv_step) >= size) return false;
-                  const int delta = profile.delta[std::min(static_cast<size_t>(exit_m * inv_step), size - 1)];
+                  const int delta =
+                      profile.delta[std::min(static_cast<size_t>(exit_m * inv_step), size - 1)];
                   if (delta == 0) return true;
                   const TileIndex t = GridGeometry::TileOf(c);
                   if (cached == nullptr || !(t == cached_index)) {

@@ -133,8 +133,8 @@ struct RayQuery {
 
 /// CastToObstacle for every ray of `rays` (the same answers, into hits[i]), several rays in
 /// flight at once: the processor overlaps their independent chains of loads. `hits` is resized.
-void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& rays, LogOdds occupied_above,
-                     std::vector<RayHit>& hits);
+void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& rays,
+                     LogOdds occupied_above, std::vector<RayHit>& hits);
 
 /// The cells around one pose that a particle's matching rays run through, with, for each cell
 /// and each quadrant a ray can move towards, the side of the largest square of free cells
@@ -160,14 +160,16 @@ class MatchWindow {
   /// inside its edges, as {x_min, y_min, x_max, y_max} (inclusive).
   std::array<double, 4> CoverBox() const {
     return {static_cast<double>(x0_) + kCoverMargin, static_cast<double>(y0_) + kCoverMargin,
-            static_cast<double>(x0_ + width_) - kCoverMargin, static_cast<double>(y0_ + height_) - kCoverMargin};
+            static_cast<double>(x0_ + width_) - kCoverMargin,
+            static_cast<double>(y0_ + height_) - kCoverMargin};
   }
   /// The side of the largest square of free cells [x, x + k) x [y, y + k), with x growing
   /// towards -x when back_x (cells x - k + 1 .. x) and y likewise, capped at kClearanceFar;
   /// cells beyond the window count as free. 0 on a cell above the threshold. Precondition:
   /// c is inside the window.
   int FreeSquareAt(CellIndex c, bool back_x, bool back_y) const {
-    return squares_[static_cast<size_t>((back_x ? 1 : 0) + (back_y ? 2 : 0)) * static_cast<size_t>(cells()) +
+    return squares_[static_cast<size_t>((back_x ? 1 : 0) + (back_y ? 2 : 0)) *
+                        static_cast<size_t>(cells()) +
                     static_cast<size_t>(IndexOf(c))];
   }
   /// The four quadrants' squares (forward, back in x, back in y, back in both), each
@@ -175,7 +177,9 @@ class MatchWindow {
   /// kFreeSquaresPadding readable bytes (a wide kernel loads 4 bytes where it needs one).
   const uint8_t* free_squares() const { return squares_.data(); }
   static constexpr size_t kFreeSquaresPadding = 3;
-  int64_t IndexOf(CellIndex c) const { return (int64_t{c.y} - y0_) * width_ + (int64_t{c.x} - x0_); }
+  int64_t IndexOf(CellIndex c) const {
+    return (int64_t{c.y} - y0_) * width_ + (int64_t{c.x} - x0_);
+  }
   int64_t width() const { return width_; }
   int64_t height() const { return height_; }
   /// The window's lower-left cell.
@@ -210,13 +214,14 @@ const char* BestWindowKernelName();
 /// CastToObstacles(window.grid(), rays, window.occupied_above(), hits), the same answers, with
 /// the rays the window covers cast through its free squares by `kernel` (kPortable where this
 /// processor lacks it).
-void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays, std::vector<RayHit>& hits,
-                     WindowKernel kernel = WindowKernel::kBest);
+void CastToObstacles(const MatchWindow& window, const std::vector<RayQuery>& rays,
+                     std::vector<RayHit>& hits, WindowKernel kernel = WindowKernel::kBest);
 
 /// The same along `angle` (radians).
 inline RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, double angle,
                              double max_range_m, LogOdds occupied_above) {
-  return CastToObstacle(grid, origin, Vec2(std::cos(angle), std::sin(angle)), max_range_m, occupied_above);
+  return CastToObstacle(grid, origin, Vec2(std::cos(angle), std::sin(angle)), max_range_m,
+                        occupied_above);
 }
 
 /// The same, cell by cell through every cell the ray crosses (the oracle of the tests).
@@ -241,6 +246,7 @@ struct UpdateProfile {
 
 /// Update ray: applies `profile` along the ray from `origin` in direction `angle`.
 /// Returns the number of cells changed.
-int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle, const UpdateProfile& profile);
+int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle,
+                   const UpdateProfile& profile);
 
 }  // namespace slam

@@ -7,16 +7,16 @@
 namespace slam {
 namespace {
 
-constexpr int kMaxNode = 255;      // Aseba node ids fit the low 8 bits of the CAN id
+constexpr int kMaxNode = 255;              // Aseba node ids fit the low 8 bits of the CAN id
 constexpr double kMaxRobotSpeedMS = 20.0;  // far beyond any robot this SLAM is for
-constexpr int kMaxEvent = 0x7FFF;  // Aseba user message types
-constexpr int kMaxRaw = 1023;      // 10-bit ADC
+constexpr int kMaxEvent = 0x7FFF;          // Aseba user message types
+constexpr int kMaxRaw = 1023;              // 10-bit ADC
 
 // Plausible bounds: generous for any small robot and range sensor (laser scanners included),
 // and tight enough that no description can make the engine's tables or the simulator allocate
 // without bound (a calibration distance of 1e6 m once did).
-constexpr double kMaxRangeM = 100.0;          // ranges, use windows, calibration distances
-constexpr double kMaxSigmaM = 10.0;           // a reading's standard deviation anywhere in use
+constexpr double kMaxRangeM = 100.0;  // ranges, use windows, calibration distances
+constexpr double kMaxSigmaM = 10.0;   // a reading's standard deviation anywhere in use
 constexpr double kMaxTrackWidthM = 10.0;
 constexpr double kMinTicksPerM = 1.0;
 constexpr double kMaxTicksPerM = 1e9;
@@ -72,8 +72,8 @@ class Checker {
   /// A value already checked for sign: at most `hi`.
   void AtMost(const std::string& pointer, double value, double hi, const char* unit) {
     if (std::isfinite(value) && value > hi) {
-      Fail(pointer, Num(value) + unit + " is beyond any plausible value (at most " + Num(hi) +
-                        unit + ")");
+      Fail(pointer,
+           Num(value) + unit + " is beyond any plausible value (at most " + Num(hi) + unit + ")");
     }
   }
   void Within(const std::string& pointer, double value, double lo, double hi, const char* unit) {

@@ -22,8 +22,8 @@ struct Scan {
   int64_t index = 0;
   double t_begin = 0.0;  // time of the previous scan's end
   double t_end = 0.0;
-  Pose2 odom_begin;  // dead-reckoned pose at t_begin
-  Pose2 odom_end;    // dead-reckoned pose at t_end
+  Pose2 odom_begin;                 // dead-reckoned pose at t_begin
+  Pose2 odom_end;                   // dead-reckoned pose at t_end
   std::vector<ScanSample> samples;  // time-ordered, within (t_begin, t_end]
 };
 

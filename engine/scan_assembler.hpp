@@ -50,12 +50,12 @@ struct ScanAssemblerCounters {
   uint64_t out_of_order = 0;      // events not after the previous of their kind: dropped
   uint64_t odometry_lost = 0;     // readings missing from the sequence numbers
   uint64_t samples_lost = 0;
-  uint64_t odometry_gaps = 0;     // silences longer than max_odometry_gap_s
-  uint64_t odometry_jumps = 0;    // readings moving further than the robot can: refused
-  uint64_t sample_gaps = 0;       // silences longer than max_sample_gap_s
-  uint64_t samples_unposed = 0;   // samples no odometry brackets: dropped
-  uint64_t scans_discarded = 0;   // scans in progress abandoned at a gap (or too long)
-  uint64_t scans_too_long = 0;    // of those, abandoned at max_scan_samples: platform stalled
+  uint64_t odometry_gaps = 0;    // silences longer than max_odometry_gap_s
+  uint64_t odometry_jumps = 0;   // readings moving further than the robot can: refused
+  uint64_t sample_gaps = 0;      // silences longer than max_sample_gap_s
+  uint64_t samples_unposed = 0;  // samples no odometry brackets: dropped
+  uint64_t scans_discarded = 0;  // scans in progress abandoned at a gap (or too long)
+  uint64_t scans_too_long = 0;   // of those, abandoned at max_scan_samples: platform stalled
 };
 
 class ScanAssembler {
@@ -88,8 +88,8 @@ class ScanAssembler {
 
   ScanAssemblerConfig config_;
   OdometryIntegrator integrator_;
-  std::deque<TimedPose> odometry_;          // recent dead-reckoned poses, time-ordered
-  std::deque<Pending> pending_;  // samples waiting for odometry after them
+  std::deque<TimedPose> odometry_;  // recent dead-reckoned poses, time-ordered
+  std::deque<Pending> pending_;     // samples waiting for odometry after them
   std::optional<OdometryReading> last_odometry_;
   std::optional<ScannerReading> last_sample_;
 

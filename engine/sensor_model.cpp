@@ -23,9 +23,9 @@ int CalibratedRaw(const std::vector<CalibrationPoint>& table, double distance_m)
   if (table.empty()) return 0;
   if (distance_m <= table.front().distance_m) return table.front().raw;
   if (distance_m >= table.back().distance_m) return table.back().raw;
-  const auto upper = std::find_if(table.begin(), table.end(), [distance_m](const CalibrationPoint& p) {
-    return p.distance_m >= distance_m;
-  });
+  const auto upper =
+      std::find_if(table.begin(), table.end(),
+                   [distance_m](const CalibrationPoint& p) { return p.distance_m >= distance_m; });
   const auto lower = std::prev(upper);
   // Invert the 1/d interpolation of CalibratedDistance.
   const double s = (1.0 / distance_m - 1.0 / lower->distance_m) /
@@ -36,7 +36,8 @@ int CalibratedRaw(const std::vector<CalibrationPoint>& table, double distance_m)
 SensorModel::SensorModel(const SensorTypeDescription& type, const UpdateModelConfig& update,
                          double resolution_m)
     : type_(type), update_(kRawValues) {
-  const double step = resolution_m / 8.0;  // fine bins: the free/occupied edge is exact to 1/16 cell
+  const double step =
+      resolution_m / 8.0;  // fine bins: the free/occupied edge is exact to 1/16 cell
   const int free_delta = EncodeLogOdds(update.free_logodds);
   const int occupied_delta = EncodeLogOdds(update.occupied_logodds);
   const double use_min = std::max(type.use_min_m, type.range_min_m);

@@ -41,7 +41,8 @@ int CalibratedRaw(const std::vector<CalibrationPoint>& table, double distance_m)
 class SensorModel {
  public:
   /// Precondition: `type` passed Validate(RobotDescription).
-  SensorModel(const SensorTypeDescription& type, const UpdateModelConfig& update, double resolution_m);
+  SensorModel(const SensorTypeDescription& type, const UpdateModelConfig& update,
+              double resolution_m);
 
   /// Distance of a reading when it is usable (calibrated and inside the use window), else nullopt.
   std::optional<double> Distance(uint16_t raw) const {

@@ -1,5 +1,8 @@
 #include "engine/slam.hpp"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -7,9 +10,6 @@
 #include <limits>
 #include <numeric>
 #include <optional>
-
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 
 #include "engine/cell_encoding.hpp"
 #include "engine/random.hpp"
@@ -34,7 +34,8 @@ std::vector<double> NormalizedWeights(const std::vector<Particle>& particles) {
   for (const Particle& p : particles) max_lw = std::max(max_lw, p.log_weight);
   std::vector<double> weight(particles.size());
   double total = 0.0;
-  for (size_t p = 0; p < particles.size(); ++p) total += weight[p] = std::exp(particles[p].log_weight - max_lw);
+  for (size_t p = 0; p < particles.size(); ++p)
+    total += weight[p] = std::exp(particles[p].log_weight - max_lw);
   for (double& w : weight) w /= total;
   return weight;
 }
@@ -111,30 +112,38 @@ class Slam::ScanPath {
 
   /// Correction that moves the nominal end onto `end`.
   Pose2 CorrectionTo(const Pose2& end) const {
-    return {end.x - nominal_end_.x, end.y - nominal_end_.y, NormalizeAngle(end.theta - nominal_end_.theta)};
+    return {end.x - nominal_end_.x, end.y - nominal_end_.y,
+            NormalizeAngle(end.theta - nominal_end_.theta)};
   }
 
   /// Pose at sample i under a correction.
   Pose2 SamplePose(size_t i, const Pose2& correction) const {
     const double s = fraction_[i];
     const Pose2& n = nominal_[i];
-    return {n.x + s * correction.x, n.y + s * correction.y, NormalizeAngle(n.theta + s * correction.theta)};
+    return {n.x + s * correction.x, n.y + s * correction.y,
+            NormalizeAngle(n.theta + s * correction.theta)};
   }
 
   /// The same pose as a position and the cosine and sine of its heading (what rays need).
   struct Frame {
     double x, y, cos, sin;
     /// Maps a point of the robot's frame to the map.
-    Vec2 Point(const Vec2& p) const { return {x + cos * p.x() - sin * p.y(), y + sin * p.x() + cos * p.y()}; }
+    Vec2 Point(const Vec2& p) const {
+      return {x + cos * p.x() - sin * p.y(), y + sin * p.x() + cos * p.y()};
+    }
     /// Rotates a direction of the robot's frame into the map.
-    Vec2 Direction(const Vec2& d) const { return {cos * d.x() - sin * d.y(), sin * d.x() + cos * d.y()}; }
+    Vec2 Direction(const Vec2& d) const {
+      return {cos * d.x() - sin * d.y(), sin * d.x() + cos * d.y()};
+    }
   };
   /// The bounding box of the sample positions under a correction (min x, min y, max x, max y).
   std::array<double, 4> Extent(const Pose2& correction) const {
-    std::array<double, 4> box{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
-                              -std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity()};
+    std::array<double, 4> box{
+        std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+        -std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity()};
     for (size_t i = 0; i < nominal_.size(); ++i) {
-      const double x = nominal_[i].x + fraction_[i] * correction.x, y = nominal_[i].y + fraction_[i] * correction.y;
+      const double x = nominal_[i].x + fraction_[i] * correction.x,
+                   y = nominal_[i].y + fraction_[i] * correction.y;
       box = {std::min(box[0], x), std::min(box[1], y), std::max(box[2], x), std::max(box[3], y)};
     }
     return box;
@@ -163,7 +172,7 @@ struct Slam::Measurement {
   double local_angle = 0.0;  // sensor direction relative to the robot's heading
   Vec2 local_origin = Vec2::Zero();
   Vec2 local_direction = Vec2::UnitX();  // (cos, sin) of local_angle
-  double match_range_m = 0.0;  // how far its matching ray looks
+  double match_range_m = 0.0;            // how far its matching ray looks
 };
 
 TrajectoryChunk::~TrajectoryChunk() {
@@ -179,16 +188,17 @@ ConfigErrors SlamConfig::Validate() const {
   auto check = [&](bool ok, const char* pointer, const char* detail) {
     if (!ok) errors.push_back({pointer, detail});
   };
-  check(std::isfinite(resolution_m) && resolution_m >= 0.001 && resolution_m <= 0.5, "/resolution_m",
-        "must be between 0.001 and 0.5 m");
-  check(std::isfinite(logodds_limit) && logodds_limit > 0.1 && logodds_limit * kLogOddsScale <= kLogOddsLimit,
+  check(std::isfinite(resolution_m) && resolution_m >= 0.001 && resolution_m <= 0.5,
+        "/resolution_m", "must be between 0.001 and 0.5 m");
+  check(std::isfinite(logodds_limit) && logodds_limit > 0.1 &&
+            logodds_limit * kLogOddsScale <= kLogOddsLimit,
         "/logodds_limit", "must be above 0.1 and at most 16");
   check(std::isfinite(occupied_above_logodds) && std::abs(occupied_above_logodds) < logodds_limit,
         "/occupied_above_logodds", "must lie inside the clamp limits");
   check(std::isfinite(update.free_logodds) && update.free_logodds <= 0, "/update/free_logodds",
         "must be <= 0");
-  check(std::isfinite(update.occupied_logodds) && update.occupied_logodds > 0, "/update/occupied_logodds",
-        "must be > 0");
+  check(std::isfinite(update.occupied_logodds) && update.occupied_logodds > 0,
+        "/update/occupied_logodds", "must be > 0");
   check(std::isfinite(update.occupied_sigma_factor) && update.occupied_sigma_factor >= 0,
         "/update/occupied_sigma_factor", "must be >= 0");
   check(std::isfinite(update.occupied_depth_cells) && update.occupied_depth_cells >= 0.5 &&
@@ -204,11 +214,13 @@ ConfigErrors SlamConfig::Validate() const {
 Slam::Slam(const RobotDescription& robot, const SlamParams& params, const SlamConfig& config)
     : robot_(robot), params_(params), config_(config), geometry_(config.resolution_m) {
   for (const ScannerSensor& sensor : robot_.scanner.sensors) {
-    sensor_models_.emplace_back(robot_.sensor_types.at(sensor.type), config_.update, config_.resolution_m);
+    sensor_models_.emplace_back(robot_.sensor_types.at(sensor.type), config_.update,
+                                config_.resolution_m);
   }
   const auto clock = std::make_shared<VersionClock>(0);
   const OccupancyGrid empty(geometry_, EncodeLogOdds(config_.logodds_limit), clock);
-  particles_.assign(static_cast<size_t>(std::max(1, params_.particles)), Particle{{}, 0.0, empty, nullptr});
+  particles_.assign(static_cast<size_t>(std::max(1, params_.particles)),
+                    Particle{{}, 0.0, empty, nullptr});
 }
 
 void Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
@@ -257,8 +269,10 @@ std::vector<Slam::Measurement> Slam::CollectMeasurements(const Scan& scan) const
       m.raw = raw;
       m.distance_m = *d;
       // Reading noise plus the grid's quantisation of where a surface lies (uniform in a cell).
-      m.sigma_m = std::sqrt(model.Sigma(*d) * model.Sigma(*d) + config_.resolution_m * config_.resolution_m / 12.0);
-      m.local_angle = sample.platform_angle_rad + DegToRad(robot_.scanner.sensors[static_cast<size_t>(k)].angle_deg);
+      m.sigma_m = std::sqrt(model.Sigma(*d) * model.Sigma(*d) +
+                            config_.resolution_m * config_.resolution_m / 12.0);
+      m.local_angle = sample.platform_angle_rad +
+                      DegToRad(robot_.scanner.sensors[static_cast<size_t>(k)].angle_deg);
       m.local_direction = Vec2(std::cos(m.local_angle), std::sin(m.local_angle));
       m.local_origin = radius * m.local_direction;
       m.match_range_m = m.distance_m + config_.match_range_sigmas * m.sigma_m;
@@ -268,7 +282,8 @@ std::vector<Slam::Measurement> Slam::CollectMeasurements(const Scan& scan) const
   return measurements;
 }
 
-std::vector<size_t> Slam::ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable) const {
+std::vector<size_t> Slam::ThinByAngle(const Scan& scan,
+                                      const std::vector<Measurement>& usable) const {
   std::vector<size_t> kept;
   const double min_step = DegToRad(params_.angle_between_scans_deg);
   std::optional<double> last_angle;
@@ -287,8 +302,9 @@ std::vector<size_t> Slam::ThinByAngle(const Scan& scan, const std::vector<Measur
   return kept;
 }
 
-double Slam::LogLikelihood(const OccupancyGrid& map, const MatchWindow* window, const ScanPath& path,
-                           const Pose2& correction, const std::vector<const Measurement*>& matching) const {
+double Slam::LogLikelihood(const OccupancyGrid& map, const MatchWindow* window,
+                           const ScanPath& path, const Pose2& correction,
+                           const std::vector<const Measurement*>& matching) const {
   const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
   // The candidate's rays, cast as one batch (several in flight); buffers reused per thread.
   thread_local std::vector<RayQuery> rays;
@@ -301,7 +317,8 @@ double Slam::LogLikelihood(const OccupancyGrid& map, const MatchWindow* window, 
       sample = m->sample;
       frame = path.SampleFrame(sample, correction);
     }
-    rays.push_back({frame.Point(m->local_origin), frame.Direction(m->local_direction), m->match_range_m});
+    rays.push_back(
+        {frame.Point(m->local_origin), frame.Direction(m->local_direction), m->match_range_m});
   }
   if (window != nullptr) {
     CastToObstacles(*window, rays, hits);
@@ -351,7 +368,8 @@ void Slam::Resample(size_t wanted, uint64_t step, uint64_t stream) {
   const std::vector<double> weight = NormalizedWeights(particles_);
   std::vector<size_t> order(n);
   std::iota(order.begin(), order.end(), size_t{0});
-  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return weight[a] > weight[b]; });
+  std::stable_sort(order.begin(), order.end(),
+                   [&](size_t a, size_t b) { return weight[a] > weight[b]; });
   const double u0 = rng.Uniform() / static_cast<double>(wanted);
   std::vector<Particle> next;
   next.reserve(wanted);
@@ -372,7 +390,9 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   ScanReport report;
   report.scan = scan.index;
   for (Particle& p : particles_) {
-    if (!p.history) p.history = std::make_shared<TrajectoryChunk>(TrajectoryChunk{{{scan.t_begin, p.pose}}, nullptr});
+    if (!p.history)
+      p.history =
+          std::make_shared<TrajectoryChunk>(TrajectoryChunk{{{scan.t_begin, p.pose}}, nullptr});
   }
 
   // A new particle count applies from this scan: drawn from the current weights.
@@ -388,7 +408,8 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   // Matching measurements: thinned by platform angle ("angle between scans"), then capped.
   const std::vector<size_t> thinned = ThinByAngle(scan, usable);
   std::vector<const Measurement*> matching;
-  for (size_t i : SpreadEvenly(thinned.size(), static_cast<size_t>(std::max(0, plan.matching_measurements)))) {
+  for (size_t i :
+       SpreadEvenly(thinned.size(), static_cast<size_t>(std::max(0, plan.matching_measurements)))) {
     matching.push_back(&usable[thinned[i]]);
   }
 
@@ -397,7 +418,8 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   const size_t n_particles = particles_.size();
   const MotionDelta motion = Decompose(Between(scan.odom_begin, scan.odom_end));
   const double angle_const = DegToRad(params_.angle_error_const_deg);
-  const double sigma_trans = params_.dist_error_ratio * std::abs(motion.trans) + params_.dist_error_const_m;
+  const double sigma_trans =
+      params_.dist_error_ratio * std::abs(motion.trans) + params_.dist_error_const_m;
   const double sigma_rot1 = params_.angle_error_ratio * std::abs(motion.rot1) + angle_const;
   const double sigma_rot2 = params_.angle_error_ratio * std::abs(motion.rot2) + angle_const;
   std::vector<ScanPath> paths;
@@ -424,7 +446,8 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   std::vector<double> chosen_ll(n_particles, 0.0);
   if (match) {
     const double sigma_pos = std::max(params_.min_pos_uncertainty_m, sigma_trans);
-    const double sigma_angle = std::max(DegToRad(params_.min_angle_uncertainty_deg), std::hypot(sigma_rot1, sigma_rot2));
+    const double sigma_angle =
+        std::max(DegToRad(params_.min_angle_uncertainty_deg), std::hypot(sigma_rot1, sigma_rot2));
     // A particle whose candidates cast enough rays gets a MatchWindow over the cells they can
     // reach: every sample position under the predicted correction, moved by up to 4 sigma_pos,
     // plus the longest reach of a matching ray (candidates drawn farther cast through the map).
@@ -432,7 +455,8 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
     // cell) and BM_MatchingRayWindow (some 30 to 60 ns saved per ray) on this machine.
     constexpr int64_t kCellsPerRayPaid = 16;
     double reach = 0.0;
-    for (const Measurement* m : matching) reach = std::max(reach, m->local_origin.norm() + m->match_range_m);
+    for (const Measurement* m : matching)
+      reach = std::max(reach, m->local_origin.norm() + m->match_range_m);
     const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
     std::vector<std::optional<MatchWindow>> windows(n_particles);
     ForEach(config_.parallel, n_particles, [&](size_t p) {
@@ -465,7 +489,8 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
         end.theta = NormalizeAngle(end.theta + rng.Gaussian(sigma_angle));
       }
       const MatchWindow* window = windows[p] ? &*windows[p] : nullptr;
-      const double ll = LogLikelihood(particles_[p].map, window, paths[p], paths[p].CorrectionTo(end), matching);
+      const double ll =
+          LogLikelihood(particles_[p].map, window, paths[p], paths[p].CorrectionTo(end), matching);
       candidate_pose[index] = end;
       candidate_ll[index] = ll;
     });
@@ -483,7 +508,8 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
         for (size_t c = 0; c < n_candidates; ++c) {
           const size_t i = p * n_candidates + c;
           const double w = std::exp(candidate_ll[i] - candidate_ll[best]);
-          const double dx = candidate_pose[i].x - chosen[p].x, dy = candidate_pose[i].y - chosen[p].y;
+          const double dx = candidate_pose[i].x - chosen[p].x,
+                       dy = candidate_pose[i].y - chosen[p].y;
           weight_sum += w;
           spread_sq += w * (dx * dx + dy * dy);
         }
@@ -510,7 +536,8 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
       const Measurement& m = usable[u];
       const Pose2 robot = path.SamplePose(m.sample, correction);
       const UpdateProfile* profile = sensor_models_[static_cast<size_t>(m.sensor)].Update(m.raw);
-      ApplyUpdateRay(particle.map, robot.Transform(m.local_origin), robot.theta + m.local_angle, *profile);
+      ApplyUpdateRay(particle.map, robot.Transform(m.local_origin), robot.theta + m.local_angle,
+                     *profile);
     }
     // Lets the next scan's matching rays skip empty space (while the tiles just written are
     // this particle's alone). Without refinement nothing is matched: tiles stay stale, and
@@ -520,9 +547,11 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
     chunk->poses.reserve(scan.samples.size() + 1);
     for (size_t i = 0; i < scan.samples.size(); ++i) {
       // A sample at the scan's start is the previous end pose, already in the history.
-      if (scan.samples[i].t > scan.t_begin) chunk->poses.push_back({scan.samples[i].t, path.SamplePose(i, correction)});
+      if (scan.samples[i].t > scan.t_begin)
+        chunk->poses.push_back({scan.samples[i].t, path.SamplePose(i, correction)});
     }
-    if (chunk->poses.empty() || chunk->poses.back().t < scan.t_end) chunk->poses.push_back({scan.t_end, chosen[p]});
+    if (chunk->poses.empty() || chunk->poses.back().t < scan.t_end)
+      chunk->poses.push_back({scan.t_end, chosen[p]});
     chunk->parent = std::move(particle.history);
     particle.history = std::move(chunk);
     particle.pose = chosen[p];

@@ -23,7 +23,7 @@ class MatchWindow;
 
 struct SlamConfig {
   double resolution_m = 0.01;
-  double logodds_limit = 5.0;  // cells are clamped to [-limit, +limit]
+  double logodds_limit = 5.0;           // cells are clamped to [-limit, +limit]
   double occupied_above_logodds = 0.0;  // matching rays stop at cells above this
   UpdateModelConfig update;
   /// Robust likelihood floor of one measurement: log(exp(-r^2 / 2 sigma^2) + floor).
@@ -40,12 +40,12 @@ struct SlamConfig {
 /// What the engine may spend on one scan (produced by the scheduler).
 struct ScanPlan {
   static constexpr int kUnlimited = std::numeric_limits<int>::max();
-  int particles = 1;                          // particle count from this scan on (a change
-                                              // resamples before the scan)
-  int candidates = 1;                         // pose candidates per particle (1 = no refinement)
-  int matching_measurements = kUnlimited;     // cap on measurements matched per candidate
-  int update_rays = kUnlimited;               // cap on grid-update rays per particle
-  bool refine = true;                         // false: phase B off, odometry-only mapping
+  int particles = 1;                       // particle count from this scan on (a change
+                                           // resamples before the scan)
+  int candidates = 1;                      // pose candidates per particle (1 = no refinement)
+  int matching_measurements = kUnlimited;  // cap on measurements matched per candidate
+  int update_rays = kUnlimited;            // cap on grid-update rays per particle
+  bool refine = true;                      // false: phase B off, odometry-only mapping
 };
 
 struct RayCounts {
@@ -66,13 +66,13 @@ struct ScanReport {
   Pose2 pose;  // best particle's pose at the end of the scan
   RayCounts rays;
   int particles = 0;
-  int candidates = 0;                 // per particle
-  int valid_measurements = 0;         // usable for matching (before thinning and the cap)
-  int matching_measurements = 0;      // matched per candidate
-  int update_rays = 0;                // per particle
+  int candidates = 0;             // per particle
+  int valid_measurements = 0;     // usable for matching (before thinning and the cap)
+  int matching_measurements = 0;  // matched per candidate
+  int update_rays = 0;            // per particle
   bool resampled = false;
   double effective_sample_size = 0.0;
-  double best_log_likelihood = 0.0;   // of the best particle's chosen candidate
+  double best_log_likelihood = 0.0;  // of the best particle's chosen candidate
   /// How little the measurements told the candidates apart, averaged over particles: the
   /// likelihood-weighted RMS distance of the candidates from the chosen one, over the RMS
   /// distance the proposal alone gives (sqrt(2) sigma). About 0 when one candidate dominates,
@@ -139,7 +139,8 @@ class Slam {
   class ScanPath;
   /// Eq. (2) of a candidate: its rays cast through `window` when there is one, else `map`.
   double LogLikelihood(const OccupancyGrid& map, const MatchWindow* window, const ScanPath& path,
-                       const Pose2& correction, const std::vector<const Measurement*>& matching) const;
+                       const Pose2& correction,
+                       const std::vector<const Measurement*>& matching) const;
   std::vector<Measurement> CollectMeasurements(const Scan& scan) const;
   std::vector<size_t> ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable) const;
   /// Phase D: draws `wanted` particles in proportion to their weights (random stream `stream`

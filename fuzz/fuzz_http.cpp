@@ -10,9 +10,9 @@
 // stream or a reset are skipped: both wait on the SLAM thread by design (up to 2 s).
 //
 // Invariants: nothing crashes; every request of at least one line gets one HTTP/1.1 status line
-// with a code in 100..599; no 500 (an exception escaped a handler); a problem+json body parses and carries the
-// response's status; after each input the budget and the parameters read back as JSON that the
-// server accepts again unchanged (PUT of the budget, PATCH of the parameters: 200).
+// with a code in 100..599; no 500 (an exception escaped a handler); a problem+json body parses and
+// carries the response's status; after each input the budget and the parameters read back as JSON
+// that the server accepts again unchanged (PUT of the budget, PATCH of the parameters: 200).
 
 #include <algorithm>
 #include <cctype>

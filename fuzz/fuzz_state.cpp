@@ -11,15 +11,15 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <cstdlib>
-#include <system_error>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <set>
 #include <string>
+#include <system_error>
 #include <utility>
 
 #include "engine/cell_encoding.hpp"
@@ -133,9 +133,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       CheckDecoded(file);
       break;
     }
-    case 1: CheckDecoded(rest); break;
-    case 2: CheckTum(rest); break;
-    default: CheckLoad(rest); break;
+    case 1:
+      CheckDecoded(rest);
+      break;
+    case 2:
+      CheckTum(rest);
+      break;
+    default:
+      CheckLoad(rest);
+      break;
   }
   return 0;
 }

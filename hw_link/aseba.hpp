@@ -51,8 +51,8 @@ struct ReassemblyCounters {
   uint64_t extended = 0;  // frames dropped because they are not Aseba frames ...
   uint64_t remote = 0;
   uint64_t fd = 0;
-  uint64_t foreign = 0;  // standard frames with id bit 10 set: not Aseba's (it uses bits 0..9)
-  uint64_t bad_length = 0;            // DLC not allowed for its fragment type: frame dropped
+  uint64_t foreign = 0;     // standard frames with id bit 10 set: not Aseba's (it uses bits 0..9)
+  uint64_t bad_length = 0;  // DLC not allowed for its fragment type: frame dropped
   uint64_t middle_without_start = 0;  // fragment with no message in progress: dropped
   uint64_t stop_without_start = 0;
   uint64_t oversize = 0;   // messages abandoned for growing beyond kAsebaMaxMessageBytes
@@ -60,8 +60,8 @@ struct ReassemblyCounters {
 
   /// Frames or messages rejected for any reason.
   uint64_t Rejected() const {
-    return extended + remote + fd + foreign + bad_length + middle_without_start + stop_without_start +
-           oversize + abandoned;
+    return extended + remote + fd + foreign + bad_length + middle_without_start +
+           stop_without_start + oversize + abandoned;
   }
 };
 

@@ -84,14 +84,17 @@ std::optional<RobotEvent> EventDecoder::Decode(const AsebaMessage& message) {
 }
 
 AsebaMessage EncodeOdometry(const RobotDescription& robot, const OdometryReading& r) {
-  const std::array<uint16_t, kOdometryWords> words{
-      r.seq,          Lo(r.left_ticks), Hi(r.left_ticks), Lo(r.right_ticks), Hi(r.right_ticks),
-      static_cast<uint16_t>(r.gyro_raw)};
+  const std::array<uint16_t, kOdometryWords> words{r.seq,
+                                                   Lo(r.left_ticks),
+                                                   Hi(r.left_ticks),
+                                                   Lo(r.right_ticks),
+                                                   Hi(r.right_ticks),
+                                                   static_cast<uint16_t>(r.gyro_raw)};
   return Message(robot.base.node, robot.base.event, words, r.t);
 }
 
 AsebaMessage EncodeScanner(const RobotDescription& robot, const ScannerReading& r) {
-  const std::array<uint16_t, kScannerWords> words{r.seq,    r.angle_raw, r.raw[0],       r.raw[1],
+  const std::array<uint16_t, kScannerWords> words{r.seq,    r.angle_raw, r.raw[0],      r.raw[1],
                                                   r.raw[2], r.raw[3],    r.rectifier_mv};
   return Message(robot.scanner.node, robot.scanner.event, words, r.t);
 }

@@ -15,8 +15,8 @@ inline constexpr int kOdometryWords = 6;
 inline constexpr int kScannerWords = 7;
 
 struct DecoderCounters {
-  uint64_t messages = 0;      // messages offered
-  uint64_t odometry = 0;      // events decoded, per type
+  uint64_t messages = 0;  // messages offered
+  uint64_t odometry = 0;  // events decoded, per type
   uint64_t scanner = 0;
   uint64_t unknown_node = 0;  // from a node that is neither the base nor the scanner
   uint64_t unknown_type = 0;  // from a known node, of a type robot.json does not name

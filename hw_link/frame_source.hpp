@@ -13,9 +13,9 @@
 namespace slam::hw {
 
 enum class ReadStatus {
-  kOk,       // zero or more frames appended (zero when the timeout passed with nothing)
-  kEnd,      // the source is exhausted for good (end of a log or a finite simulation)
-  kError,    // the source failed (device gone, ...): `message` says why; a later Read retries
+  kOk,     // zero or more frames appended (zero when the timeout passed with nothing)
+  kEnd,    // the source is exhausted for good (end of a log or a finite simulation)
+  kError,  // the source failed (device gone, ...): `message` says why; a later Read retries
 };
 
 struct ReadOutcome {

@@ -33,9 +33,9 @@ struct LinkEvent {
 inline constexpr double kLinkSilentAfterS = 1.0;
 
 struct LinkOptions {
-  size_t queue_capacity = 1024;                       // events (about 9 s of robot traffic)
-  std::chrono::milliseconds read_timeout{50};         // how often the thread checks for stop
-  std::chrono::milliseconds error_retry{500};         // pause after a source error
+  size_t queue_capacity = 1024;                // events (about 9 s of robot traffic)
+  std::chrono::milliseconds read_timeout{50};  // how often the thread checks for stop
+  std::chrono::milliseconds error_retry{500};  // pause after a source error
 };
 
 enum class LinkState { kIdle, kRunning, kSourceError, kEnded, kStopped };

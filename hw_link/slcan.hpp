@@ -47,7 +47,7 @@ class SlcanParser {
   std::string line_;
   bool overlong_ = false;
   bool bad_since_frame_ = false;  // a bad line since the last frame
-  bool after_cr_ = false;  // the last byte was '\r': a '\n' right after it ends nothing
+  bool after_cr_ = false;         // the last byte was '\r': a '\n' right after it ends nothing
   SlcanCounters counters_;
 };
 

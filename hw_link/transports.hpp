@@ -20,7 +20,8 @@ struct CandumpReplayOptions {
 };
 
 /// Replays a candump -l log. Frame times are the log's, with wall-clock jumps (a step back, or more
-/// than 5 s of silence) taken out and counted ("clock_jumps"). Garbage lines are counted and skipped
+/// than 5 s of silence) taken out and counted ("clock_jumps"). Garbage lines are counted and
+/// skipped
 /// ("bad_lines"), comments counted ("ignored_lines"); the end of the file is kEnd.
 OpenResult OpenCandumpReplay(const std::string& path, const CandumpReplayOptions& options = {});
 

@@ -31,7 +31,8 @@ std::optional<BudgetPolicy> ParseBudgetPolicy(std::string_view text) {
 ConfigErrors Validate(const BudgetSettings& settings) {
   ConfigErrors errors;
   if (settings.rays_per_scan < 1 || settings.rays_per_scan > 100'000'000) {
-    errors.push_back({"/rays_per_scan", std::to_string(settings.rays_per_scan) + " is outside [1, 100000000]"});
+    errors.push_back(
+        {"/rays_per_scan", std::to_string(settings.rays_per_scan) + " is outside [1, 100000000]"});
   }
   // Written so that NaN fails too.
   if (!(settings.cpu_share > 0.0 && settings.cpu_share <= 1.0)) {
@@ -40,7 +41,8 @@ ConfigErrors Validate(const BudgetSettings& settings) {
     errors.push_back({"/cpu_share", detail.str()});
   }
   if (settings.max_particles < 1 || settings.max_particles > 1000) {
-    errors.push_back({"/max_particles", std::to_string(settings.max_particles) + " is outside [1, 1000]"});
+    errors.push_back(
+        {"/max_particles", std::to_string(settings.max_particles) + " is outside [1, 1000]"});
   }
   return errors;
 }
@@ -59,7 +61,8 @@ int AdaptiveParticles(const FilterState& state, int floor, int cap, const Schedu
   return std::clamp(n, std::clamp(floor, 1, cap), cap);
 }
 
-RayBudgetScheduler::RayBudgetScheduler(const BudgetSettings& settings, const SchedulerConfig& config)
+RayBudgetScheduler::RayBudgetScheduler(const BudgetSettings& settings,
+                                       const SchedulerConfig& config)
     : config_(config), settings_(settings), ns_per_ray_(config.initial_ns_per_ray) {}
 
 void RayBudgetScheduler::SetSettings(const BudgetSettings& settings) {
@@ -84,7 +87,8 @@ double RayBudgetScheduler::ns_per_ray() const {
 
 int64_t RayBudgetScheduler::QuotaFor(const BudgetSettings& settings, double scan_period_s) const {
   if (settings.mode == QuotaMode::kRaysPerScan) return settings.rays_per_scan;
-  const double period = std::clamp(scan_period_s, config_.min_scan_period_s, config_.max_scan_period_s);
+  const double period =
+      std::clamp(scan_period_s, config_.min_scan_period_s, config_.max_scan_period_s);
   double ns_per_ray;
   {
     std::lock_guard lock(mutex_);
@@ -95,16 +99,18 @@ int64_t RayBudgetScheduler::QuotaFor(const BudgetSettings& settings, double scan
                                          static_cast<double>(config_.max_quota)));
 }
 
-ScanPlan RayBudgetScheduler::Plan(const ScanSummary& summary, double scan_period_s, const SlamParams& params) {
+ScanPlan RayBudgetScheduler::Plan(const ScanSummary& summary, double scan_period_s,
+                                  const SlamParams& params) {
   const BudgetSettings settings = this->settings();
   const int64_t quota = QuotaFor(settings, scan_period_s);
 
   int particles = params.particles;
   if (settings.policy == BudgetPolicy::kAdaptive) {
-    const int64_t per_particle =
-        std::max<int64_t>(1, summary.usable_measurements +
-                                 int64_t{config_.adaptive_min_candidates} * summary.matching_measurements);
-    const int cap = static_cast<int>(std::clamp<int64_t>(quota / per_particle, 1, settings.max_particles));
+    const int64_t per_particle = std::max<int64_t>(
+        1, summary.usable_measurements +
+               int64_t{config_.adaptive_min_candidates} * summary.matching_measurements);
+    const int cap =
+        static_cast<int>(std::clamp<int64_t>(quota / per_particle, 1, settings.max_particles));
     if (adaptive_particles_ == 0) adaptive_particles_ = params.particles;
     FilterState state = filter_.value_or(FilterState{});
     state.particles = adaptive_particles_;

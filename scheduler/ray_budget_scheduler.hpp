@@ -6,9 +6,9 @@
 
 #include <cstdint>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <string_view>
-#include <optional>
 
 #include "engine/config_error.hpp"
 #include "engine/params.hpp"
@@ -19,7 +19,7 @@ namespace slam {
 enum class QuotaMode { kRaysPerScan, kCpuShare };
 enum class BudgetPolicy { kFixed, kAdaptive };
 
-std::string_view ToString(QuotaMode mode);      // "rays" or "cpu_share"
+std::string_view ToString(QuotaMode mode);       // "rays" or "cpu_share"
 std::string_view ToString(BudgetPolicy policy);  // "fixed" or "adaptive"
 std::optional<QuotaMode> ParseQuotaMode(std::string_view text);
 std::optional<BudgetPolicy> ParseBudgetPolicy(std::string_view text);
@@ -30,7 +30,7 @@ struct BudgetSettings {
   int64_t rays_per_scan = 65000;  // the paper's budgets: 8125, 16250, 32500, 65000
   double cpu_share = 0.25;        // of one core: 0.125, 0.25, 0.5, 1.0 in the paper's spirit
   BudgetPolicy policy = BudgetPolicy::kFixed;
-  int max_particles = 16;         // adaptive policy: upper bound on the particle count
+  int max_particles = 16;  // adaptive policy: upper bound on the particle count
 
   friend bool operator==(const BudgetSettings&, const BudgetSettings&) = default;
 };
@@ -80,17 +80,17 @@ int AdaptiveParticles(const FilterState& state, int floor, int cap, const Schedu
 
 /// One scan's plan and what it used.
 struct PlanRecord {
-  int64_t scan = 0;              // engine scan counter
+  int64_t scan = 0;  // engine scan counter
   QuotaMode mode = QuotaMode::kRaysPerScan;
   BudgetPolicy policy = BudgetPolicy::kFixed;
-  int64_t quota = 0;             // rays this scan was allowed
+  int64_t quota = 0;  // rays this scan was allowed
   ScanPlan plan;
   int64_t planned_rays = 0;
-  int64_t used_rays = 0;         // as the engine counted them
-  bool fills_quota = false;      // the scan offered enough measurements to use the quota
-  double cpu_s = 0.0;            // CPU time of the scan, as measured by the caller
-  double scan_period_s = 0.0;    // robot time the scan covered
-  double ns_per_ray = 0.0;       // smoothed cost per ray after this scan
+  int64_t used_rays = 0;       // as the engine counted them
+  bool fills_quota = false;    // the scan offered enough measurements to use the quota
+  double cpu_s = 0.0;          // CPU time of the scan, as measured by the caller
+  double scan_period_s = 0.0;  // robot time the scan covered
+  double ns_per_ray = 0.0;     // smoothed cost per ray after this scan
 };
 
 /// Totals since construction, for the metrics.
@@ -99,9 +99,9 @@ struct SchedulerTotals {
   int64_t rays_planned = 0;
   int64_t rays_used = 0;
   int64_t quota = 0;
-  int64_t over_quota_scans = 0;   // must stay 0: the invariant
+  int64_t over_quota_scans = 0;  // must stay 0: the invariant
   double cpu_s = 0.0;
-  double robot_s = 0.0;           // robot time covered by the scans
+  double robot_s = 0.0;  // robot time covered by the scans
   std::optional<PlanRecord> last;
 };
 
@@ -131,14 +131,14 @@ class RayBudgetScheduler {
 
   const SchedulerConfig config_;
   mutable std::mutex mutex_;
-  BudgetSettings settings_;      // guarded by mutex_
-  double ns_per_ray_;            // guarded by mutex_
-  SchedulerTotals totals_;       // guarded by mutex_
+  BudgetSettings settings_;  // guarded by mutex_
+  double ns_per_ray_;        // guarded by mutex_
+  SchedulerTotals totals_;   // guarded by mutex_
   // SLAM thread only.
   PlanRecord pending_;
   ScanSummary pending_summary_;
   std::optional<FilterState> filter_;
-  int adaptive_particles_ = 0;   // 0: not started (take the parameter)
+  int adaptive_particles_ = 0;  // 0: not started (take the parameter)
 };
 
 }  // namespace slam

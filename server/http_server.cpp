@@ -9,19 +9,19 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cctype>
 #include <cerrno>
+#include <chrono>
 #include <cmath>
-#include <cstring>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <functional>
 #include <map>
 #include <memory>
-#include <set>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <sstream>
 #include <thread>
 #include <utility>
@@ -82,7 +82,8 @@ void SendProblem(httplib::Response& res, int status, const std::string& title,
   json body = {{"type", "about:blank"}, {"title", title}, {"status", status}, {"detail", detail}};
   if (!errors.empty()) {
     json list = json::array();
-    for (const ConfigError& e : errors) list.push_back({{"pointer", e.pointer}, {"detail", e.detail}});
+    for (const ConfigError& e : errors)
+      list.push_back({{"pointer", e.pointer}, {"detail", e.detail}});
     body["errors"] = std::move(list);
   }
   res.status = status;
@@ -123,8 +124,8 @@ ConfigErrors BudgetFromJson(const json& body, BudgetSettings& out) {
   if (missing) return errors;
   const size_t unknown = errors.size();
   BudgetSettings b;
-  const auto mode = body["mode"].is_string() ? ParseQuotaMode(body["mode"].get<std::string>())
-                                             : std::nullopt;
+  const auto mode =
+      body["mode"].is_string() ? ParseQuotaMode(body["mode"].get<std::string>()) : std::nullopt;
   if (!mode) {
     errors.push_back({"/mode", "must be \"rays\" or \"cpu_share\"", 0});
   } else {
@@ -306,7 +307,8 @@ class BoundedStream final : public httplib::Stream {
 
  private:
   std::chrono::milliseconds ReadLimit() const {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline_ - Clock::now());
+    const auto left =
+        std::chrono::duration_cast<std::chrono::milliseconds>(deadline_ - Clock::now());
     return std::clamp(left, std::chrono::milliseconds(0), read_timeout_);
   }
 
@@ -462,9 +464,9 @@ bool HeadHasField(const httplib::Request& req, std::string_view name) {
 
 struct Connection {
   int fd = -1;
-  std::string peer;      // the client's address
-  std::string received;  // read from the socket, not yet by a request
-  SteadyTime since{};    // began waiting (accepted, or its last response sent)
+  std::string peer;       // the client's address
+  std::string received;   // read from the socket, not yet by a request
+  SteadyTime since{};     // began waiting (accepted, or its last response sent)
   SteadyTime deadline{};  // closed if no whole request by then
   size_t requests = 0;    // served on it so far
 };
@@ -481,13 +483,15 @@ bool RequestReady(const std::string& received, size_t max_head, size_t max_body)
   ForEachFieldLine(std::string_view(received).substr(0, end + 2), [&](std::string_view line) {
     if (!FieldNameIs(line, "content-length")) return true;
     std::string_view value = line.substr(sizeof("content-length:") - 1);
-    while (!value.empty() && (value.front() == ' ' || value.front() == '\t')) value.remove_prefix(1);
+    while (!value.empty() && (value.front() == ' ' || value.front() == '\t'))
+      value.remove_prefix(1);
     if (value.empty() || !std::isdigit(static_cast<unsigned char>(value.front()))) {
       refused = true;  // the parser refuses it at once
       return false;
     }
     size_t n = 0;
-    for (size_t i = 0; i < value.size() && std::isdigit(static_cast<unsigned char>(value[i])); ++i) {
+    for (size_t i = 0; i < value.size() && std::isdigit(static_cast<unsigned char>(value[i]));
+         ++i) {
       n = n * 10 + static_cast<size_t>(value[i] - '0');
       if (n > max_body) {
         refused = true;  // refused before its body is read
@@ -569,7 +573,8 @@ class Gate {
   void EvictOldest(Pick pick) {
     size_t oldest = waiting_.size();
     for (size_t i = 0; i < waiting_.size(); ++i) {
-      if (pick(waiting_[i]) && (oldest == waiting_.size() || waiting_[i].since < waiting_[oldest].since)) {
+      if (pick(waiting_[i]) &&
+          (oldest == waiting_.size() || waiting_[i].since < waiting_[oldest].since)) {
         oldest = i;
       }
     }
@@ -598,8 +603,8 @@ class Gate {
     const size_t cap = max_head_ + max_body_ + 1;
     char chunk[16384];
     while (c.received.size() < cap) {
-      const ssize_t n = ::recv(c.fd, chunk, std::min(sizeof chunk, cap - c.received.size()),
-                               MSG_DONTWAIT);
+      const ssize_t n =
+          ::recv(c.fd, chunk, std::min(sizeof chunk, cap - c.received.size()), MSG_DONTWAIT);
       if (n > 0) {
         // A request has begun: it has request_deadline from its first byte.
         if (c.received.empty()) c.deadline = Clock::now() + request_deadline;
@@ -686,7 +691,8 @@ class BoundedServer final : public httplib::Server {
     MemoryStream stream(request, max_response_bytes);
     bool closed = false;
     const size_t end = request.find("\r\n\r\n");
-    const std::string head(request.substr(0, end == std::string_view::npos ? request.size() : end + 2));
+    const std::string head(
+        request.substr(0, end == std::string_view::npos ? request.size() : end + 2));
     t_request_head = &head;
     process_request(stream, /*close_connection=*/true, closed, nullptr);
     t_request_head = nullptr;
@@ -705,8 +711,8 @@ class BoundedServer final : public httplib::Server {
   /// Starts the gate and `workers` threads that serve whole requests (event streams hold one
   /// each for their lifetime). Before listen_after_bind.
   void StartServing(size_t workers) {
-    gate_ = std::make_unique<Gate>([this](Connection c) { Dispatch(std::move(c)); },
-                                   max_head_bytes, max_body_bytes);
+    gate_ = std::make_unique<Gate>([this](Connection c) { Dispatch(std::move(c)); }, max_head_bytes,
+                                   max_body_bytes);
     gate_->request_deadline = request_deadline;
     workers_ = std::make_unique<httplib::ThreadPool>(workers);
     gate_->Start();
@@ -741,9 +747,11 @@ class BoundedServer final : public httplib::Server {
     if (::getpeername(sock, reinterpret_cast<sockaddr*>(&address), &length) == 0) {
       char text[INET6_ADDRSTRLEN] = {};
       if (address.ss_family == AF_INET) {
-        ::inet_ntop(AF_INET, &reinterpret_cast<const sockaddr_in*>(&address)->sin_addr, text, sizeof text);
+        ::inet_ntop(AF_INET, &reinterpret_cast<const sockaddr_in*>(&address)->sin_addr, text,
+                    sizeof text);
       } else if (address.ss_family == AF_INET6) {
-        ::inet_ntop(AF_INET6, &reinterpret_cast<const sockaddr_in6*>(&address)->sin6_addr, text, sizeof text);
+        ::inet_ntop(AF_INET6, &reinterpret_cast<const sockaddr_in6*>(&address)->sin6_addr, text,
+                    sizeof text);
       }
       c.peer = text;
     }
@@ -893,7 +901,8 @@ std::optional<std::string> AmbiguousFraming(std::string_view head) {
   if (problem) return problem;
   if (content_lengths > 1) return "more than one Content-Length";
   if (http11 && hosts != 1) {
-    return hosts == 0 ? "a request of HTTP version 1.1 needs a Host header" : "more than one Host header";
+    return hosts == 0 ? "a request of HTTP version 1.1 needs a Host header"
+                      : "more than one Host header";
   }
   return std::nullopt;
 }
@@ -918,8 +927,8 @@ struct HttpServer::Impl {
   BoundedServer server;
   Clock::time_point started = Clock::now();
   // Tells one run of slamd from the next (the page reloads everything when it changes).
-  std::string instance = std::to_string(
-      std::chrono::system_clock::now().time_since_epoch() / std::chrono::microseconds(1));
+  std::string instance = std::to_string(std::chrono::system_clock::now().time_since_epoch() /
+                                        std::chrono::microseconds(1));
   std::atomic<bool> stopping{false};
   std::atomic<int> streams{0};
   std::atomic<uint64_t> streams_rejected{0};
@@ -1080,9 +1089,9 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
       return refuse(400, "Bad Request", "a " + req.method + " request may not have a body");
     }
     if (length > options.max_body_bytes) {
-      return refuse(413, "Content Too Large",
-                    "request bodies are limited to " + std::to_string(options.max_body_bytes) +
-                        " bytes");
+      return refuse(
+          413, "Content Too Large",
+          "request bodies are limited to " + std::to_string(options.max_body_bytes) + " bytes");
     }
   }
   if (mutating) {
@@ -1232,7 +1241,8 @@ void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response
   const auto it = std::find_if(snapshot->tiles.begin(), snapshot->tiles.end(),
                                [&](const TileRef& t) { return t.index.x == x && t.index.y == y; });
   if (it == snapshot->tiles.end()) {
-    SendProblem(res, 404, "Not Found", "no tile (" + std::to_string(x) + ", " + std::to_string(y) + ")");
+    SendProblem(res, 404, "Not Found",
+                "no tile (" + std::to_string(x) + ", " + std::to_string(y) + ")");
     return;
   }
   const uint64_t version = snapshot->ReportedVersion(*it->tile);
@@ -1325,7 +1335,8 @@ void HttpServer::Impl::HandleEvents(const httplib::Request& req, httplib::Respon
         if (stopping || !sink.is_writable()) return false;
         Stream& s = *stream;
         std::string out;
-        auto snapshot = s.hello_sent ? service.WaitNewer(s.sequence, kStreamWake) : service.Snapshot();
+        auto snapshot =
+            s.hello_sent ? service.WaitNewer(s.sequence, kStreamWake) : service.Snapshot();
         if (stopping) return false;
         const auto now = Clock::now();
         if (!s.hello_sent) {
@@ -1570,7 +1581,8 @@ std::string HttpServer::Impl::MetricsText() {
   o << "slamd_scan_latency_seconds_bucket{le=\"+Inf\"} " << cumulative << '\n'
     << "slamd_scan_latency_seconds_sum " << c.latency_sum_s << '\n'
     << "slamd_scan_latency_seconds_count " << cumulative << '\n';
-  metric("cpu_share", "gauge", "SLAM thread CPU time over robot time, latest scan.", last.cpu_share);
+  metric("cpu_share", "gauge", "SLAM thread CPU time over robot time, latest scan.",
+         last.cpu_share);
   metric("realtime_ratio", "gauge",
          "Robot time over SLAM processing time, latest scan (above 1: faster than real time).",
          last.realtime_ratio);
@@ -1579,9 +1591,10 @@ std::string HttpServer::Impl::MetricsText() {
   metric("map_version", "gauge", "Largest tile version.", snapshot->map_version);
   metric("link_up", "gauge", "1 when the link is reading its source.",
          l.state == hw::LinkState::kRunning ? 1 : 0);
-  metric("link_silent", "gauge",
-         "1 when the link is running but has read no frame for a second (robot or transport quiet).",
-         l.Silent() ? 1 : 0);
+  metric(
+      "link_silent", "gauge",
+      "1 when the link is running but has read no frame for a second (robot or transport quiet).",
+      l.Silent() ? 1 : 0);
   metric("link_seconds_without_frames", "gauge", "Seconds since the latest CAN frame.",
          l.SecondsWithoutFrames());
   metric("link_frames_total", "counter", "CAN frames read from the source.", l.frames);
@@ -1601,7 +1614,8 @@ std::string HttpServer::Impl::MetricsText() {
     }
   }
   metric("http_connections_timed_out_total", "counter",
-         "Connections closed at the gate: no whole request in time.", server.connections_timed_out());
+         "Connections closed at the gate: no whole request in time.",
+         server.connections_timed_out());
   metric("http_connections_evicted_total", "counter",
          "Waiting connections closed to admit newer ones (too many from one address, or in all).",
          server.connections_evicted());
@@ -1650,9 +1664,8 @@ void HttpServer::Impl::Setup() {
     // The method as a label only when it is one of HTTP's: whatever else a client sends as a
     // method (httplib answers 400) would grow the counters without bound and go into /metrics
     // unescaped.
-    static const std::set<std::string> kMethods{"GET",   "HEAD",    "POST",   "PUT",
-                                                "PATCH", "DELETE",  "OPTIONS", "TRACE",
-                                                "CONNECT"};
+    static const std::set<std::string> kMethods{"GET",    "HEAD",    "POST",  "PUT",    "PATCH",
+                                                "DELETE", "OPTIONS", "TRACE", "CONNECT"};
     const std::string method = kMethods.count(req.method) ? req.method : "other";
     // A request the library could not parse (a malformed request line or header) is answered
     // 400 without reaching the guard; what follows it on the connection is not a request to
@@ -1672,29 +1685,36 @@ void HttpServer::Impl::Setup() {
     SendProblem(res, 500, "Internal Server Error", what);
   });
 
-  server.Get("/api/v1/health", [](const Request&, Response& res) { SendJson(res, {{"status", "ok"}}); });
-  server.Get("/api/v1/status", [this](const Request&, Response& res) { SendJson(res, StatusJson()); });
+  server.Get("/api/v1/health", [](const Request&, Response& res) {
+    SendJson(res, {{"status", "ok"}});
+  });
+  server.Get("/api/v1/status",
+             [this](const Request&, Response& res) { SendJson(res, StatusJson()); });
 
   server.Get("/api/v1/budget", [this](const Request&, Response& res) {
     const std::lock_guard lock(revision_mutex);
     res.set_header("ETag", BudgetEtag());
     SendJson(res, BudgetJson(service.Budget()));
   });
-  server.Patch("/api/v1/budget", [this](const Request& req, Response& res) { HandleBudgetChange(req, res, true); });
-  server.Put("/api/v1/budget", [this](const Request& req, Response& res) { HandleBudgetChange(req, res, false); });
+  server.Patch("/api/v1/budget",
+               [this](const Request& req, Response& res) { HandleBudgetChange(req, res, true); });
+  server.Put("/api/v1/budget",
+             [this](const Request& req, Response& res) { HandleBudgetChange(req, res, false); });
 
   server.Get("/api/v1/params", [this](const Request&, Response& res) {
     const std::lock_guard lock(revision_mutex);
     res.set_header("ETag", ParamsEtag());
     SendJson(res, io::ParamsToJson(service.Params()));
   });
-  server.Patch("/api/v1/params", [this](const Request& req, Response& res) { HandleParamsPatch(req, res); });
+  server.Patch("/api/v1/params",
+               [this](const Request& req, Response& res) { HandleParamsPatch(req, res); });
 
   server.Get("/api/v1/map", [this](const Request&, Response& res) {
     const auto s = service.Snapshot();
     json tiles = json::array();
     for (const TileRef& t : s->tiles) {
-      tiles.push_back({{"x", t.index.x}, {"y", t.index.y}, {"version", s->ReportedVersion(*t.tile)}});
+      tiles.push_back(
+          {{"x", t.index.x}, {"y", t.index.y}, {"version", s->ReportedVersion(*t.tile)}});
     }
     SendJson(res, {{"resolution_m", s->resolution_m},
                    {"tile_size", kTileSize},
@@ -1710,29 +1730,28 @@ void HttpServer::Impl::Setup() {
   }
   const auto whole_map = [this](const std::string& kind) {
     return [this, kind](const Request&, Response& res) {
-      ServeExport("map." + kind, res,
-                  [&](const SlamSnapshot& s, std::string& body, std::string& type,
-                      std::string& error) {
-                    const OccupancyGrid grid = SnapshotGrid(s, service.logodds_limit());
-                    const io::GridImage image = io::MakeGridImage(grid);
-                    if (kind == "pgm") {
-                      body = io::EncodePgm(image);
-                      type = "image/x-portable-graymap";
-                    } else if (kind == "yaml") {
-                      body = io::MapYaml("map.pgm", image);
-                      type = "application/yaml";
-                    } else {
-                      const io::PngBytes png =
-                          io::EncodeGrayPng(image.width, image.height, image.gray);
-                      if (!png.ok()) {
-                        error = png.error;
-                        return false;
-                      }
-                      body.assign(png.bytes.begin(), png.bytes.end());
-                      type = "image/png";
-                    }
-                    return true;
-                  });
+      ServeExport(
+          "map." + kind, res,
+          [&](const SlamSnapshot& s, std::string& body, std::string& type, std::string& error) {
+            const OccupancyGrid grid = SnapshotGrid(s, service.logodds_limit());
+            const io::GridImage image = io::MakeGridImage(grid);
+            if (kind == "pgm") {
+              body = io::EncodePgm(image);
+              type = "image/x-portable-graymap";
+            } else if (kind == "yaml") {
+              body = io::MapYaml("map.pgm", image);
+              type = "application/yaml";
+            } else {
+              const io::PngBytes png = io::EncodeGrayPng(image.width, image.height, image.gray);
+              if (!png.ok()) {
+                error = png.error;
+                return false;
+              }
+              body.assign(png.bytes.begin(), png.bytes.end());
+              type = "image/png";
+            }
+            return true;
+          });
       if (res.status < 300) {
         res.set_header("Content-Disposition", "attachment; filename=\"map." + kind + "\"");
       }
@@ -1774,7 +1793,8 @@ void HttpServer::Impl::Setup() {
     }
   });
 
-  server.Get("/api/v1/events", [this](const Request& req, Response& res) { HandleEvents(req, res); });
+  server.Get("/api/v1/events",
+             [this](const Request& req, Response& res) { HandleEvents(req, res); });
 
   server.Post("/api/v1/map/save", [this](const Request& req, Response& res) {
     json body;
@@ -1843,7 +1863,9 @@ void HttpServer::Impl::Setup() {
     std::string allow;
   };
   static const std::vector<Route> kRoutes = {
-      {std::regex(R"(/api/v1/(health|status|map|map\.pgm|map\.yaml|map\.png|trajectory|events|jobs))"), "GET"},
+      {std::regex(
+           R"(/api/v1/(health|status|map|map\.pgm|map\.yaml|map\.png|trajectory|events|jobs))"),
+       "GET"},
       {std::regex(R"(/api/v1/budget)"), "GET, PUT, PATCH"},
       {std::regex(R"(/api/v1/params)"), "GET, PATCH"},
       {std::regex(R"(/api/v1/map/tiles/-?\d{1,9}/-?\d{1,9}\.png)"), "GET"},
@@ -1855,8 +1877,9 @@ void HttpServer::Impl::Setup() {
     for (const Route& route : kRoutes) {
       if (std::regex_match(req.path, route.pattern)) {
         res.set_header("Allow", route.allow);
-        SendProblem(res, 405, "Method Not Allowed",
-                    req.method + " is not allowed on " + req.path + " (allowed: " + route.allow + ")");
+        SendProblem(
+            res, 405, "Method Not Allowed",
+            req.method + " is not allowed on " + req.path + " (allowed: " + route.allow + ")");
         return;
       }
     }

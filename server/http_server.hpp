@@ -23,11 +23,11 @@ namespace slam::server {
 
 struct HttpOptions {
   std::string bind = "127.0.0.1";
-  int port = 8080;          // 0: any free port
-  std::string token;        // empty: mutating routes are open (loopback only)
-  std::string web_root;     // the page; empty: none
-  std::string state_dir;    // empty: map/save is refused (409)
-  int max_streams = 16;     // concurrent event streams; 503 beyond
+  int port = 8080;        // 0: any free port
+  std::string token;      // empty: mutating routes are open (loopback only)
+  std::string web_root;   // the page; empty: none
+  std::string state_dir;  // empty: map/save is refused (409)
+  int max_streams = 16;   // concurrent event streams; 503 beyond
   size_t max_body_bytes = 64 * 1024;
   std::string source_spec;  // as given on the command line
   /// Without a token, the Host names slamd answers besides loopback ones (a reverse proxy's).

@@ -12,8 +12,8 @@
 namespace slam::server {
 namespace {
 
-constexpr double kTruthPeriodS = 0.1;    // ground truth kept at 10 Hz
-constexpr double kTruthWindowS = 30.0;   // world-frame truth kept for alignment and errors
+constexpr double kTruthPeriodS = 0.1;   // ground truth kept at 10 Hz
+constexpr double kTruthWindowS = 30.0;  // world-frame truth kept for alignment and errors
 
 double ThreadCpuSeconds() {
   timespec ts{};
@@ -40,8 +40,10 @@ std::vector<const TrajectoryChunk*> Chunks(const std::shared_ptr<const Trajector
 
 const char* ToString(SlamState state) {
   switch (state) {
-    case SlamState::kWaiting: return "waiting";
-    case SlamState::kRunning: return "running";
+    case SlamState::kWaiting:
+      return "waiting";
+    case SlamState::kRunning:
+      return "running";
   }
   return "unknown";
 }
@@ -137,7 +139,8 @@ void SlamService::BuildEngine() {
       std::copy(tile.cells.begin(), tile.cells.end(), grid.MutableTile(tile.index).cells.begin());
     }
     Pose2 pose;
-    if (!options_.resume_at_origin && !saved.trajectory.empty()) pose = saved.trajectory.back().pose;
+    if (!options_.resume_at_origin && !saved.trajectory.empty())
+      pose = saved.trajectory.back().pose;
     engine_->Restore(grid, pose);
   }
 }
@@ -163,8 +166,8 @@ std::shared_ptr<const SlamSnapshot> SlamService::Snapshot() const {
   return snapshot_;
 }
 
-std::shared_ptr<const SlamSnapshot> SlamService::WaitNewer(uint64_t sequence,
-                                                           std::chrono::milliseconds timeout) const {
+std::shared_ptr<const SlamSnapshot> SlamService::WaitNewer(
+    uint64_t sequence, std::chrono::milliseconds timeout) const {
   std::unique_lock lock(mutex_);
   published_.wait_for(lock, timeout, [&] { return snapshot_->sequence > sequence || stop_; });
   return snapshot_;

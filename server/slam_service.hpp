@@ -32,20 +32,20 @@ namespace slam::server {
 
 /// What one scan cost and achieved.
 struct ScanMetrics {
-  int64_t scan = 0;            // scans processed since start, resumed ones excluded
-  int64_t quota = 0;           // rays allowed
+  int64_t scan = 0;   // scans processed since start, resumed ones excluded
+  int64_t quota = 0;  // rays allowed
   int64_t rays_planned = 0;
   int64_t rays_used = 0;
   int particles = 0;
   int candidates = 0;
-  double ess = 0.0;            // effective sample size after the scan
-  double scan_period_s = 0.0;  // robot time the scan covers
-  double latency_s = 0.0;      // from the scan's last event reaching slamd to its snapshot
-  double busy_s = 0.0;         // wall time the SLAM thread spent on it
-  double cpu_s = 0.0;          // SLAM thread CPU time spent on it
-  double cpu_share = 0.0;      // cpu_s / scan_period_s
-  double realtime_ratio = 0.0; // scan_period_s / busy_s: how many times faster than real time
-  bool late = false;           // latency above the scan period: the next scan was already due
+  double ess = 0.0;             // effective sample size after the scan
+  double scan_period_s = 0.0;   // robot time the scan covers
+  double latency_s = 0.0;       // from the scan's last event reaching slamd to its snapshot
+  double busy_s = 0.0;          // wall time the SLAM thread spent on it
+  double cpu_s = 0.0;           // SLAM thread CPU time spent on it
+  double cpu_share = 0.0;       // cpu_s / scan_period_s
+  double realtime_ratio = 0.0;  // scan_period_s / busy_s: how many times faster than real time
+  bool late = false;            // latency above the scan period: the next scan was already due
   std::optional<double> pose_error_m;  // against the ground truth, when simulated
 };
 
@@ -61,7 +61,7 @@ struct SlamSnapshot {
   std::vector<TileRef> tiles;  // the best particle's
   bool has_pose = false;
   TimedPose pose;  // the best particle's latest, in the map frame, time with time_offset
-  std::shared_ptr<const TrajectoryChunk> history;  // the best particle's (engine times)
+  std::shared_ptr<const TrajectoryChunk> history;         // the best particle's (engine times)
   std::shared_ptr<const std::vector<TimedPose>> resumed;  // trajectory loaded at start
   double time_offset_s = 0.0;  // added to engine times (continues a resumed trajectory)
   std::optional<ScanMetrics> last;
@@ -174,8 +174,8 @@ class SlamService {
   uint64_t sequence_ = 0;
   std::shared_ptr<const std::vector<TimedPose>> resumed_;
   double time_offset_s_ = 0.0;
-  size_t truth_read_ = 0;                      // ground-truth poses taken from the source
-  std::vector<TimedPose> truth_world_;         // since the last reset, world frame, 10 Hz
+  size_t truth_read_ = 0;                        // ground-truth poses taken from the source
+  std::vector<TimedPose> truth_world_;           // since the last reset, world frame, 10 Hz
   std::optional<RigidTransform2> world_to_map_;  // set at the first scan after (re)start
 
   // Shared with readers.

@@ -10,8 +10,8 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
-#include <sstream>
 #include <set>
+#include <sstream>
 #include <string_view>
 #include <system_error>
 #include <utility>
@@ -85,7 +85,8 @@ std::string EncodeTiles(const SavedState& state) {
     Put<int32_t>(out, tile.index.x);
     Put<int32_t>(out, tile.index.y);
     Put<uint64_t>(out, tile.version);
-    out.append(reinterpret_cast<const char*>(tile.cells.data()), tile.cells.size() * sizeof(LogOdds));
+    out.append(reinterpret_cast<const char*>(tile.cells.data()),
+               tile.cells.size() * sizeof(LogOdds));
   }
   Put<uint64_t>(out, TileFileChecksum(out));
   return out;
@@ -114,8 +115,8 @@ bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error
     return false;
   }
   if (tile_size != static_cast<uint32_t>(kTileSize)) {
-    error = "tile size " + std::to_string(tile_size) + ", this build uses " +
-            std::to_string(kTileSize);
+    error =
+        "tile size " + std::to_string(tile_size) + ", this build uses " + std::to_string(kTileSize);
     return false;
   }
   if (!(state.resolution_m > 0.0) || !std::isfinite(state.resolution_m)) {
@@ -129,7 +130,8 @@ bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error
     error = "map version " + std::to_string(state.version) + " is out of range (at most 2^62)";
     return false;
   }
-  constexpr size_t kTileBytes = 2 * sizeof(int32_t) + sizeof(uint64_t) + kTileCells * sizeof(LogOdds);
+  constexpr size_t kTileBytes =
+      2 * sizeof(int32_t) + sizeof(uint64_t) + kTileCells * sizeof(LogOdds);
   if (count != in.remaining() / kTileBytes || in.remaining() % kTileBytes != 0) {
     error = "tile count does not match the file size";
     return false;
@@ -197,7 +199,8 @@ void RemoveUnnamed(const fs::path& base, const std::set<std::string>& keep) {
   for (const auto& entry : fs::directory_iterator(base, ec)) {
     const std::string name = entry.path().filename().string();
     const bool temporary = name.find(".tmp-") != std::string::npos;
-    if ((IsVersionedName(name) && !keep.contains(name)) || temporary) doomed.push_back(entry.path());
+    if ((IsVersionedName(name) && !keep.contains(name)) || temporary)
+      doomed.push_back(entry.path());
   }
   for (const fs::path& path : doomed) fs::remove(path, ec);
 }
@@ -239,7 +242,8 @@ SaveOutcome SaveState(const std::string& dir, const SaveInputs& in) {
     outcome.error = std::move(error);
     return outcome;
   };
-  if (auto e = io::WriteFileAtomic((base / tiles_name).string(), EncodeTiles(state))) return fail(*e);
+  if (auto e = io::WriteFileAtomic((base / tiles_name).string(), EncodeTiles(state)))
+    return fail(*e);
   if (auto e = io::WriteFileAtomic((base / trajectory_name).string(), tum)) return fail(*e);
 
   nlohmann::json meta;
@@ -251,7 +255,8 @@ SaveOutcome SaveState(const std::string& dir, const SaveInputs& in) {
   meta["trajectory_file"] = trajectory_name;
   if (!in.trajectory.empty()) {
     const TimedPose& last = in.trajectory.back();
-    meta["pose"] = {{"t", last.t}, {"x", last.pose.x}, {"y", last.pose.y}, {"theta", last.pose.theta}};
+    meta["pose"] = {
+        {"t", last.t}, {"x", last.pose.x}, {"y", last.pose.y}, {"theta", last.pose.theta}};
   }
   if (auto e = io::WriteFileAtomic((base / "state.json").string(), meta.dump(2) + "\n")) {
     return fail(*e);

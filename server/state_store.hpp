@@ -26,7 +26,7 @@ namespace slam::server {
 
 struct SavedTile {
   TileIndex index;
-  uint64_t version = 0;  // as reported to clients
+  uint64_t version = 0;        // as reported to clients
   std::vector<LogOdds> cells;  // kTileCells
 };
 

@@ -34,7 +34,8 @@ void LowerThisThreadPriority() {
 }
 
 template <typename T>
-bool ReadInt(const nlohmann::json& body, const char* key, T lo, T hi, T& out, ConfigErrors& errors) {
+bool ReadInt(const nlohmann::json& body, const char* key, T lo, T hi, T& out,
+             ConfigErrors& errors) {
   const auto it = body.find(key);
   if (it == body.end() || it->is_null()) return true;
   const std::string pointer = std::string("/") + key;
@@ -44,7 +45,8 @@ bool ReadInt(const nlohmann::json& body, const char* key, T lo, T hi, T& out, Co
   }
   const auto value = it->get<int64_t>();
   if (value < static_cast<int64_t>(lo) || value > static_cast<int64_t>(hi)) {
-    errors.push_back({pointer, "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]", 0});
+    errors.push_back(
+        {pointer, "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]", 0});
     return false;
   }
   out = static_cast<T>(value);
@@ -61,7 +63,7 @@ ConfigErrors ParseTuneRequest(const nlohmann::json& body, const std::vector<std:
     return errors;
   }
   static const std::vector<std::string> kKeys{"budget",      "policy", "population",
-                                               "generations", "seed",   "experiments"};
+                                              "generations", "seed",   "experiments"};
   for (const auto& [key, value] : body.items()) {
     if (std::find(kKeys.begin(), kKeys.end(), key) == kKeys.end()) {
       errors.push_back({"/" + key, "unknown field", 0});
@@ -150,12 +152,13 @@ std::vector<std::string> JobManager::Experiments() const {
 
 int JobManager::running() const {
   const std::lock_guard lock(mutex_);
-  return static_cast<int>(std::count_if(jobs_.begin(), jobs_.end(),
-                                        [](const auto& j) { return j.second->state == "running"; }));
+  return static_cast<int>(std::count_if(
+      jobs_.begin(), jobs_.end(), [](const auto& j) { return j.second->state == "running"; }));
 }
 
 std::optional<nlohmann::json> JobManager::Start(const TuneRequest& request, std::string& conflict) {
-  std::vector<std::string> names = request.experiments.empty() ? Experiments() : request.experiments;
+  std::vector<std::string> names =
+      request.experiments.empty() ? Experiments() : request.experiments;
   // Threads of finished jobs are joined (and forgotten jobs freed) after the lock is released:
   // a finishing job's thread may still be on its way out.
   std::vector<std::thread> finished_threads;
@@ -224,7 +227,8 @@ void JobManager::Run(Job& job) {
   }
   std::vector<offline::TuningExperiment> experiments;
   for (const offline::Experiment& e : loaded) {
-    experiments.push_back({fs::path(e.dir).filename().string(), &e.robot, &e.scans, &e.ground_truth});
+    experiments.push_back(
+        {fs::path(e.dir).filename().string(), &e.robot, &e.scans, &e.ground_truth});
   }
 
   bool finished = false;

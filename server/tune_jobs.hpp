@@ -94,8 +94,8 @@ class JobManager {
   std::string output_dir_;
   mutable std::mutex mutex_;
   std::map<std::string, std::unique_ptr<Job>, ByNumber> jobs_;  // guarded by mutex_
-  uint64_t next_id_ = 1;                              // guarded by mutex_
-  std::string latest_;                                // guarded by mutex_
+  uint64_t next_id_ = 1;                                        // guarded by mutex_
+  std::string latest_;                                          // guarded by mutex_
   std::atomic<uint64_t> revision_{0};
 };
 

@@ -84,7 +84,8 @@ bool Observable(const World& world, const std::vector<Vec2>& positions, const Ve
     if (dist2 > range * range) continue;
     const double dist = std::sqrt(dist2);
     if (dist <= kLineOfSightSlackM) return true;
-    const auto hit = RayDistance(world, origin, std::atan2(d.y(), d.x()), dist + kLineOfSightSlackM);
+    const auto hit =
+        RayDistance(world, origin, std::atan2(d.y(), d.x()), dist + kLineOfSightSlackM);
     if (!hit || *hit >= dist - kLineOfSightSlackM) return true;
   }
   return false;

@@ -1,11 +1,11 @@
 #include "sim/scenario.hpp"
 
 #include <algorithm>
-#include <cmath>
 #include <array>
+#include <cmath>
 #include <cstdlib>
-#include <memory>
 #include <limits>
+#include <memory>
 #include <optional>
 
 #include "engine/odometry.hpp"
@@ -35,7 +35,7 @@ constexpr double kMaxAccel = 0.6;         // m/s^2
 constexpr double kMaxAngularAccel = 8.0;  // rad/s^2
 constexpr double kWanderSigma = 0.35;     // rad/s, gentle random turns while cruising
 constexpr double kWanderCorrelationS = 2.0;
-constexpr int kProximitySensors = 24;   // the base's infrared proximity ring
+constexpr int kProximitySensors = 24;  // the base's infrared proximity ring
 constexpr double kProximityRangeM = 0.15;
 constexpr double kProximityNoiseM = 0.003;
 constexpr double kStopGapM = 0.05;  // start turning when the free gap ahead is below this
@@ -95,7 +95,7 @@ World MotionWorld(const World& world) {
 /// first obstacle along each sensor's direction (every 15 degrees, the first straight ahead),
 /// capped at their range, with a little noise.
 std::array<double, kProximitySensors> Proximity(const World& world, const Pose2& pose,
-                                               double radius, Rng& rng) {
+                                                double radius, Rng& rng) {
   std::array<double, kProximitySensors> out{};
   for (int i = 0; i < kProximitySensors; ++i) {
     const double angle = pose.theta + 2.0 * kPi * i / kProximitySensors;
@@ -133,8 +133,8 @@ class Wanderer {
     if (turning_) {
       target_w = turn_dir_ * config_.turn_rate_rad_s;
     } else {
-      target_v = config_.speed_m_s * std::clamp((ahead - kStopGapM) / (kGoGapM - kStopGapM),
-                                                0.3, 1.0);
+      target_v =
+          config_.speed_m_s * std::clamp((ahead - kStopGapM) / (kGoGapM - kStopGapM), 0.3, 1.0);
       target_w = wander_.value() + std::clamp(8.0 * (left - right), -0.8, 0.8);
     }
     v_ += std::clamp(target_v - v_, -kMaxAccel * kControlDt, kMaxAccel * kControlDt);
@@ -307,8 +307,8 @@ struct Simulator::State {
   double bias;
   double bias_step;
   int64_t left_offset, right_offset;
-  Pose2 pose;  // at the start of the current control step (theta unwrapped)
-  double v = 0.0, w = 0.0;  // the previous step's twist, for the accelerations
+  Pose2 pose;                          // at the start of the current control step (theta unwrapped)
+  double v = 0.0, w = 0.0;             // the previous step's twist, for the accelerations
   double left_m = 0.0, right_m = 0.0;  // distances the encoders report
   int64_t step = 0;
   int64_t next_odometry = 0, next_sample = 0, next_tracker = 0;
@@ -366,23 +366,20 @@ void Simulator::Step(ScenarioOutput& out) {
   const double left_rate = v_enc - w_enc * half_track;
   const double right_rate = v_enc + w_enc * half_track;
 
-  const auto in_step = [&](int64_t n, double rate) {
-    return static_cast<double>(n) / rate < t1;
-  };
+  const auto in_step = [&](int64_t n, double rate) { return static_cast<double>(n) / rate < t1; };
   while (in_step(st.next_odometry, config.odometry_rate_hz)) {
     const double t = static_cast<double>(st.next_odometry) / config.odometry_rate_hz;
     const Pose2 p = Advance(pose, v, w, t - t0);
     // The gyro reports its mean rate since the previous reading (plus bias and noise).
     const double rate =
         st.next_odometry == 0 ? w : (p.theta - st.last_gyro_theta) / (t - st.last_gyro_t);
-    const double measured =
-        rate + st.bias + st.gyro_rng.Gaussian(DegToRad(config.gyro_noise_dps));
+    const double measured = rate + st.bias + st.gyro_rng.Gaussian(DegToRad(config.gyro_noise_dps));
     const double gyro_units = RadToDeg(measured) / robot.base.gyro_unit_dps;
     OdometryReading r;
     r.t = t;
     r.seq = static_cast<uint16_t>(st.next_odometry & 0xFFFF);
-    r.left_ticks = WrapTicks(st.left_offset + std::llround((st.left_m + left_rate * (t - t0)) *
-                                                           robot.base.ticks_per_m));
+    r.left_ticks = WrapTicks(
+        st.left_offset + std::llround((st.left_m + left_rate * (t - t0)) * robot.base.ticks_per_m));
     r.right_ticks = WrapTicks(st.right_offset + std::llround((st.right_m + right_rate * (t - t0)) *
                                                              robot.base.ticks_per_m));
     r.gyro_raw = static_cast<int16_t>(std::clamp(std::lround(gyro_units), -32768L, 32767L));
@@ -405,8 +402,8 @@ void Simulator::Step(ScenarioOutput& out) {
       const double angle = p.theta + platform + DegToRad(sensor.angle_deg);
       const Vec2 origin =
           p.translation() + robot.scanner.mount_radius_m * Vec2(std::cos(angle), std::sin(angle));
-      r.raw[s] = SenseRaw(st.world, st.corners, robot.sensor_types.at(sensor.type), config,
-                          origin, angle, st.sensor_rng);
+      r.raw[s] = SenseRaw(st.world, st.corners, robot.sensor_types.at(sensor.type), config, origin,
+                          angle, st.sensor_rng);
     }
     r.rectifier_mv = static_cast<uint16_t>(
         std::lround(kRectifierMv + st.rectifier_rng.Gaussian(kRectifierNoiseMv)));

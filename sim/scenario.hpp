@@ -88,8 +88,9 @@ class Simulator {
   std::unique_ptr<State> state_;
 };
 
-/// Simulates the robot in `world` for config.duration_s (readings at t <= duration_s). Preconditions: Validate(robot) and config.Validate() are
-/// empty, and the world leaves room for the robot inside its bounds.
+/// Simulates the robot in `world` for config.duration_s (readings at t <= duration_s).
+/// Preconditions: Validate(robot) and config.Validate() are empty, and the world leaves room for
+/// the robot inside its bounds.
 ScenarioOutput RunScenario(const World& world, const RobotDescription& robot,
                            const ScenarioConfig& config);
 

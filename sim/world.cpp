@@ -1,10 +1,5 @@
 #include "sim/world.hpp"
 
-#include "engine/config_error.hpp"
-#include "engine/io/atomic_file.hpp"
-#include "engine/io/json_reader.hpp"
-
-
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
@@ -13,6 +8,10 @@
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <sstream>
+
+#include "engine/config_error.hpp"
+#include "engine/io/atomic_file.hpp"
+#include "engine/io/json_reader.hpp"
 
 namespace slam::sim {
 namespace {
@@ -92,8 +91,8 @@ std::optional<std::vector<double>> ReadNumbers(const Json& value, size_t n,
 // Plausible bounds: a building, not a city. Map quality samples every surface each centimetre
 // or so, and the robot's start is searched within the bounds: a world of 1e6 m made both
 // allocate or loop without bound.
-constexpr double kMaxCoordinateM = 1000.0;     // |x|, |y| of every point, and radii
-constexpr double kMaxSurfaceM = 10000.0;       // total length of walls and circle perimeters
+constexpr double kMaxCoordinateM = 1000.0;  // |x|, |y| of every point, and radii
+constexpr double kMaxSurfaceM = 10000.0;    // total length of walls and circle perimeters
 
 std::string Num(double value) {
   std::ostringstream out;
@@ -145,11 +144,11 @@ ConfigErrors WorldErrors(const World& world) {
   }
   if (surface_m > kMaxSurfaceM) {
     errors.push_back({"/segments", "the walls and circles measure " + Num(surface_m) +
-                              " m in all, beyond the plausible " + Num(kMaxSurfaceM) + " m"});
+                                       " m in all, beyond the plausible " + Num(kMaxSurfaceM) +
+                                       " m"});
   }
   return errors;
 }
-
 
 /// Appends the four walls of an axis-aligned rectangle (counter-clockwise).
 void AddRectangle(World& world, double x0, double y0, double x1, double y1) {
@@ -327,8 +326,8 @@ WorldLoadResult ParseWorld(std::string_view json_text, std::string_view source) 
     io::detail::AddLines(errors, json_text);
     for (const ConfigError& e : errors) {
       // "source:line: /pointer: detail", or "source: /pointer: detail" when the line is unknown.
-      const std::string at = e.line > 0 ? std::string(source) + ':' + std::to_string(e.line) + ": "
-                                        : prefix;
+      const std::string at =
+          e.line > 0 ? std::string(source) + ':' + std::to_string(e.line) + ": " : prefix;
       result.errors.push_back(at + e.pointer + ": " + e.detail);
     }
     return result;

@@ -15,7 +15,6 @@ namespace {
 using testing::Frame;
 using testing::Remote;
 
-
 TEST(CandumpTest, ParsesWorkedExample) {
   const auto line = ParseCandumpLine("(1700000000.123456) can0 102#2000010000402C01");
   ASSERT_EQ(line.kind, CandumpLineKind::kFrame) << line.error;

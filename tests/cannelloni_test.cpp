@@ -16,7 +16,6 @@ namespace {
 using testing::Frame;
 using testing::Remote;
 
-
 // The decode error of `bytes`, or "" when they decode.
 std::string ErrorOf(const std::vector<uint8_t>& bytes) {
   const auto r = DecodeCannelloni(bytes);

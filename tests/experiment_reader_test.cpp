@@ -202,8 +202,7 @@ TEST_F(ExperimentReaderTest, GarbageInsideTheLogIsCountedAndSkipped) {
 TEST_F(ExperimentReaderTest, ALogWithoutScansIsAnErrorThatExplains) {
   WriteFile(dir_ / "can.log", "(nothing\n(useful here\n");
   const std::string error = LoadError();
-  EXPECT_NE(error.find("can.log: no complete scan in 0 frames (2 garbled lines"),
-            std::string::npos)
+  EXPECT_NE(error.find("can.log: no complete scan in 0 frames (2 garbled lines"), std::string::npos)
       << error;
 }
 

@@ -558,8 +558,8 @@ TEST(SlamdFaults, SpoofedOdometryAndScannerDatagramsAreCountedAndSurvived) {
   // Random counters are beyond 2 m/s but for a chance in millions; the robot's reading after a
   // spoofed one is a jump from it too. A SLAM thread that cannot keep up (under ThreadSanitizer)
   // has events dropped at the link's queue instead, counted there.
-  const uint64_t drops =
-      after["link"].value("queue_drops", uint64_t{0}) - before["link"].value("queue_drops", uint64_t{0});
+  const uint64_t drops = after["link"].value("queue_drops", uint64_t{0}) -
+                         before["link"].value("queue_drops", uint64_t{0});
   EXPECT_GE(jumps + drops, spoofed_odometry) << after["slam"]["assembler"].dump();
   EXPECT_LE(jumps, 2 * spoofed_odometry) << after["slam"]["assembler"].dump();
   // 2000 random readings: those above 1023 (all but about 1 in 64) are counted.
@@ -857,9 +857,9 @@ TEST(SlamdFaults, ASecondSlamdOnTheSameStateDirectoryExits1NamingTheFirst) {
   const auto code = second.WaitExit(10.0);
   ASSERT_TRUE(code.has_value()) << "the second slamd kept running";
   EXPECT_EQ(*code, 1);
-  EXPECT_NE(second.Stderr().find("in use by another slamd (pid " + std::to_string(first.pid()) +
-                                 ")"),
-            std::string::npos)
+  EXPECT_NE(
+      second.Stderr().find("in use by another slamd (pid " + std::to_string(first.pid()) + ")"),
+      std::string::npos)
       << second.Stderr();
   Http http(first.host(), first.port());
   EXPECT_EQ(http.PostJson("/api/v1/map/save", "{}").status, 200);

@@ -1,7 +1,8 @@
+#include "scheduler/fixed_plan.hpp"
+
 #include <gtest/gtest.h>
 
 #include "engine/random.hpp"
-#include "scheduler/fixed_plan.hpp"
 
 namespace slam {
 namespace {
@@ -45,7 +46,8 @@ TEST(FixedPlan, NeverExceedsTheQuotaOnRandomScans) {
     ASSERT_LE(rays, quota) << "trial " << trial;
     // Uses most of it when the scan offers enough: all but less than one candidate's worth.
     const int64_t per_candidate = int64_t{params.particles} * summary.matching_measurements;
-    if (summary.matching_measurements > 0 && quota >= params.particles * (usable + 2 * summary.matching_measurements)) {
+    if (summary.matching_measurements > 0 &&
+        quota >= params.particles * (usable + 2 * summary.matching_measurements)) {
       ASSERT_GT(rays, quota - per_candidate - params.particles) << "trial " << trial;
     }
   }

@@ -333,10 +333,10 @@ TEST(RobotJson, ImplausiblyLargeValuesAreReportedNamingTheKey) {
                          "/sensor_types/long/range_m/1"));
   EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/long/use_m", Json::array({0.3, 500})).errors(),
                          "/sensor_types/long/use_m/1"));
-  EXPECT_EQ(message_at(RobotWith("/sensor_types/long/sigma_m/2", 1e4), "/sensor_types/long/sigma_m"),
-            "sigma(1 m) = 10000 m is beyond any plausible noise (at most 10 m over the use window)");
-  EXPECT_TRUE(
-      HasPointer(RobotWith("/base/track_width_m", 1e9).errors(), "/base/track_width_m"));
+  EXPECT_EQ(
+      message_at(RobotWith("/sensor_types/long/sigma_m/2", 1e4), "/sensor_types/long/sigma_m"),
+      "sigma(1 m) = 10000 m is beyond any plausible noise (at most 10 m over the use window)");
+  EXPECT_TRUE(HasPointer(RobotWith("/base/track_width_m", 1e9).errors(), "/base/track_width_m"));
   EXPECT_TRUE(HasPointer(RobotWith("/base/ticks_per_m", 1e-6).errors(), "/base/ticks_per_m"));
   EXPECT_TRUE(HasPointer(RobotWith("/base/ticks_per_m", 1e12).errors(), "/base/ticks_per_m"));
   EXPECT_TRUE(HasPointer(RobotWith("/base/gyro_unit_dps", 1e5).errors(), "/base/gyro_unit_dps"));
@@ -344,9 +344,9 @@ TEST(RobotJson, ImplausiblyLargeValuesAreReportedNamingTheKey) {
       HasPointer(RobotWith("/scanner/sample_rate_hz", 1e7).errors(), "/scanner/sample_rate_hz"));
   EXPECT_TRUE(
       HasPointer(RobotWith("/scanner/mount_radius_m", 50).errors(), "/scanner/mount_radius_m"));
-  EXPECT_EQ(message_at(RobotWith("/scanner/sensors/1/angle_deg", 1e300),
-                       "/scanner/sensors/1/angle_deg"),
-            "1e+300 deg is outside the plausible [-360, 360] deg");
+  EXPECT_EQ(
+      message_at(RobotWith("/scanner/sensors/1/angle_deg", 1e300), "/scanner/sensors/1/angle_deg"),
+      "1e+300 deg is outside the plausible [-360, 360] deg");
   // The bounds themselves are accepted.
   EXPECT_TRUE(RobotWith("/scanner/sensors/1/angle_deg", -360).ok());
   EXPECT_TRUE(RobotWith("/base/track_width_m", 10).ok());

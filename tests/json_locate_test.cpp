@@ -33,17 +33,17 @@ const fs::path kConfigDir = fs::path(SLAM_SOURCE_DIR) / "config";
 
 TEST(LineOfPointer, NestedObjectsAndArrays) {
   const std::string text =
-      "{\n"                 // 1
-      "  \"a\": {\n"        // 2
-      "    \"b\": [\n"      // 3
-      "      1,\n"          // 4
+      "{\n"                     // 1
+      "  \"a\": {\n"            // 2
+      "    \"b\": [\n"          // 3
+      "      1,\n"              // 4
       "      {\"c\": true},\n"  // 5
-      "      [null,\n"      // 6
-      "       \"x\"]\n"     // 7
-      "    ]\n"             // 8
-      "  },\n"              // 9
-      "  \"d\": -1.5e3\n"   // 10
-      "}\n";                // 11
+      "      [null,\n"          // 6
+      "       \"x\"]\n"         // 7
+      "    ]\n"                 // 8
+      "  },\n"                  // 9
+      "  \"d\": -1.5e3\n"       // 10
+      "}\n";                    // 11
   EXPECT_EQ(LineOfPointer(text, ""), 1);
   EXPECT_EQ(LineOfPointer(text, "/a"), 2);
   EXPECT_EQ(LineOfPointer(text, "/a/b"), 3);
@@ -94,20 +94,20 @@ TEST(LineOfPointer, EscapedKeys) {
   EXPECT_EQ(LineOfPointer(text, "/"), 7);
   EXPECT_EQ(LineOfPointer(text, "//"), 7);
   EXPECT_EQ(LineOfPointer(text, "/\xF0\x9F\x98\x80"), 8);
-  EXPECT_EQ(LineOfPointer(text, "/a/b"), 9);  // the nested key, not "a/b"
-  EXPECT_EQ(LineOfPointer(text, "/a~01b"), std::nullopt);  // "a~1b"
+  EXPECT_EQ(LineOfPointer(text, "/a/b"), 9);                // the nested key, not "a/b"
+  EXPECT_EQ(LineOfPointer(text, "/a~01b"), std::nullopt);   // "a~1b"
   EXPECT_EQ(LineOfPointer(text, "/q\\\"r"), std::nullopt);  // keys compare decoded
 }
 
 TEST(LineOfPointer, StringsWithStructuralCharactersAndNewlines) {
   const std::string text =
       "{\n"
-      "  \"s\": \"{[:,]}\\\"\",\n"           // 2: "{[:,]}\""
+      "  \"s\": \"{[:,]}\\\"\",\n"             // 2: "{[:,]}\""
       "  \"t{:\": \"line\\nbreak { \\\\\",\n"  // 3: an escaped newline, a backslash at the end
       "  \"u\": [\n"                           // 4
       "    \"]\", \"}\", \"\\\"]\"\n"          // 5
       "  ],\n"
-      "  \"target\": \"/\"\n"                  // 7
+      "  \"target\": \"/\"\n"  // 7
       "}\n";
   EXPECT_EQ(LineOfPointer(text, "/s"), 2);
   EXPECT_EQ(LineOfPointer(text, "/t{:"), 3);
@@ -146,13 +146,53 @@ TEST(LineOfPointer, DuplicateKeysResolveToTheLastOccurrence) {
 }
 
 TEST(LineOfPointer, MalformedTextGivesNothing) {
-  for (const std::string text :
-       {"", "   \n", "{", "[", "{\"a\"", "{\"a\":", "{\"a\": 1", "{\"a\": 1,}", "[1,]", "[1 2]",
-        "{\"a\" 1}", "{1: 2}", "{\"a\": 1 \"b\": 2}", "tru", "nul", "falsey", "01", "1.", "-",
-        "1e", "1e+", ".5", "+1", "\"abc", "\"\\x\"", "\"\\u12\"", "\"\\u12g4\"", "\"\\ud800\"",
-        "\"\\udc00\"", "\"\\ud800\\u0041\"", "\"a\nb\"", "\"a\tb\"", "\"\\", "{} {}", "1 2", "]",
-        "}", "[}", "{]", "{\"a\": 1}}", "[1]]", "\xEF\xBB", "\xEF\xBB\xBF", "{'a': 1}", "[NaN]",
-        "/* c */ 1", "{\"a\": 1}\n//"}) {
+  for (const std::string text : {"",
+                                 "   \n",
+                                 "{",
+                                 "[",
+                                 "{\"a\"",
+                                 "{\"a\":",
+                                 "{\"a\": 1",
+                                 "{\"a\": 1,}",
+                                 "[1,]",
+                                 "[1 2]",
+                                 "{\"a\" 1}",
+                                 "{1: 2}",
+                                 "{\"a\": 1 \"b\": 2}",
+                                 "tru",
+                                 "nul",
+                                 "falsey",
+                                 "01",
+                                 "1.",
+                                 "-",
+                                 "1e",
+                                 "1e+",
+                                 ".5",
+                                 "+1",
+                                 "\"abc",
+                                 "\"\\x\"",
+                                 "\"\\u12\"",
+                                 "\"\\u12g4\"",
+                                 "\"\\ud800\"",
+                                 "\"\\udc00\"",
+                                 "\"\\ud800\\u0041\"",
+                                 "\"a\nb\"",
+                                 "\"a\tb\"",
+                                 "\"\\",
+                                 "{} {}",
+                                 "1 2",
+                                 "]",
+                                 "}",
+                                 "[}",
+                                 "{]",
+                                 "{\"a\": 1}}",
+                                 "[1]]",
+                                 "\xEF\xBB",
+                                 "\xEF\xBB\xBF",
+                                 "{'a': 1}",
+                                 "[NaN]",
+                                 "/* c */ 1",
+                                 "{\"a\": 1}\n//"}) {
     EXPECT_EQ(LineOfNearestValue(text, ""), std::nullopt) << text;
     EXPECT_EQ(LineOfPointer(text, "/a"), std::nullopt) << text;
   }
@@ -342,9 +382,9 @@ TEST(ParamsFileErrors, UnknownKeyAndWrongType) {
   const Result<SlamParams> params = LoadParams(path);
   ASSERT_FALSE(params.ok());
   // Errors come in the order of the reader: the known keys, then the unknown ones.
-  EXPECT_EQ(params.Message(),
-            At(path, particles + 1) + "/particles: expected an integer, got string\n" +
-                At(path, 1) + "/particels: unknown key");
+  EXPECT_EQ(params.Message(), At(path, particles + 1) +
+                                  "/particles: expected an integer, got string\n" + At(path, 1) +
+                                  "/particels: unknown key");
   EXPECT_PRED2(Contains, params.Message(), "params.json:2: /particels");
 }
 

@@ -93,7 +93,7 @@ inline std::array<uint8_t, 3> Pixel(const io::RgbImage& image, int x, int y) {
 
 /// Pixels of exactly `color` in [x0, x1) x [y0, y1).
 inline int CountColor(const io::RgbImage& image, int x0, int y0, int x1, int y1,
-               const std::array<uint8_t, 3>& color) {
+                      const std::array<uint8_t, 3>& color) {
   int n = 0;
   for (int y = std::max(0, y0); y < std::min(image.height, y1); ++y) {
     for (int x = std::max(0, x0); x < std::min(image.width, x1); ++x)

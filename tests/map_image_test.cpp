@@ -24,8 +24,8 @@ namespace {
 namespace fs = std::filesystem;
 using testing::CountColor;
 using testing::ParsePgm;
-using testing::Pgm;
 using testing::ParseYaml;
+using testing::Pgm;
 using testing::Pixel;
 using testing::ReadFile;
 using testing::ReadPng;
@@ -270,15 +270,17 @@ namespace {
 
 TEST(TileGray, UnknownOccupiedFreeAndRowOrder) {
   Tile tile;
-  tile.cells[0] = EncodeLogOdds(20.0);                      // cell (0, 0): bottom-left, occupied
-  tile.cells[kTileCells - 1] = EncodeLogOdds(-20.0);        // cell (63, 63): top-right, free
+  tile.cells[0] = EncodeLogOdds(20.0);                // cell (0, 0): bottom-left, occupied
+  tile.cells[kTileCells - 1] = EncodeLogOdds(-20.0);  // cell (63, 63): top-right, free
   tile.cells[static_cast<size_t>(kTileSize + 1)] = EncodeLogOdds(0.001);  // (1, 1): barely
   const std::vector<uint8_t> gray = TileGray(tile);
   ASSERT_EQ(gray.size(), static_cast<size_t>(kTileCells));
-  const auto at = [&](int x, int y) { return gray[static_cast<size_t>((kTileSize - 1 - y) * kTileSize + x)]; };
-  EXPECT_EQ(at(0, 0), 0);        // row 63 of the image: the bottom
-  EXPECT_EQ(at(63, 63), 254);    // row 0: the top
-  EXPECT_EQ(at(1, 1), 127);      // p just above 0.5
+  const auto at = [&](int x, int y) {
+    return gray[static_cast<size_t>((kTileSize - 1 - y) * kTileSize + x)];
+  };
+  EXPECT_EQ(at(0, 0), 0);      // row 63 of the image: the bottom
+  EXPECT_EQ(at(63, 63), 254);  // row 0: the top
+  EXPECT_EQ(at(1, 1), 127);    // p just above 0.5
   EXPECT_EQ(at(5, 7), kUnknownGray);
   EXPECT_EQ(gray.front(), kUnknownGray);  // top-left pixel is cell (0, 63): never written
 }

@@ -1,6 +1,8 @@
 // Tests of map quality against the true world (sim/map_quality.hpp): hand-painted grids on tiny
 // worlds whose precision and recall follow from the geometry.
 
+#include "sim/map_quality.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -11,7 +13,6 @@
 #include "engine/occupancy_grid.hpp"
 #include "engine/pose.hpp"
 #include "engine/quality.hpp"
-#include "sim/map_quality.hpp"
 #include "sim/world.hpp"
 
 namespace slam::sim {
@@ -173,13 +174,15 @@ TEST(MapQualityTest, CorrectingRotationRestoresTheScore) {
   const RigidTransform2 map_to_world{kPi / 2.0, {0.3, -0.2}};
   const std::vector<Vec2> cells = Concat(BoxRing(), CircleRing(kPillar));
   const OccupancyGrid map = Paint(cells, map_to_world);
-  const MapQuality right = EvaluateMap(map, map_to_world, BoxWithPillar(), AroundThePillar(), WideView());
+  const MapQuality right =
+      EvaluateMap(map, map_to_world, BoxWithPillar(), AroundThePillar(), WideView());
   EXPECT_EQ(right.occupied_cells, static_cast<int64_t>(cells.size()));
   EXPECT_DOUBLE_EQ(right.precision, 1.0);
   EXPECT_DOUBLE_EQ(right.recall, 1.0);
 
   const RigidTransform2 inverse{-kPi / 2.0, ToMap(map_to_world, Vec2::Zero())};
-  const MapQuality wrong = EvaluateMap(map, inverse, BoxWithPillar(), AroundThePillar(), WideView());
+  const MapQuality wrong =
+      EvaluateMap(map, inverse, BoxWithPillar(), AroundThePillar(), WideView());
   EXPECT_LT(wrong.precision, 0.2);
   EXPECT_LT(wrong.recall, 0.2);
   const MapQuality none = EvaluateMap(map, {}, BoxWithPillar(), AroundThePillar(), WideView());
@@ -334,9 +337,12 @@ TEST(MapQualityConfigTest, RejectsEachInvalidValue) {
       {[](MapQualityConfig& c, double v) { c.tolerance_m = v; }, 0.0, "/tolerance_m"},
       {[](MapQualityConfig& c, double v) { c.tolerance_m = v; }, nan, "/tolerance_m"},
       {[](MapQualityConfig& c, double v) { c.tolerance_m = v; }, 2.0, "/tolerance_m"},
-      {[](MapQualityConfig& c, double v) { c.occupied_probability = v; }, 0.5, "/occupied_probability"},
-      {[](MapQualityConfig& c, double v) { c.occupied_probability = v; }, 1.0, "/occupied_probability"},
-      {[](MapQualityConfig& c, double v) { c.occupied_probability = v; }, nan, "/occupied_probability"},
+      {[](MapQualityConfig& c, double v) { c.occupied_probability = v; }, 0.5,
+       "/occupied_probability"},
+      {[](MapQualityConfig& c, double v) { c.occupied_probability = v; }, 1.0,
+       "/occupied_probability"},
+      {[](MapQualityConfig& c, double v) { c.occupied_probability = v; }, nan,
+       "/occupied_probability"},
       {[](MapQualityConfig& c, double v) { c.visible_range_m = v; }, 0.0, "/visible_range_m"},
       {[](MapQualityConfig& c, double v) { c.visible_range_m = v; }, inf, "/visible_range_m"},
       {[](MapQualityConfig& c, double v) { c.surface_step_m = v; }, 0.0, "/surface_step_m"},

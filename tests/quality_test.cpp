@@ -1,8 +1,9 @@
+#include "engine/quality.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 
-#include "engine/quality.hpp"
 #include "engine/random.hpp"
 
 namespace slam {
@@ -43,7 +44,8 @@ TEST(EvaluateTrajectory, ARotatedShiftedCopyScoresZero) {
 // q = -(1 + 4 + 1) / 3 = -2 cm^2, e = log(3), ATE = sqrt(2e-4) m.
 TEST(EvaluateTrajectory, ThreePointsByHand) {
   const std::vector<TimedPose> estimate = {{0, {0, 0, 0}}, {1, {1, 0, 0}}, {2, {2, 0, 0}}};
-  const std::vector<TimedPose> reference = {{0, {0, 0.01, 0}}, {1, {1, -0.02, 0}}, {2, {2, 0.01, 0}}};
+  const std::vector<TimedPose> reference = {
+      {0, {0, 0.01, 0}}, {1, {1, -0.02, 0}}, {2, {2, 0.01, 0}}};
   const auto q = EvaluateTrajectory(estimate, reference);
   ASSERT_TRUE(q);
   EXPECT_NEAR(q->alignment.rotation_rad, 0.0, 1e-12);

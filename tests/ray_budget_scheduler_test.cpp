@@ -2,6 +2,8 @@
 // quotas and policies; the CPU-share conversion and its feedback; the adaptive rule; settings
 // changed from another thread.
 
+#include "scheduler/ray_budget_scheduler.hpp"
+
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -9,7 +11,6 @@
 
 #include "engine/random.hpp"
 #include "scheduler/fixed_plan.hpp"
-#include "scheduler/ray_budget_scheduler.hpp"
 
 namespace slam {
 namespace {
@@ -20,7 +21,8 @@ ScanReport Executed(const ScanPlan& plan, const ScanSummary& summary, int64_t sc
   report.scan = scan;
   report.particles = plan.particles;
   const int64_t total = PlannedRays(plan, summary);
-  report.rays.update = int64_t{plan.particles} * std::min(plan.update_rays, summary.usable_measurements);
+  report.rays.update =
+      int64_t{plan.particles} * std::min(plan.update_rays, summary.usable_measurements);
   report.rays.matching = total - report.rays.update;
   report.effective_sample_size = plan.particles;
   return report;
@@ -95,7 +97,8 @@ TEST(RayBudgetScheduler, CpuShareQuotaFollowsTheMeasuredCostPerRay) {
   SchedulerConfig config;
   config.initial_ns_per_ray = 500.0;
   config.cost_smoothing = 0.5;
-  RayBudgetScheduler scheduler(BudgetSettings{.mode = QuotaMode::kCpuShare, .cpu_share = 0.5}, config);
+  RayBudgetScheduler scheduler(BudgetSettings{.mode = QuotaMode::kCpuShare, .cpu_share = 0.5},
+                               config);
   const ScanSummary summary{200, 150};
   const SlamParams params;
   // 0.5 of a core over a 0.6 s scan at 500 ns per ray: 600000 rays.
@@ -134,7 +137,8 @@ TEST(RayBudgetScheduler, CpuShareSettlesOnItsTargetWithAFixedCostPerScan) {
 
 TEST(AdaptiveParticles, GrowsOnAmbiguityShrinksWhenSharpAndAgreeing) {
   const SchedulerConfig config;
-  FilterState state{.particles = 4, .effective_sample_size = 3.5, .refinement_ambiguity = 0.8, .refined = true};
+  FilterState state{
+      .particles = 4, .effective_sample_size = 3.5, .refinement_ambiguity = 0.8, .refined = true};
   EXPECT_EQ(AdaptiveParticles(state, 1, 16, config), 8);
   EXPECT_EQ(AdaptiveParticles(state, 1, 6, config), 6);  // the budget caps it
   state.refinement_ambiguity = 0.1;
@@ -152,7 +156,8 @@ TEST(AdaptiveParticles, GrowsOnAmbiguityShrinksWhenSharpAndAgreeing) {
 }
 
 TEST(RayBudgetScheduler, AdaptiveLeavesEveryParticleItsMinimumCandidates) {
-  RayBudgetScheduler scheduler(BudgetSettings{.rays_per_scan = 20000, .policy = BudgetPolicy::kAdaptive});
+  RayBudgetScheduler scheduler(
+      BudgetSettings{.rays_per_scan = 20000, .policy = BudgetPolicy::kAdaptive});
   const ScanSummary summary{200, 150};
   const SlamParams params;
   for (int k = 0; k < 10; ++k) {
@@ -174,8 +179,9 @@ TEST(RayBudgetScheduler, SettingsChangedFromAnotherThreadApplyFromTheNextScan) {
   std::thread writer([&] {
     Rng rng(3);
     while (!stop.load()) {
-      scheduler.SetSettings(BudgetSettings{.rays_per_scan = 8125 * (1 + static_cast<int64_t>(rng.Uniform() * 8)),
-                                           .policy = rng.Uniform() < 0.5 ? BudgetPolicy::kFixed : BudgetPolicy::kAdaptive});
+      scheduler.SetSettings(BudgetSettings{
+          .rays_per_scan = 8125 * (1 + static_cast<int64_t>(rng.Uniform() * 8)),
+          .policy = rng.Uniform() < 0.5 ? BudgetPolicy::kFixed : BudgetPolicy::kAdaptive});
     }
   });
   for (int k = 0; k < 5000; ++k) {

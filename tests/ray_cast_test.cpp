@@ -1,3 +1,5 @@
+#include "engine/ray_cast.hpp"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -10,7 +12,6 @@
 #include <vector>
 
 #include "engine/random.hpp"
-#include "engine/ray_cast.hpp"
 
 namespace slam {
 namespace {
@@ -20,7 +21,8 @@ using Cells = std::vector<std::pair<int, int>>;
 // Cells of a segment given in cell units on a unit grid (resolution 1 m makes drawings exact).
 Cells Traverse(double x0, double y0, double x1, double y1) {
   Cells out;
-  for (const CellIndex& c : CellsOnRay(GridGeometry(1.0), {x0, y0}, {x1, y1})) out.emplace_back(c.x, c.y);
+  for (const CellIndex& c : CellsOnRay(GridGeometry(1.0), {x0, y0}, {x1, y1}))
+    out.emplace_back(c.x, c.y);
   return out;
 }
 
@@ -39,8 +41,10 @@ TEST(TraverseCells, EveryOctantMatchesTheDrawing) {
   EXPECT_EQ(Traverse(0.5, 0.5, 1.925, 3.825), (Cells{{0, 0}, {0, 1}, {1, 1}, {1, 2}, {1, 3}}));
   EXPECT_EQ(Traverse(0.5, 0.5, -0.925, 3.825), (Cells{{0, 0}, {0, 1}, {-1, 1}, {-1, 2}, {-1, 3}}));
   EXPECT_EQ(Traverse(0.5, 0.5, -2.825, 1.925), (Cells{{0, 0}, {-1, 0}, {-1, 1}, {-2, 1}, {-3, 1}}));
-  EXPECT_EQ(Traverse(0.5, 0.5, -2.825, -0.925), (Cells{{0, 0}, {-1, 0}, {-1, -1}, {-2, -1}, {-3, -1}}));
-  EXPECT_EQ(Traverse(0.5, 0.5, -0.925, -2.825), (Cells{{0, 0}, {0, -1}, {-1, -1}, {-1, -2}, {-1, -3}}));
+  EXPECT_EQ(Traverse(0.5, 0.5, -2.825, -0.925),
+            (Cells{{0, 0}, {-1, 0}, {-1, -1}, {-2, -1}, {-3, -1}}));
+  EXPECT_EQ(Traverse(0.5, 0.5, -0.925, -2.825),
+            (Cells{{0, 0}, {0, -1}, {-1, -1}, {-1, -2}, {-1, -3}}));
   EXPECT_EQ(Traverse(0.5, 0.5, 1.925, -2.825), (Cells{{0, 0}, {0, -1}, {1, -1}, {1, -2}, {1, -3}}));
   EXPECT_EQ(Traverse(0.5, 0.5, 3.825, -0.925), (Cells{{0, 0}, {1, 0}, {1, -1}, {2, -1}, {3, -1}}));
 }
@@ -66,10 +70,11 @@ TEST(TraverseCells, GridLinesAndZeroLengthStarts) {
 
 TEST(TraverseCells, ReportsEntryAndExitDistances) {
   std::vector<std::pair<double, double>> spans;
-  TraverseCells(GridGeometry(0.1), {0.05, 0.05}, {1.0, 0.0}, 0.3, [&](CellIndex, double in, double out) {
-    spans.emplace_back(in, out);
-    return true;
-  });
+  TraverseCells(GridGeometry(0.1), {0.05, 0.05}, {1.0, 0.0}, 0.3,
+                [&](CellIndex, double in, double out) {
+                  spans.emplace_back(in, out);
+                  return true;
+                });
   ASSERT_EQ(spans.size(), 4u);
   EXPECT_NEAR(spans[0].first, 0.0, 1e-12);
   EXPECT_NEAR(spans[0].second, 0.05, 1e-12);
@@ -97,7 +102,8 @@ TEST(TraverseCells, AgreesWithDenseSamplingOnRandomRays) {
     const int samples = 20000;
     for (int s = 1; s < samples; ++s) {
       const CellIndex c = g.CellOf(a + (b - a) * (double(s) / samples));
-      ASSERT_TRUE(visited.count({c.x, c.y})) << "trial " << trial << " missed " << c.x << "," << c.y;
+      ASSERT_TRUE(visited.count({c.x, c.y}))
+          << "trial " << trial << " missed " << c.x << "," << c.y;
     }
   }
 }
@@ -105,7 +111,7 @@ TEST(TraverseCells, AgreesWithDenseSamplingOnRandomRays) {
 TEST(CastToObstacle, StopsAtTheFirstOccupiedCell) {
   OccupancyGrid grid(GridGeometry(0.01), 5000);
   for (int y = -100; y < 100; ++y) grid.Add({30, y}, 1000);  // a wall at x = [0.30, 0.31)
-  grid.Add({10, 20}, -500);                                // free cells do not stop a ray
+  grid.Add({10, 20}, -500);                                  // free cells do not stop a ray
   const RayHit hit = CastToObstacle(grid, {0.005, 0.005}, 0.0, 1.0, 0);
   EXPECT_TRUE(hit.hit);
   EXPECT_NEAR(hit.distance_m, 0.295, 1e-9);
@@ -151,7 +157,8 @@ OccupancyGrid RandomMap(uint64_t seed, double res) {
     }
   }
   for (int k = 0; k < 200; ++k) {
-    grid.Add({static_cast<int32_t>(rng.Uniform() * 500 - 250), static_cast<int32_t>(rng.Uniform() * 500 - 250)},
+    grid.Add({static_cast<int32_t>(rng.Uniform() * 500 - 250),
+              static_cast<int32_t>(rng.Uniform() * 500 - 250)},
              static_cast<int>(rng.Uniform() * 600));  // some exactly at or just above 0
   }
   // A far tile alone, so that rays cross missing tiles between.
@@ -170,22 +177,25 @@ std::vector<RayQuery> RandomRays(uint64_t seed, int rays, double res) {
     if (i % 7 == 0) origin = Vec2(origin.x(), std::round(origin.y() / res) * res);
     double angle = rng.Uniform() * 2 * kPi;
     if (i % 11 == 0) angle = std::round(angle / (kPi / 4)) * (kPi / 4);  // axes and diagonals
-    const double range = (i % 13 == 0 ? 0.0 : rng.Uniform()) * (i % 3 == 0 ? 10.0 : 1.5) * res / 0.01;
+    const double range =
+        (i % 13 == 0 ? 0.0 : rng.Uniform()) * (i % 3 == 0 ? 10.0 : 1.5) * res / 0.01;
     queries.push_back({origin, Vec2(std::cos(angle), std::sin(angle)), range});
   }
   return queries;
 }
 
-void ExpectSameAs(const std::vector<RayHit>& plain, const std::vector<RayHit>& fast, const std::vector<RayQuery>& rays,
-                  const char* what) {
+void ExpectSameAs(const std::vector<RayHit>& plain, const std::vector<RayHit>& fast,
+                  const std::vector<RayQuery>& rays, const char* what) {
   ASSERT_EQ(fast.size(), plain.size());
   for (size_t i = 0; i < plain.size(); ++i) {
     const RayQuery& q = rays[i];
-    ASSERT_EQ(fast[i].hit, plain[i].hit) << what << " ray " << i << " from (" << q.origin.x() << ", " << q.origin.y()
-                                         << ") along (" << q.direction.x() << ", " << q.direction.y() << ") over "
-                                         << q.max_range_m;
-    ASSERT_NEAR(fast[i].distance_m, plain[i].distance_m, 1e-9 * (1 + q.max_range_m)) << what << " ray " << i;
-    ASSERT_NEAR(fast[i].exit_m, plain[i].exit_m, 1e-9 * (1 + q.max_range_m)) << what << " ray " << i;
+    ASSERT_EQ(fast[i].hit, plain[i].hit)
+        << what << " ray " << i << " from (" << q.origin.x() << ", " << q.origin.y() << ") along ("
+        << q.direction.x() << ", " << q.direction.y() << ") over " << q.max_range_m;
+    ASSERT_NEAR(fast[i].distance_m, plain[i].distance_m, 1e-9 * (1 + q.max_range_m))
+        << what << " ray " << i;
+    ASSERT_NEAR(fast[i].exit_m, plain[i].exit_m, 1e-9 * (1 + q.max_range_m))
+        << what << " ray " << i;
     EXPECT_LE(fast[i].cells, plain[i].cells) << what << " ray " << i;
   }
 }
@@ -196,7 +206,8 @@ void ExpectSameHits(const OccupancyGrid& grid, uint64_t seed, int rays, LogOdds 
   std::vector<RayHit> plain, single;
   int hits = 0;
   for (const RayQuery& q : queries) {
-    plain.push_back(CastToObstaclePlain(grid, q.origin, q.direction, q.max_range_m, occupied_above));
+    plain.push_back(
+        CastToObstaclePlain(grid, q.origin, q.direction, q.max_range_m, occupied_above));
     single.push_back(CastToObstacle(grid, q.origin, q.direction, q.max_range_m, occupied_above));
     hits += plain.back().hit ? 1 : 0;
   }
@@ -225,7 +236,9 @@ TEST(CastToObstacleFast, StaleAndMissingSummariesOnlyCostTime) {
   grid.BeginWrite();
   Rng rng(9);
   for (int k = 0; k < 300; ++k) {
-    grid.Add({static_cast<int32_t>(rng.Uniform() * 400 - 200), static_cast<int32_t>(rng.Uniform() * 400 - 200)}, 800);
+    grid.Add({static_cast<int32_t>(rng.Uniform() * 400 - 200),
+              static_cast<int32_t>(rng.Uniform() * 400 - 200)},
+             800);
   }
   ExpectSameHits(grid, 4, 20000, 0);
   ExpectSameHits(grid, 5, 5000, -100);  // below the summary's threshold: the plain path
@@ -267,7 +280,7 @@ TEST(CastToObstacleFast, CrossesMissingTilesInOneJumpEach) {
   const RayHit hit = CastToObstacle(grid, {0.655, 0.003}, 0.0, 8.0, 0);
   EXPECT_TRUE(hit.hit);
   EXPECT_NEAR(hit.distance_m, 6.40 - 0.655, 1e-9);
-  EXPECT_EQ(hit.cells, 0);      // not one cell by cell
+  EXPECT_EQ(hit.cells, 0);   // not one cell by cell
   EXPECT_LE(hit.jumps, 12);  // one per missing tile, and a few in tile (10, 0)
 }
 
@@ -297,7 +310,8 @@ TEST(OccupancyGrid, ClearanceIsTheChessboardDistanceToTheNearestCellAboveTheThre
       for (int x = 0; x < kTileSize; ++x) {
         const double r = rng.Uniform();
         // Above the threshold, exactly at it (not occupied), or free.
-        const LogOdds value = r < density ? LogOdds{1} : (r < 2 * density ? LogOdds{0} : LogOdds{-300});
+        const LogOdds value =
+            r < density ? LogOdds{1} : (r < 2 * density ? LogOdds{0} : LogOdds{-300});
         tile.cells[static_cast<size_t>(y * kTileSize + x)] = value;
         if (value > kSummaryThreshold) occupied.emplace_back(x, y);
       }
@@ -308,8 +322,10 @@ TEST(OccupancyGrid, ClearanceIsTheChessboardDistanceToTheNearestCellAboveTheThre
     for (int y = 0; y < kTileSize; ++y) {
       for (int x = 0; x < kTileSize; ++x) {
         int nearest = kClearanceFar;
-        for (const auto& [ox, oy] : occupied) nearest = std::min(nearest, std::max(std::abs(ox - x), std::abs(oy - y)));
-        ASSERT_EQ(clearance[static_cast<size_t>(y * kTileSize + x)], nearest) << x << ", " << y << " at " << density;
+        for (const auto& [ox, oy] : occupied)
+          nearest = std::min(nearest, std::max(std::abs(ox - x), std::abs(oy - y)));
+        ASSERT_EQ(clearance[static_cast<size_t>(y * kTileSize + x)], nearest)
+            << x << ", " << y << " at " << density;
       }
     }
   }
@@ -351,8 +367,8 @@ TEST(OccupancyGrid, RefreshComputesTheClearanceOfWrittenTiles) {
 // The side of the largest square of cells not above `threshold` with corner c, growing towards
 // -x when back_x and -y when back_y, capped at kClearanceFar; cells outside [lo, hi] count as
 // free. Grown one ring (the square's far row and column) at a time.
-int FreeSquare(const OccupancyGrid& grid, LogOdds threshold, CellIndex lo, CellIndex hi, CellIndex c, bool back_x,
-               bool back_y) {
+int FreeSquare(const OccupancyGrid& grid, LogOdds threshold, CellIndex lo, CellIndex hi,
+               CellIndex c, bool back_x, bool back_y) {
   const int sx = back_x ? -1 : 1, sy = back_y ? -1 : 1;
   const auto occupied = [&](int x, int y) {
     return x >= lo.x && x <= hi.x && y >= lo.y && y <= hi.y && grid.At({x, y}) > threshold;
@@ -378,7 +394,8 @@ TEST(MatchWindow, FreeSquaresAreTheLargestInEachQuadrant) {
       const bool back_x = (quadrant & 1) != 0, back_y = (quadrant & 2) != 0;
       for (int y = lo.y; y <= hi.y; y += 5) {
         for (int x = lo.x; x <= hi.x; x += 2) {
-          ASSERT_EQ(window.FreeSquareAt({x, y}, back_x, back_y), FreeSquare(grid, threshold, lo, hi, {x, y}, back_x, back_y))
+          ASSERT_EQ(window.FreeSquareAt({x, y}, back_x, back_y),
+                    FreeSquare(grid, threshold, lo, hi, {x, y}, back_x, back_y))
               << x << ", " << y << " quadrant " << quadrant << " above " << threshold;
         }
       }
@@ -402,12 +419,15 @@ std::vector<WindowKernel> KernelsHere() {
 }
 
 const char* KernelName(WindowKernel kernel) {
-  return kernel == WindowKernel::kAvx512 ? "avx512" : kernel == WindowKernel::kAvx2 ? "avx2" : "portable";
+  return kernel == WindowKernel::kAvx512 ? "avx512"
+         : kernel == WindowKernel::kAvx2 ? "avx2"
+                                         : "portable";
 }
 
 // Rays through a window around the origin: those it covers through its field, the others
 // through the grid; all as the plain traversal finds them, with each kernel.
-void ExpectWindowFindsWhatThePlainTraversalFinds(const OccupancyGrid& grid, uint64_t seed, LogOdds threshold) {
+void ExpectWindowFindsWhatThePlainTraversalFinds(const OccupancyGrid& grid, uint64_t seed,
+                                                 LogOdds threshold) {
   const MatchWindow window(grid, threshold, {-250, -250}, {249, 249});
   const std::vector<RayQuery> queries = RandomRays(seed, 30000, grid.geometry().resolution());
   std::vector<RayHit> plain;
@@ -454,7 +474,8 @@ TEST(MatchWindow, FindsWhatThePlainTraversalFinds) {
 class WideKernel : public ::testing::TestWithParam<WindowKernel> {};
 
 TEST_P(WideKernel, GivesThePortableAnswersBitForBit) {
-  if (!WindowKernelAvailable(GetParam())) GTEST_SKIP() << "this processor cannot run the " << KernelName(GetParam()) << " kernel";
+  if (!WindowKernelAvailable(GetParam()))
+    GTEST_SKIP() << "this processor cannot run the " << KernelName(GetParam()) << " kernel";
   OccupancyGrid grid = RandomMap(37, 0.01);
   grid.RefreshSummaries();
   const MatchWindow window(grid, 0, {-180, -220}, {209, 139});
@@ -462,11 +483,13 @@ TEST_P(WideKernel, GivesThePortableAnswersBitForBit) {
   Rng rng(39);
   for (int i = 0; i < 2000; ++i) {
     // On cell corners and edges, exactly along axes and diagonals, tiny lengths.
-    const Vec2 corner(std::round(rng.Uniform() * 300 - 150) * 0.01, std::round(rng.Uniform() * 300 - 150) * 0.01);
+    const Vec2 corner(std::round(rng.Uniform() * 300 - 150) * 0.01,
+                      std::round(rng.Uniform() * 300 - 150) * 0.01);
     const double angle = std::round(rng.Uniform() * 8) * kPi / 4;
     const double range = i % 4 == 0 ? 1e-12 : rng.Uniform() * 1.5;
     all.push_back({corner, Vec2(std::cos(angle), std::sin(angle)), range});
-    all.push_back({corner + Vec2(0.005, 0.0), Vec2(std::cos(angle + 1e-13), std::sin(angle + 1e-13)), range});
+    all.push_back(
+        {corner + Vec2(0.005, 0.0), Vec2(std::cos(angle + 1e-13), std::sin(angle + 1e-13)), range});
   }
   size_t covered = 0;
   for (const RayQuery& q : all) covered += window.Covers(q) ? size_t{1} : size_t{0};
@@ -488,7 +511,8 @@ TEST_P(WideKernel, GivesThePortableAnswersBitForBit) {
     ASSERT_EQ(wide.size(), batch.size());
     for (size_t i = 0; i < batch.size(); ++i) {
       ASSERT_EQ(wide[i].hit, portable[i].hit) << "ray " << i << " of " << batch.size();
-      ASSERT_EQ(wide[i].distance_m, portable[i].distance_m) << "ray " << i << " of " << batch.size();
+      ASSERT_EQ(wide[i].distance_m, portable[i].distance_m)
+          << "ray " << i << " of " << batch.size();
       ASSERT_EQ(wide[i].exit_m, portable[i].exit_m) << "ray " << i << " of " << batch.size();
       ASSERT_EQ(wide[i].cells, portable[i].cells) << "ray " << i << " of " << batch.size();
       ASSERT_EQ(wide[i].jumps, portable[i].jumps) << "ray " << i << " of " << batch.size();
@@ -496,14 +520,16 @@ TEST_P(WideKernel, GivesThePortableAnswersBitForBit) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(Kernels, WideKernel, ::testing::Values(WindowKernel::kAvx2, WindowKernel::kAvx512),
+INSTANTIATE_TEST_SUITE_P(Kernels, WideKernel,
+                         ::testing::Values(WindowKernel::kAvx2, WindowKernel::kAvx512),
                          [](const ::testing::TestParamInfo<WindowKernel>& kernel) {
                            return std::string(KernelName(kernel.param));
                          });
 
 // kBest runs the fastest kernel this processor has, and says which.
 TEST(WindowKernel, BestIsTheFastestAvailable) {
-  if (std::getenv("SLAM_RAY_KERNEL") != nullptr) GTEST_SKIP() << "SLAM_RAY_KERNEL caps the kernel (replay_test checks it)";
+  if (std::getenv("SLAM_RAY_KERNEL") != nullptr)
+    GTEST_SKIP() << "SLAM_RAY_KERNEL caps the kernel (replay_test checks it)";
   const std::string best = BestWindowKernelName();
   EXPECT_EQ(best, WindowKernelAvailable(WindowKernel::kAvx512) ? "avx512"
                   : WindowKernelAvailable(WindowKernel::kAvx2) ? "avx2"

@@ -373,12 +373,13 @@ TEST_F(ReplayTest, WrittenMapFilesReadBackWithTheDocumentedValues) {
   std::map<uint8_t, int> histogram;
   for (char c : pgm.pixels) ++histogram[static_cast<uint8_t>(c)];
   EXPECT_EQ(histogram.size(), 3u);
-  EXPECT_GT(histogram[0], 500);     // walls
-  EXPECT_GT(histogram[254], 10000); // free space
-  EXPECT_GT(histogram[205], 1000);  // unknown around
+  EXPECT_GT(histogram[0], 500);      // walls
+  EXPECT_GT(histogram[254], 10000);  // free space
+  EXPECT_GT(histogram[205], 1000);   // unknown around
   // The cell under the robot's start is free.
   const int col = static_cast<int>(std::floor((0.0 - image.origin_m.x()) / 0.01));
-  const int row = image.height - 1 - static_cast<int>(std::floor((0.0 - image.origin_m.y()) / 0.01));
+  const int row =
+      image.height - 1 - static_cast<int>(std::floor((0.0 - image.origin_m.y()) / 0.01));
   EXPECT_EQ(static_cast<uint8_t>(pgm.pixels[static_cast<size_t>(row * pgm.width + col)]), 254);
 
   // map.png: the rendered picture, with the trajectory and the ground truth drawn.
@@ -415,7 +416,8 @@ TEST_F(ReplayTest, EvaluationIsTheSameWithOneJobOrTwo) {
   ASSERT_EQ(parallel.size(), 8u);
   for (size_t i = 0; i < serial.size(); ++i) {
     Json a = serial[i].summary, b = parallel[i].summary;
-    for (const char* timing : {"wall_s", "cpu_s", "cpu_ms_per_scan", "realtime_factor", "ns_per_ray"}) {
+    for (const char* timing :
+         {"wall_s", "cpu_s", "cpu_ms_per_scan", "realtime_factor", "ns_per_ray"}) {
       a.erase(timing);
       b.erase(timing);
     }
@@ -467,24 +469,28 @@ CommandResult RunCommand(const std::string& command, const fs::path& scratch) {
 TEST_F(ReplayTest, EveryRayKernelGivesTheSameReplay) {
   const fs::path scratch = root_ / "kernels";
   fs::create_directories(scratch);
-  const std::string replay = std::string(SLAM_REPLAY_BIN) + " " + (root_ / "rooms").string() + " --budget 65000 --quiet";
+  const std::string replay =
+      std::string(SLAM_REPLAY_BIN) + " " + (root_ / "rooms").string() + " --budget 65000 --quiet";
   std::vector<std::pair<std::string, Json>> runs;
   for (const std::string kernel : {"", "portable", "avx2"}) {
-    const std::string env = kernel.empty() ? "env -u SLAM_RAY_KERNEL " : "env SLAM_RAY_KERNEL=" + kernel + " ";
+    const std::string env =
+        kernel.empty() ? "env -u SLAM_RAY_KERNEL " : "env SLAM_RAY_KERNEL=" + kernel + " ";
     const fs::path out = scratch / ("out-" + (kernel.empty() ? std::string("best") : kernel));
     const CommandResult run = RunCommand(env + replay + " --out " + out.string(), scratch);
     ASSERT_EQ(run.status, 0) << run.err;
     runs.emplace_back(kernel, Json::parse(run.out));
   }
-  EXPECT_EQ(runs[0].second.value("ray_kernel", ""), WindowKernelAvailable(WindowKernel::kAvx512) ? "avx512"
-                                                    : WindowKernelAvailable(WindowKernel::kAvx2)   ? "avx2"
-                                                                                                   : "portable");
+  EXPECT_EQ(runs[0].second.value("ray_kernel", ""),
+            WindowKernelAvailable(WindowKernel::kAvx512) ? "avx512"
+            : WindowKernelAvailable(WindowKernel::kAvx2) ? "avx2"
+                                                         : "portable");
   EXPECT_EQ(runs[1].second.value("ray_kernel", ""), "portable");
   EXPECT_EQ(runs[2].second.value("ray_kernel", ""),
             WindowKernelAvailable(WindowKernel::kAvx2) ? "avx2" : "portable");
   EXPECT_GT(runs[0].second.value("rays_total", 0), 0);
   for (auto& [kernel, summary] : runs) {
-    for (const char* timing : {"wall_s", "cpu_s", "cpu_ms_per_scan", "realtime_factor", "ns_per_ray", "ray_kernel"}) {
+    for (const char* timing :
+         {"wall_s", "cpu_s", "cpu_ms_per_scan", "realtime_factor", "ns_per_ray", "ray_kernel"}) {
       summary.erase(timing);
     }
     summary.erase("out");  // each run's own directory
@@ -502,10 +508,10 @@ TEST_F(ReplayTest, CommandLineReplaysAndReportsBadExperiments) {
   EXPECT_EQ(help.status, 0);
   EXPECT_NE(help.out.find("--no-refine"), std::string::npos);
 
-  const CommandResult ok = RunCommand(tool + " " + (root_ / "rooms").string() +
-                                          " --budget 4000 --no-refine --quiet --out " +
-                                          (scratch / "rooms-out").string(),
-                                      scratch);
+  const CommandResult ok =
+      RunCommand(tool + " " + (root_ / "rooms").string() +
+                     " --budget 4000 --no-refine --quiet --out " + (scratch / "rooms-out").string(),
+                 scratch);
   ASSERT_EQ(ok.status, 0) << ok.err;
   const Json summary = Json::parse(ok.out);
   EXPECT_EQ(summary["budget"], 4000);
@@ -534,7 +540,8 @@ TEST_F(ReplayTest, CommandLineReplaysAndReportsBadExperiments) {
   EXPECT_EQ(params.status, 1);
   EXPECT_NE(params.err.find("none.json"), std::string::npos) << params.err;
 
-  const CommandResult usage = RunCommand(tool + " " + (root_ / "rooms").string() + " --budget 0", scratch);
+  const CommandResult usage =
+      RunCommand(tool + " " + (root_ / "rooms").string() + " --budget 0", scratch);
   EXPECT_NE(usage.status, 0);
   EXPECT_NE(usage.err.find("--budget"), std::string::npos) << usage.err;
 }

@@ -101,12 +101,13 @@ TEST_F(SecuredSlamd, OnlyTheExactTokenMayChangeAnything) {
 }
 
 TEST_F(SecuredSlamd, OversizeHeadersAndUrisAreRefusedAndSlamdServesOn) {
-  const RawReply header = RawExchange(
-      port(), "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " + std::string(100'000, 'a') +
-                  "\r\nConnection: close\r\n\r\n");
+  const RawReply header =
+      RawExchange(port(), "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " +
+                              std::string(100'000, 'a') + "\r\nConnection: close\r\n\r\n");
   EXPECT_EQ(header.status, 400) << header;
-  const RawReply uri = RawExchange(port(), "GET /api/v1/health?" + std::string(20'000, 'a') +
-                                               " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
+  const RawReply uri =
+      RawExchange(port(), "GET /api/v1/health?" + std::string(20'000, 'a') +
+                              " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
   EXPECT_EQ(uri.status, 414) << uri;
   EXPECT_EQ(http().Get("/api/v1/health").status, 200);
 }
@@ -140,7 +141,8 @@ TEST_F(SecuredSlamd, ARequestTricklingInIsCutAtItsDeadline) {
   // A byte a second keeps every read within its timeout; the request's 10 s deadline ends it.
   const int fd = ConnectTo(port());
   ASSERT_GE(fd, 0);
-  const std::string request = "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: aaaaaaaaaaaaaaaa";
+  const std::string request =
+      "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: aaaaaaaaaaaaaaaa";
   const auto start = Clock::now();
   bool cut = false;
   for (size_t i = 0; i < request.size() && SecondsSince(start) < 20.0; ++i) {
@@ -171,8 +173,9 @@ TEST_F(SecuredSlamd, NoPathLeadsOutOfTheWebRoot) {
        {"/../secret.txt", "/%2e%2e/secret.txt", "/..%2fsecret.txt", "/%2E%2E%2Fsecret.txt",
         "/./../secret.txt", "/vendor/uplot/../../../secret.txt", "//../secret.txt",
         "/index.html/../../secret.txt", "/..\\secret.txt", "/%00/../secret.txt"}) {
-    const RawReply reply = RawExchange(
-        port(), std::string("GET ") + path + " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
+    const RawReply reply =
+        RawExchange(port(), std::string("GET ") + path +
+                                " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
     EXPECT_NE(reply.status, 200) << path << ": " << reply;
     EXPECT_EQ(reply.raw.find("outside the web root"), std::string::npos) << path << ": " << reply;
   }
@@ -183,8 +186,8 @@ TEST_F(SecuredSlamd, BytesThatAreNotUtf8InPathsAndParametersGiveProblemsNot500) 
   for (const std::string& target :
        {std::string("/api/v1/trajectory?format=%ff%00"), std::string("/api/v1/no\xff\xfe"),
         std::string("/api/v1/jobs/%c3%28"), std::string("/api/v1/map/tiles/\xe2\x28/1.png")}) {
-    const RawReply reply =
-        RawExchange(port(), "GET " + target + " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
+    const RawReply reply = RawExchange(
+        port(), "GET " + target + " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
     EXPECT_TRUE(reply.status == 400 || reply.status == 404) << target << ": " << reply;
     EXPECT_FALSE(json::parse(reply.body, nullptr, false).is_discarded()) << target << ": " << reply;
   }
@@ -197,7 +200,8 @@ TEST_F(SecuredSlamd, UnknownMethodsAreCountedAsOtherAndNeverBecomeLabels) {
        {std::string("FOO"), std::string("G\xffT"), std::string("B\"REW"),
         std::string("X") + std::string(100, 'Y')}) {
     const RawReply reply = RawExchange(
-        port(), method + " /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
+        port(),
+        method + " /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
     EXPECT_EQ(reply.status, 400) << reply;
   }
   const Reply metrics = http().Get("/metrics");
@@ -318,27 +322,30 @@ TEST_F(OpenSlamd, AmbiguousFramingIsRefusedAndTheConnectionClosed) {
     const char* detail;  // in the problem's detail; empty: the library's own 400
   } cases[] = {
       {"two Content-Lengths",
-       "POST /api/v1/map/save HTTP/1.1\r\n" + host + json + "Content-Length: 0\r\nContent-Length: " +
-           std::to_string(inner.size()) + "\r\n\r\n" + inner,
+       "POST /api/v1/map/save HTTP/1.1\r\n" + host + json +
+           "Content-Length: 0\r\nContent-Length: " + std::to_string(inner.size()) + "\r\n\r\n" +
+           inner,
        "more than one Content-Length"},
       {"Transfer-Encoding with a space before the colon",
        "POST /api/v1/map/save HTTP/1.1\r\n" + host + json +
            "Content-Length: 0\r\nTransfer-Encoding : chunked\r\n\r\n" + inner,
        "is not a token"},
       {"a folded header line",
-       "GET /api/v1/health HTTP/1.1\r\n" + host + "X-Note: a\r\n b\r\n\r\n" + inner,
-       "folded"},
+       "GET /api/v1/health HTTP/1.1\r\n" + host + "X-Note: a\r\n b\r\n\r\n" + inner, "folded"},
       {"a header line without a colon",
        "GET /api/v1/health HTTP/1.1\r\n" + host + "Content-Length 0\r\n\r\n" + inner, "colon"},
       {"no Host", "GET /api/v1/health HTTP/1.1\r\n\r\n" + inner, "needs a Host header"},
       {"two Hosts", "GET /api/v1/health HTTP/1.1\r\n" + host + host + "\r\n" + inner,
        "more than one Host"},
       {"a malformed request line", "GARBAGE\r\n\r\n" + inner, ""},
-      {"200 empty lines", [] {
+      {"200 empty lines",
+       [] {
          std::string crlfs;
          for (int i = 0; i < 200; ++i) crlfs += "\r\n";
          return crlfs;
-       }() + inner, ""},
+       }() +
+           inner,
+       ""},
   };
   const int before = GetJson(http(), "/api/v1/budget").value("rays_per_scan", 0);
   ASSERT_NE(before, 1234);
@@ -362,17 +369,19 @@ TEST_F(SecuredSlamd, RangesAreBoundedAndOnlyThePagesFilesHonourThem) {
   for (int i = 1; i < 2700; ++i) many += ",0-";
   for (const char* method : {"GET", "HEAD"}) {
     SCOPED_TRACE(method);
-    const RawReply whole = RawExchange(port(), std::string(method) + " /index.html HTTP/1.1\r\n"
-                                                   "Host: 127.0.0.1\r\nRange: " + many +
-                                                   "\r\nConnection: close\r\n\r\n");
+    const RawReply whole = RawExchange(port(), std::string(method) +
+                                                   " /index.html HTTP/1.1\r\n"
+                                                   "Host: 127.0.0.1\r\nRange: " +
+                                                   many + "\r\nConnection: close\r\n\r\n");
     EXPECT_EQ(whole.status, 200);
     EXPECT_EQ(whole.Header("Content-Length"), "18");
     if (std::string(method) == "GET") {
       EXPECT_EQ(whole.body, "<html>page</html>\n");
     }
   }
-  const RawReply one = RawExchange(port(), "GET /index.html HTTP/1.1\r\nHost: 127.0.0.1\r\n"
-                                           "Range: bytes=0-5\r\nConnection: close\r\n\r\n");
+  const RawReply one = RawExchange(port(),
+                                   "GET /index.html HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                                   "Range: bytes=0-5\r\nConnection: close\r\n\r\n");
   EXPECT_EQ(one.status, 206);
   EXPECT_EQ(one.body, "<html>");
   for (const char* route : {"/api/v1/status", "/api/v1/budget", "/metrics"}) {
@@ -459,8 +468,9 @@ TEST(Starvation, ANormalClientIsAnsweredPromptlyHoweverManySlowOrIdleConnections
   std::this_thread::sleep_for(std::chrono::milliseconds(300));  // all of them accepted
   double slowest = 0.0;
   for (int attempt = 0; attempt < 5; ++attempt) {
-    const RawReply reply = RawExchange(
-        slamd.port(), "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
+    const RawReply reply =
+        RawExchange(slamd.port(),
+                    "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
     EXPECT_EQ(reply.status, 200) << reply.raw;
     EXPECT_LT(reply.seconds, 1.0) << attempt;
     slowest = std::max(slowest, reply.seconds);
@@ -479,8 +489,8 @@ TEST(Starvation, ANormalClientIsAnsweredPromptlyHoweverManySlowOrIdleConnections
   std::cout << "slowest answer to the normal client beside 500 slow or idle connections: "
             << slowest * 1e3 << " ms\n";
   // 300 idle connections of one address: beyond 64 waiting, the longest waiting were closed.
-  const std::optional<double> evicted =
-      PollMetric(http, "slamd_http_connections_evicted_total", 5.0, [](double v) { return v >= 236; });
+  const std::optional<double> evicted = PollMetric(http, "slamd_http_connections_evicted_total",
+                                                   5.0, [](double v) { return v >= 236; });
   EXPECT_GE(evicted.value_or(0.0), 236.0);
   for (const int fd : held) ::close(fd);
   EXPECT_EQ(slamd.Stop(), std::optional<int>(0));
@@ -515,7 +525,8 @@ TEST(Starvation, ResetRequestsPilingUpDoNotStallTheApi) {
   EXPECT_LT(SecondsSince(start), 1.0);
   for (auto& t : resetters) t.join();
   // One waited for the SLAM thread; the others were answered at once, pending.
-  const auto quick = std::count_if(seconds.begin(), seconds.end(), [](double s) { return s < 1.0; });
+  const auto quick =
+      std::count_if(seconds.begin(), seconds.end(), [](double s) { return s < 1.0; });
   EXPECT_GE(quick, kResets - 1);
   for (const int status : statuses) EXPECT_TRUE(status == 200 || status == 202) << status;
   EXPECT_EQ(slamd.Stop(), std::optional<int>(0));
@@ -542,8 +553,9 @@ TEST_F(SecuredSlamd, WithATokenTooOnlyLoopbackAddressesAndAllowedNamesAreAnswere
     EXPECT_EQ(StatusWithHost(port(), host), 200) << host;
   }
   // Reads are refused too, not only changes.
-  const RawReply map = RawExchange(port(), "GET /api/v1/map HTTP/1.1\r\nHost: robot.example\r\n"
-                                           "Connection: close\r\n\r\n");
+  const RawReply map = RawExchange(port(),
+                                   "GET /api/v1/map HTTP/1.1\r\nHost: robot.example\r\n"
+                                   "Connection: close\r\n\r\n");
   EXPECT_EQ(map.status, 403);
 }
 
@@ -556,8 +568,9 @@ TEST_F(SecuredSlamd, OnlyThePagesOwnFilesAreServed) {
   WriteFile(dir_->path() / "web" / "package-lock.json", "{}\n");
   WriteFile(dir_->path() / "web" / ".env", "secret\n");
   const auto get = [&](const std::string& target) {
-    return RawExchange(port(), "GET " + target + " HTTP/1.1\r\nHost: 127.0.0.1\r\n"
-                               "Connection: close\r\n\r\n");
+    return RawExchange(port(), "GET " + target +
+                                   " HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                                   "Connection: close\r\n\r\n");
   };
   EXPECT_EQ(get("/index.html").status, 200);
   EXPECT_EQ(get("/index.html%00.js").status, 400);

@@ -1,3 +1,5 @@
+#include "engine/sensor_model.hpp"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -5,7 +7,6 @@
 
 #include "engine/cell_encoding.hpp"
 #include "engine/ray_cast.hpp"
-#include "engine/sensor_model.hpp"
 
 namespace slam {
 namespace {
@@ -115,7 +116,8 @@ TEST(SensorModel, TheCellHoldingTheReadingIsOccupiedAtEveryAngle) {
     const double a = DegToRad(deg);
     ApplyUpdateRay(grid, origin, a, *model.Update(420));
     const Vec2 point = origin + d * Vec2(std::cos(a), std::sin(a));
-    EXPECT_EQ(grid.At(grid.geometry().CellOf(point)), EncodeLogOdds(update.occupied_logodds)) << deg;
+    EXPECT_EQ(grid.At(grid.geometry().CellOf(point)), EncodeLogOdds(update.occupied_logodds))
+        << deg;
     const Vec2 before = origin + (d - 0.015) * Vec2(std::cos(a), std::sin(a));
     EXPECT_EQ(grid.At(grid.geometry().CellOf(before)), EncodeLogOdds(update.free_logodds)) << deg;
   }
@@ -123,8 +125,10 @@ TEST(SensorModel, TheCellHoldingTheReadingIsOccupiedAtEveryAngle) {
 
 TEST(SensorModel, UpdateTablesMarkFreeThenOccupiedThenNothing) {
   const UpdateModelConfig update;
-  for (int raw : {500, 420, 300}) ExpectFreeOccupiedUntouched(SensorModel(LongSensor(), update, 0.01), raw, update, 0.01);
-  for (int raw : {822, 600, 400, 200}) ExpectFreeOccupiedUntouched(SensorModel(ShortSensor(), update, 0.01), raw, update, 0.01);
+  for (int raw : {500, 420, 300})
+    ExpectFreeOccupiedUntouched(SensorModel(LongSensor(), update, 0.01), raw, update, 0.01);
+  for (int raw : {822, 600, 400, 200})
+    ExpectFreeOccupiedUntouched(SensorModel(ShortSensor(), update, 0.01), raw, update, 0.01);
   UpdateModelConfig wide;
   wide.occupied_sigma_factor = 2.0;
   wide.occupied_depth_cells = 3.0;

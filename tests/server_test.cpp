@@ -315,9 +315,7 @@ TEST(StateStore, OneProcessHoldsAStateDirectory) {
                                   std::to_string(::getpid()) + ")"),
             std::string::npos)
       << second.Message();
-  {
-    const StateDirLock released = std::move(first).value();
-  }
+  { const StateDirLock released = std::move(first).value(); }
   EXPECT_TRUE(StateDirLock::Acquire(nested).ok());
 }
 
@@ -637,7 +635,8 @@ TEST_F(SlamServiceTest, InMemoryRequestsTakeTheWholeServerPath) {
   EXPECT_NE(health.find("{\"status\":\"ok\"}"), std::string::npos) << health;
   const std::string json_body = R"({"rays_per_scan": 9000})";
   const std::string patch =
-      "PATCH /api/v1/budget HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/merge-patch+json\r\n"
+      "PATCH /api/v1/budget HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: "
+      "application/merge-patch+json\r\n"
       "Content-Length: " +
       std::to_string(json_body.size()) + "\r\n";
   const std::string body = "\r\n" + json_body;
@@ -653,11 +652,13 @@ TEST_F(SlamServiceTest, InMemoryRequestsTakeTheWholeServerPath) {
       status_of(server.HandleInMemory("GET /" + std::string(10000, 'a') + " HTTP/1.1\r\n\r\n")),
       414);
   EXPECT_EQ(status_of(server.HandleInMemory("\x01\x02 garbage\r\n\r\n")), 400);
-  const std::string unknown = server.HandleInMemory("GET /api/v1/nope HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
+  const std::string unknown =
+      server.HandleInMemory("GET /api/v1/nope HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
   EXPECT_EQ(status_of(unknown), 404);
   EXPECT_NE(unknown.find("application/problem+json"), std::string::npos) << unknown;
   // The response is cut at the cap.
-  EXPECT_LE(server.HandleInMemory("GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n", 100).size(), 100u);
+  EXPECT_LE(server.HandleInMemory("GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n", 100).size(),
+            100u);
 }
 
 }  // namespace

@@ -308,14 +308,15 @@ TEST(WorldJsonTest, ImplausiblyLargeWorldsAreRefusedNamingTheKey) {
     walls += std::string(i ? ", " : "") + "[-500, " + std::to_string(i) + ", 500, " +
              std::to_string(i) + "]";
   }
-  EXPECT_PRED2(Contains,
-               ErrorsOf(R"({"name": "x", "bounds": [-500, 0, 500, 12], "segments": [)" + walls + "]}"),
-               "/segments: the walls and circles measure 12000 m in all, beyond the plausible "
-               "10000 m");
-  EXPECT_TRUE(
-      ParseWorld(R"({"name": "x", "bounds": [-1000, -1000, 1000, 1000], "segments": [[-1000, 0, 1000, 0]]})",
-                 "w")
-          .ok());
+  EXPECT_PRED2(
+      Contains,
+      ErrorsOf(R"({"name": "x", "bounds": [-500, 0, 500, 12], "segments": [)" + walls + "]}"),
+      "/segments: the walls and circles measure 12000 m in all, beyond the plausible "
+      "10000 m");
+  EXPECT_TRUE(ParseWorld(R"({"name": "x", "bounds": [-1000, -1000, 1000, 1000],)"
+                         R"( "segments": [[-1000, 0, 1000, 0]]})",
+                         "w")
+                  .ok());
 }
 
 TEST(WorldJsonTest, ReportsEveryErrorAtOnce) {
@@ -334,8 +335,8 @@ TEST(WorldJsonTest, FileErrorsNameTheLine) {
   for (std::string line; std::getline(in, line);) lines.push_back(line);
   ASSERT_EQ(lines[1].rfind("  \"name\": ", 0), 0u) << text;
   ASSERT_EQ(lines[4].rfind("    [0.0, 0.0, 2.0, 0.0],", 0), 0u) << text;  // /segments/0
-  lines.insert(lines.begin() + 2, "  \"colour\": \"red\",");  // line 3
-  lines[5] = "    [0, 0, \"2\", 0],";                         // /segments/0, now on line 6
+  lines.insert(lines.begin() + 2, "  \"colour\": \"red\",");              // line 3
+  lines[5] = "    [0, 0, \"2\", 0],";  // /segments/0, now on line 6
   const auto load = [&] {
     std::ofstream out(path, std::ios::binary);
     for (const std::string& line : lines) out << line << "\n";

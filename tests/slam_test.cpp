@@ -1,3 +1,5 @@
+#include "engine/slam.hpp"
+
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -7,7 +9,6 @@
 #include "engine/quality.hpp"
 #include "engine/ray_cast.hpp"
 #include "engine/sensor_model.hpp"
-#include "engine/slam.hpp"
 #include "scheduler/fixed_plan.hpp"
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
@@ -130,7 +131,8 @@ TEST(Matching, RefinementRecoversAWrongPoseWithinOneCellAndHalfADegree) {
   Slam blind(robot, params, SlamConfig{});
   blind.Restore(DrawMap(room, 0.01), truth);
   plan.refine = false;
-  const ScanReport blind_report = blind.ProcessScan(ScanAt(robot, room, truth, 0, truth, wrong), plan);
+  const ScanReport blind_report =
+      blind.ProcessScan(ScanAt(robot, room, truth, 0, truth, wrong), plan);
   EXPECT_EQ(blind_report.rays.matching, 0);
   EXPECT_NEAR(blind.Best().pose.x, wrong.x, 1e-12);
 }
@@ -176,7 +178,8 @@ TEST(Matching, ThinningByAngleBetweenScansAndCapsBoundTheRays) {
   params.angle_between_scans_deg = 9.0;  // samples are 4.5 degrees apart: keep every other one
   slam.SetParams(params);
   const ScanSummary thinned = slam.Summarize(scan);
-  EXPECT_NEAR(thinned.matching_measurements, all.matching_measurements / 2.0, all.matching_measurements * 0.15);
+  EXPECT_NEAR(thinned.matching_measurements, all.matching_measurements / 2.0,
+              all.matching_measurements * 0.15);
   ScanPlan plan;
   plan.candidates = 7;
   plan.matching_measurements = 10;
@@ -207,7 +210,8 @@ TEST(Resampling, CopiesShareTilesAndHistoryUntilWritten) {
   const auto tiles = slam.particles()[0].map.Tiles();
   ASSERT_FALSE(tiles.empty());
   for (const Particle& p : slam.particles()) {
-    for (const TileRef& t : tiles) EXPECT_TRUE(p.map.SharesTileWith(slam.particles()[0].map, t.index));
+    for (const TileRef& t : tiles)
+      EXPECT_TRUE(p.map.SharesTileWith(slam.particles()[0].map, t.index));
     ASSERT_TRUE(p.history && p.history->parent);
     EXPECT_EQ(p.history->parent, slam.particles()[0].history->parent);
   }
@@ -234,9 +238,11 @@ TEST(Resampling, CopiesShareTilesAndHistoryUntilWritten) {
   // The tiles held before the write are intact and their versions did not change.
   for (size_t i = 0; i < before.size(); ++i) EXPECT_EQ(before[i].tile->version, versions_before[i]);
   // Every particle's history still reaches back to the common ancestor.
-  for (const Particle& p : particles) EXPECT_EQ(p.history->parent->parent, particles[0].history->parent->parent);
+  for (const Particle& p : particles)
+    EXPECT_EQ(p.history->parent->parent, particles[0].history->parent->parent);
   // Versions only grow.
-  for (const Particle& p : particles) EXPECT_GE(p.map.Version(), *std::max_element(versions_before.begin(), versions_before.end()));
+  for (const Particle& p : particles)
+    EXPECT_GE(p.map.Version(), *std::max_element(versions_before.begin(), versions_before.end()));
 }
 
 // A short simulated run shared by the following tests.
@@ -260,8 +266,8 @@ SimRun Simulate(double duration_s, uint64_t seed, double gyro_bias_dps = 0.05) {
 }
 
 // Runs the engine over every scan with the paper's fixed policy at `budget` rays per scan.
-std::pair<Slam, RayCounts> RunSlam(const SimRun& run, const SlamParams& params, const SlamConfig& config,
-                                   int64_t budget, bool refine) {
+std::pair<Slam, RayCounts> RunSlam(const SimRun& run, const SlamParams& params,
+                                   const SlamConfig& config, int64_t budget, bool refine) {
   Slam slam(run.robot, params, config);
   RayCounts total;
   for (const Scan& scan : run.scans) {
@@ -320,13 +326,15 @@ TEST(EndToEnd, SlamBeatsOdometryOnlyOnASimulatedRun) {
   EXPECT_GT(rays.matching, 0);
   EXPECT_EQ(odo_rays.matching, 0);
   const std::vector<TimedPose> trajectory = slam.Trajectory();
-  for (size_t i = 1; i < trajectory.size(); ++i) ASSERT_GT(trajectory[i].t, trajectory[i - 1].t) << i;
+  for (size_t i = 1; i < trajectory.size(); ++i)
+    ASSERT_GT(trajectory[i].t, trajectory[i - 1].t) << i;
   const auto q_slam = EvaluateTrajectory(trajectory, run.truth);
   const auto q_odo = EvaluateTrajectory(odometry.Trajectory(), run.truth);
   ASSERT_TRUE(q_slam && q_odo);
   RecordProperty("ate_slam_m", std::to_string(q_slam->ate_rmse_m));
   RecordProperty("ate_odometry_m", std::to_string(q_odo->ate_rmse_m));
-  std::printf("ATE RMSE: SLAM %.4f m, odometry only %.4f m\n", q_slam->ate_rmse_m, q_odo->ate_rmse_m);
+  std::printf("ATE RMSE: SLAM %.4f m, odometry only %.4f m\n", q_slam->ate_rmse_m,
+              q_odo->ate_rmse_m);
   EXPECT_LT(q_slam->ate_rmse_m, 0.5 * q_odo->ate_rmse_m);
   EXPECT_LT(q_slam->ate_rmse_m, 0.05);
 }

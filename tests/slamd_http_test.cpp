@@ -503,7 +503,8 @@ TEST_F(SharedSlamd, TilePngIs64x64GreyWithETagAndConditionalGet) {
   for (const std::string& matching : {std::string("*"), "W/" + current, "\"0\", " + current}) {
     const Reply again = http().Get(path, {{"If-None-Match", matching}});
     if (again.status == 200) current = again.Header("ETag");  // the tile changed meanwhile
-    EXPECT_TRUE(again.status == 304 || (matching != "*" && again.status == 200)) << matching << again;
+    EXPECT_TRUE(again.status == 304 || (matching != "*" && again.status == 200))
+        << matching << again;
   }
   // ?v= is only for cache busting.
   const Reply busted = http().Get(path + "?v=1");
@@ -1448,8 +1449,8 @@ TEST_F(JobsSlamd, SmallJobReportsProgressAndFinishes) {
   ASSERT_TRUE(stream.WaitFor("hello", 5.0).has_value());
 
   const Reply started = http().PostJson(
-      "/api/v1/jobs/tune",
-      R"({"population": 2, "generations": 1, "budget": 2000, "seed": 1, "experiments": ["box-1"]})");
+      "/api/v1/jobs/tune", R"({"population": 2, "generations": 1, "budget": 2000, "seed": 1,)"
+                           R"( "experiments": ["box-1"]})");
   ASSERT_EQ(started.status, 202) << started;
   const std::string id = started.Json().value("id", "");
   ASSERT_FALSE(id.empty());

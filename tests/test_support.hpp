@@ -2,7 +2,6 @@
 // Shared helpers of the test suites: the shipped robot description and scans built by hand.
 
 #include <gtest/gtest.h>
-
 #include <unistd.h>
 
 #include <filesystem>

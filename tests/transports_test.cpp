@@ -562,7 +562,8 @@ TEST(CandumpReplayTest, AQuietPipeOrAFileWithoutLineEndsNeverHoldsARead) {
   const auto timed_read = [](FrameSource& source, std::vector<TimedFrame>& frames) {
     const auto start = std::chrono::steady_clock::now();
     const ReadOutcome outcome = source.Read(frames, milliseconds(50));
-    return std::make_pair(outcome, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+    return std::make_pair(
+        outcome, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   };
   {
     auto zero = Unwrap(OpenCandumpReplay("/dev/zero", {.paced = false}));

@@ -20,8 +20,8 @@ TEST(TumTest, RoundTripsToMicrosecondsAndMicrometres) {
 }
 
 TEST(TumTest, SkipsCommentsAndBlankLinesAndToleratesBlanks) {
-  const auto parsed = ParseTum("# t x y z qx qy qz qw\n\n1 2 3 0 0 0 0 1\r\n  2\t2 3 0 0 0 1 0\n",
-                               "t.tum");
+  const auto parsed =
+      ParseTum("# t x y z qx qy qz qw\n\n1 2 3 0 0 0 0 1\r\n  2\t2 3 0 0 0 1 0\n", "t.tum");
   ASSERT_TRUE(parsed.ok()) << parsed.Message();
   ASSERT_EQ(parsed.value().size(), 2u);
   EXPECT_NEAR(std::abs(parsed.value()[1].pose.theta), kPi, 1e-12);
@@ -30,11 +30,11 @@ TEST(TumTest, SkipsCommentsAndBlankLinesAndToleratesBlanks) {
 TEST(TumTest, ErrorsNameTheFileAndLine) {
   const auto parsed = ParseTum(
       "1 0 0 0 0 0 0 1\n"
-      "2 0 0 0 0 0 0\n"          // 7 fields
-      "3 0 zero 0 0 0 0 1\n"     // not a number
-      "4 0 0 0 0 0 0.5 0.5\n"    // not a unit quaternion
-      "0.5 0 0 0 0 0 0 1\n"      // back in time
-      "6 nan 0 0 0 0 0 1\n",     // not finite
+      "2 0 0 0 0 0 0\n"        // 7 fields
+      "3 0 zero 0 0 0 0 1\n"   // not a number
+      "4 0 0 0 0 0 0.5 0.5\n"  // not a unit quaternion
+      "0.5 0 0 0 0 0 0 1\n"    // back in time
+      "6 nan 0 0 0 0 0 1\n",   // not finite
       "groundtruth.tum");
   ASSERT_FALSE(parsed.ok());
   const std::string message = parsed.Message();

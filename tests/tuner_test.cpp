@@ -139,7 +139,8 @@ class TunerTest : public ::testing::Test {
     fs::remove_all(root_);
     uint64_t seed = 3;
     for (const char* arena : {"rooms", "cluttered"}) {
-      auto experiment = testing::GenerateExperiment((root_ / "exp" / arena).string(), arena, 20.0, seed++);
+      auto experiment =
+          testing::GenerateExperiment((root_ / "exp" / arena).string(), arena, 20.0, seed++);
       ASSERT_TRUE(experiment.has_value());
       experiments_->push_back(std::move(*experiment));
     }
@@ -212,7 +213,8 @@ TEST_F(TunerTest, SameResultWithOneThreadAndResumedOrExtended) {
   ASSERT_TRUE(offline::RunTuning(Experiments(), part, 1));
   ASSERT_EQ(part.budgets[0].generations.size(), 3u);
   for (size_t g = 0; g < 3; ++g) {
-    EXPECT_EQ(part.budgets[0].generations[g].fitness_values, Full().budgets[0].generations[g].fitness_values);
+    EXPECT_EQ(part.budgets[0].generations[g].fitness_values,
+              Full().budgets[0].generations[g].fitness_values);
   }
   // Saved to JSON, read back and extended to eight generations: the same study.
   auto reread =
@@ -276,8 +278,8 @@ TEST_F(TunerTest, TablesAndFilesReadBack) {
 
   const testing::TempDir dir("tuning_outputs");
   ASSERT_TRUE(offline::WriteTuningOutputs(dir.path().string(), state).empty());
-  for (const char* name : {"results.json", "table2.md", "table3.md", "fig10.svg", "fig10.png", "params/4000.json",
-                           "params/8125.json"}) {
+  for (const char* name : {"results.json", "table2.md", "table3.md", "fig10.svg", "fig10.png",
+                           "params/4000.json", "params/8125.json"}) {
     EXPECT_TRUE(fs::exists(dir.path() / name)) << name;
   }
   const auto best = io::LoadParams((dir.path() / "params/4000.json").string());
@@ -335,7 +337,9 @@ TEST(TuningReport, DamagedResultsAreRejectedWithTheReason) {
 
 /// Runs a shell command; returns its exit status and its standard error.
 std::pair<int, std::string> Shell(const std::string& command) {
-  const std::string err = (fs::path(::testing::TempDir()) / ("slam_tune_stderr_" + std::to_string(::getpid()))).string();
+  const std::string err =
+      (fs::path(::testing::TempDir()) / ("slam_tune_stderr_" + std::to_string(::getpid())))
+          .string();
   const int status = std::system((command + " 2>" + err + " >/dev/null").c_str());
   std::ifstream in(err);
   std::stringstream text;
@@ -350,7 +354,8 @@ TEST_F(TunerTest, CommandLineRunsResumesAndRefusesOtherSettings) {
   const testing::TempDir dir("tune_cli");
   const std::string exp = (root_ / "exp" / "rooms").string();
   const std::string out = (dir.path() / "out").string();
-  const std::string base = bin + " --experiments " + exp + " --budgets 2000 --population 4 --quiet --out " + out;
+  const std::string base =
+      bin + " --experiments " + exp + " --budgets 2000 --population 4 --quiet --out " + out;
   auto [status, err] = Shell(base + " --generations 1");
   ASSERT_EQ(status, 0) << err;
   EXPECT_TRUE(fs::exists(fs::path(out) / "fig10.png"));
@@ -370,7 +375,10 @@ TEST_F(TunerTest, CommandLineRunsResumesAndRefusesOtherSettings) {
   EXPECT_EQ(status, 2);
   EXPECT_NE(err.find("seed: saved 1, asked 9"), std::string::npos) << err;
   // A damaged results.json is an error, not a crash or a silent restart.
-  { std::ofstream(fs::path(out) / "results.json") << "{\"format\": \"slam-tune results 1\", \"settings\": "; }
+  {
+    std::ofstream(fs::path(out) / "results.json")
+        << "{\"format\": \"slam-tune results 1\", \"settings\": ";
+  }
   std::tie(status, err) = Shell(base + " --generations 2");
   EXPECT_EQ(status, 1);
   EXPECT_NE(err.find("results.json"), std::string::npos) << err;
@@ -379,7 +387,8 @@ TEST_F(TunerTest, CommandLineRunsResumesAndRefusesOtherSettings) {
   const fs::path no_gt = dir.path() / "no_gt";
   fs::copy(exp, no_gt);
   fs::remove(no_gt / "groundtruth.tum");
-  std::tie(status, err) = Shell(bin + " --experiments " + no_gt.string() + " --out " + out + "2 --quiet");
+  std::tie(status, err) =
+      Shell(bin + " --experiments " + no_gt.string() + " --out " + out + "2 --quiet");
   EXPECT_EQ(status, 1);
   EXPECT_NE(err.find("groundtruth.tum"), std::string::npos) << err;
 }

@@ -131,8 +131,7 @@ TEST_F(ExperimentTest, RecordedExperimentReadBackThroughTheLinkGivesTheSimulator
   ExperimentSummary summary;
   ASSERT_FALSE(
       WriteSimulatedExperiment(dir_.string(), world_, "cluttered", robot_, config_, &summary));
-  for (const char* name :
-       {"robot.json", "can.log", "groundtruth.tum", "meta.json", "world.json"}) {
+  for (const char* name : {"robot.json", "can.log", "groundtruth.tum", "meta.json", "world.json"}) {
     EXPECT_TRUE(std::filesystem::exists(dir_ / name)) << name;
   }
   const sim::ScenarioOutput made = sim::RunScenario(world_, robot_, config_);
@@ -210,8 +209,8 @@ TEST_F(ExperimentTest, LiveVirtualMarxbotSpeaksTheSameFrames) {
   VirtualMarxbotOptions options;
   options.paced = false;
   options.duration_s = config_.duration_s;
-  auto source = std::make_unique<VirtualMarxbotSource>(world_, "cluttered", robot_, config_,
-                                                       options);
+  auto source =
+      std::make_unique<VirtualMarxbotSource>(world_, "cluttered", robot_, config_, options);
   hw::LinkStatus status;
   const auto events = DrainLink(std::move(source), robot_, &status);
   const sim::ScenarioOutput made = sim::RunScenario(world_, robot_, config_);

@@ -84,7 +84,8 @@ int main(int argc, char** argv) {
   if (!params_path.empty() && fs::is_directory(params_path)) {
     // One file per budget; a budget without one is an error, not a silent default.
     for (int64_t budget : plan.budgets) {
-      const std::string path = (fs::path(params_path) / (std::to_string(budget) + ".json")).string();
+      const std::string path =
+          (fs::path(params_path) / (std::to_string(budget) + ".json")).string();
       const auto loaded = slam::io::LoadParams(path);
       if (!loaded.ok()) return Fail(loaded.Message());
       plan.params_by_budget[budget] = loaded.value();

@@ -44,7 +44,8 @@ class ProgressLine {
       return;
     }
     last_print_ = now;
-    const double eta = done > 0 ? elapsed * static_cast<double>(total - done) / static_cast<double>(done) : 0.0;
+    const double eta =
+        done > 0 ? elapsed * static_cast<double>(total - done) / static_cast<double>(done) : 0.0;
     std::fprintf(stderr, "%s%s: scan %zu/%zu (%3.0f%%), %.1f s elapsed, ETA %.1f s%s",
                  interactive_ ? "\r" : "", label_.c_str(), done, total,
                  total > 0 ? 100.0 * static_cast<double>(done) / static_cast<double>(total) : 100.0,
@@ -100,7 +101,8 @@ int main(int argc, char** argv) {
                "phase B off: odometry-only mapping (the paper's Fig. 9 bottom)");
   app.add_option("--seed", seed, "seed of the particle filter")->capture_default_str();
   app.add_option("--out", out_dir, "output directory, created if needed [replay-<EXP_DIR name>]");
-  app.add_option("--threads", threads, "worker threads (0: every core; results do not depend on it)")
+  app.add_option("--threads", threads,
+                 "worker threads (0: every core; results do not depend on it)")
       ->capture_default_str()
       ->check(CLI::Range(0, 256));
   app.add_flag("--quiet", quiet, "no progress line on stderr");

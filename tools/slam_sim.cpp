@@ -54,9 +54,9 @@ int main(int argc, char** argv) {
   double duration_s = 300.0;
   uint64_t seed = 1;
   double scans_per_s = 1.5;
-  app.add_option("--world", world_spec,
-                 "built-in arena (" + std::string("box, rooms, cluttered") +
-                     ") or a world.json file");
+  app.add_option(
+      "--world", world_spec,
+      "built-in arena (" + std::string("box, rooms, cluttered") + ") or a world.json file");
   app.add_option("--duration", duration_s, "simulated seconds")
       ->capture_default_str()
       ->check(CLI::Range(0.1, 86400.0));
@@ -68,8 +68,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.1, 5.0));
 
   CLI::App* dataset = app.add_subcommand(
-      "dataset", "the reference set: every built-in arena x RUNS seeds (1..RUNS) x DURATION s, "
-                 "in DIR/<arena>-<seed>/");
+      "dataset",
+      "the reference set: every built-in arena x RUNS seeds (1..RUNS) x DURATION s, "
+      "in DIR/<arena>-<seed>/");
   std::string dataset_out;
   int runs = 5;
   dataset->add_option("--out", dataset_out, "output directory")->required();

@@ -50,7 +50,8 @@ std::string Duration(double seconds) {
 /// A progress bar with ETA on stderr: in place on a terminal, every 5 % otherwise.
 class ProgressBar {
  public:
-  ProgressBar() : interactive_(::isatty(STDERR_FILENO) != 0), start_(std::chrono::steady_clock::now()) {}
+  ProgressBar()
+      : interactive_(::isatty(STDERR_FILENO) != 0), start_(std::chrono::steady_clock::now()) {}
 
   void Update(double done, double total, const std::string& status) {
     const auto now = std::chrono::steady_clock::now();
@@ -68,8 +69,8 @@ class ProgressBar {
     std::fprintf(stderr, "%s[%s%s] %5.1f%%  %s elapsed, ETA %s  %s%s", interactive_ ? "\r" : "",
                  std::string(static_cast<size_t>(filled), '#').c_str(),
                  std::string(static_cast<size_t>(width - filled), '.').c_str(), 100.0 * fraction,
-                 Duration(elapsed).c_str(), fraction > 0.0 ? Duration(eta).c_str() : "?", status.c_str(),
-                 interactive_ ? "\033[K" : "\n");
+                 Duration(elapsed).c_str(), fraction > 0.0 ? Duration(eta).c_str() : "?",
+                 status.c_str(), interactive_ ? "\033[K" : "\n");
     std::fflush(stderr);
   }
   void Line(const std::string& text) {
@@ -98,9 +99,11 @@ int main(int argc, char** argv) {
   std::string policy_name = "fixed";
   int jobs = 0;
   bool restart = false, quiet = false;
-  app.add_option("--experiments", inputs, "experiment directories with ground truth, or datasets of them")
+  app.add_option("--experiments", inputs,
+                 "experiment directories with ground truth, or datasets of them")
       ->required();
-  app.add_option("--out", out_dir, "output directory (created; holds the state to resume from)")->required();
+  app.add_option("--out", out_dir, "output directory (created; holds the state to resume from)")
+      ->required();
   app.add_option("--budgets", settings.budgets, "rays per scan, each evolved on its own")
       ->delimiter(',')
       ->capture_default_str()
@@ -112,7 +115,8 @@ int main(int argc, char** argv) {
                  "generations per budget (a finished study can be extended)")
       ->capture_default_str()
       ->check(CLI::Range(1, 100000));
-  app.add_option("--elite", settings.evolution.elite_fraction, "share of the population kept unchanged")
+  app.add_option("--elite", settings.evolution.elite_fraction,
+                 "share of the population kept unchanged")
       ->capture_default_str()
       ->check(CLI::Range(0.01, 0.99));
   app.add_option("--seed", settings.evolution.seed, "seed of the mutations and of every replay")
@@ -123,8 +127,11 @@ int main(int argc, char** argv) {
   app.add_option("--max-particles", settings.max_particles, "adaptive policy: most particles")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));
-  app.add_option("--start", start_path, "parameters of generation 0's first individual [Table II defaults]");
-  app.add_option("--jobs", jobs, "evaluations at once, one thread each (0: one per core); results do not depend on it")
+  app.add_option("--start", start_path,
+                 "parameters of generation 0's first individual [Table II defaults]");
+  app.add_option(
+         "--jobs", jobs,
+         "evaluations at once, one thread each (0: one per core); results do not depend on it")
       ->capture_default_str()
       ->check(CLI::Range(0, 256));
   app.add_flag("--restart", restart, "discard a saved study in --out instead of resuming it");
@@ -133,7 +140,8 @@ int main(int argc, char** argv) {
 
   settings.policy = *slam::ParseBudgetPolicy(policy_name);
   std::sort(settings.budgets.begin(), settings.budgets.end());
-  settings.budgets.erase(std::unique(settings.budgets.begin(), settings.budgets.end()), settings.budgets.end());
+  settings.budgets.erase(std::unique(settings.budgets.begin(), settings.budgets.end()),
+                         settings.budgets.end());
   if (!start_path.empty()) {
     const auto loaded = slam::io::LoadParams(start_path);
     if (!loaded.ok()) return Fail(loaded.Message());
@@ -171,10 +179,12 @@ int main(int argc, char** argv) {
   const std::string results_path = (fs::path(out_dir) / "results.json").string();
   if (!restart && fs::exists(results_path, ec)) {
     const auto json = slam::io::detail::ReadJsonFile(results_path);
-    if (!json.ok()) return Fail("cannot resume: " + json.Message() + "\n(use --restart to start over)");
+    if (!json.ok())
+      return Fail("cannot resume: " + json.Message() + "\n(use --restart to start over)");
     auto saved = slam::offline::TuningStateFromJson(json.value());
     if (!saved.ok()) {
-      return Fail("cannot resume from " + results_path + ":\n" + saved.Message() + "\n(use --restart to start over)");
+      return Fail("cannot resume from " + results_path + ":\n" + saved.Message() +
+                  "\n(use --restart to start over)");
     }
     const auto conflicts = slam::offline::ResumeConflicts(saved.value(), settings, names);
     if (!conflicts.empty()) {
@@ -186,7 +196,9 @@ int main(int argc, char** argv) {
     state.settings.evolution.generations = settings.evolution.generations;
     size_t finished = 0;
     for (const slam::offline::BudgetRun& run : state.budgets) finished += run.generations.size();
-    if (!quiet) std::fprintf(stderr, "resuming %s: %zu generations already done\n", out_dir.c_str(), finished);
+    if (!quiet)
+      std::fprintf(stderr, "resuming %s: %zu generations already done\n", out_dir.c_str(),
+                   finished);
   }
 
   std::signal(SIGINT, OnSignal);
@@ -205,14 +217,17 @@ int main(int argc, char** argv) {
       if (run.budget != budget || run.generations.empty()) continue;
       const slam::offline::GenerationSummary& g = run.generations.back();
       char text[160];
-      std::snprintf(text, sizeof(text), "budget %lld generation %d/%d: median %.4f, IQR %.4f-%.4f, best %.4f",
-                    static_cast<long long>(budget), g.generation + 1, s.settings.evolution.generations,
-                    g.fitness.median, g.fitness.q1, g.fitness.q3, g.best.fitness);
-      status = "budget " + std::to_string(budget) + ", best " + std::to_string(g.best.fitness).substr(0, 6);
+      std::snprintf(
+          text, sizeof(text), "budget %lld generation %d/%d: median %.4f, IQR %.4f-%.4f, best %.4f",
+          static_cast<long long>(budget), g.generation + 1, s.settings.evolution.generations,
+          g.fitness.median, g.fitness.q1, g.fitness.q3, g.best.fitness);
+      status = "budget " + std::to_string(budget) + ", best " +
+               std::to_string(g.best.fitness).substr(0, 6);
       if (!quiet) bar.Line(text);
     }
   };
-  if (!quiet) callbacks.progress = [&](double done, double total) { bar.Update(done, total, status); };
+  if (!quiet)
+    callbacks.progress = [&](double done, double total) { bar.Update(done, total, status); };
 
   const auto start = std::chrono::steady_clock::now();
   const bool finished = slam::offline::RunTuning(tuning, state, jobs, callbacks);
@@ -220,13 +235,15 @@ int main(int argc, char** argv) {
     std::cerr << "slam-tune: " << e << "\n";
     write_failed = true;
   }
-  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double wall =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (!finished) {
-    return Fail("interrupted after " + Duration(wall) + "; finished generations are saved in " + out_dir +
-                    ": run the same command again to resume",
+    return Fail("interrupted after " + Duration(wall) + "; finished generations are saved in " +
+                    out_dir + ": run the same command again to resume",
                 130);
   }
   std::cout << slam::offline::Table2Markdown(state) << "\n" << slam::offline::Table3Markdown(state);
-  std::fprintf(stderr, "slam-tune: done in %s (%.0f s); results in %s\n", Duration(wall).c_str(), wall, out_dir.c_str());
+  std::fprintf(stderr, "slam-tune: done in %s (%.0f s); results in %s\n", Duration(wall).c_str(),
+               wall, out_dir.c_str());
   return write_failed ? 1 : 0;
 }

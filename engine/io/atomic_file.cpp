@@ -67,5 +67,4 @@ std::optional<std::string> WriteFileAtomic(const std::string& path, const std::s
   return std::nullopt;
 }
 
-
 }  // namespace slam::io

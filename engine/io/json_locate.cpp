@@ -310,10 +310,10 @@ class Locator {
   const std::vector<std::string>& tokens_;
   std::size_t pos_ = 0;
   int line_ = 1;
-  std::string kinds_;             // '{' or '[' per open container, outermost first
-  std::vector<PathFrame> path_;   // the open containers on the pointer's path (a prefix of kinds_)
-  std::vector<int> lines_;        // lines_[d]: where the value matching d tokens starts
-  std::size_t matched_ = 0;       // the deepest match of the latest occurrence
+  std::string kinds_;            // '{' or '[' per open container, outermost first
+  std::vector<PathFrame> path_;  // the open containers on the pointer's path (a prefix of kinds_)
+  std::vector<int> lines_;       // lines_[d]: where the value matching d tokens starts
+  std::size_t matched_ = 0;      // the deepest match of the latest occurrence
 };
 
 // The outcome of one walk: how deep the pointer was found, and where.

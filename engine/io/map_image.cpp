@@ -1,7 +1,5 @@
 #include "engine/io/map_image.hpp"
 
-#include "engine/io/atomic_file.hpp"
-
 #include <png.h>
 
 #include <algorithm>
@@ -13,6 +11,7 @@
 
 #include "engine/cell_encoding.hpp"
 #include "engine/grid_geometry.hpp"
+#include "engine/io/atomic_file.hpp"
 #include "engine/io/canvas.hpp"
 
 namespace slam::io {
@@ -181,8 +180,9 @@ std::vector<uint8_t> TileGray(const Tile& tile) {
     for (int x = 0; x < kTileSize; ++x) {
       const LogOdds cell = tile.cells[static_cast<size_t>(y * kTileSize + x)];
       uint8_t& pixel = gray[static_cast<size_t>(row * kTileSize + x)];
-      pixel = cell == 0 ? kUnknownGray
-                        : static_cast<uint8_t>(std::lround(254.0 * (1.0 - OccupancyProbability(cell))));
+      pixel = cell == 0
+                  ? kUnknownGray
+                  : static_cast<uint8_t>(std::lround(254.0 * (1.0 - OccupancyProbability(cell))));
     }
   }
   return gray;

@@ -60,8 +60,8 @@ Result<std::vector<TimedPose>> ParseTum(std::string_view text, const std::string
     const auto fields = Fields(line);
     if (fields.empty() || fields[0].front() == '#') continue;
     if (fields.size() != 8) {
-      fail(line_number, "expected 8 fields \"t x y z qx qy qz qw\", found " +
-                            std::to_string(fields.size()));
+      fail(line_number,
+           "expected 8 fields \"t x y z qx qy qz qw\", found " + std::to_string(fields.size()));
       continue;
     }
     double v[8];
