@@ -47,7 +47,7 @@ inline bool InMapBound(TileIndex t) {
 /// Resolution and the conversions between metres, cells and tiles.
 class GridGeometry {
  public:
-  /// Precondition: resolution_m > 0 (validated by GridConfig::Validate).
+  /// Precondition: resolution_m > 0 (SlamConfig::Validate checks it).
   explicit GridGeometry(double resolution_m)
       : resolution_(resolution_m), inv_(1.0 / resolution_m) {}
 

@@ -403,7 +403,7 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   }
 
   const std::vector<Measurement> usable = CollectMeasurements(scan);
-  report.valid_measurements = static_cast<int>(usable.size());
+  report.usable_measurements = static_cast<int>(usable.size());
 
   // Matching measurements: thinned by platform angle ("angle between scans"), then capped.
   const std::vector<size_t> thinned = ThinByAngle(scan, usable);

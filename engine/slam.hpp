@@ -18,9 +18,9 @@
 
 namespace slam {
 
-/// Engine settings that are not tuned by the evolution strategy.
 class MatchWindow;
 
+/// Engine settings that are not tuned by the evolution strategy.
 struct SlamConfig {
   double resolution_m = 0.01;
   double logodds_limit = 5.0;           // cells are clamped to [-limit, +limit]
@@ -67,7 +67,7 @@ struct ScanReport {
   RayCounts rays;
   int particles = 0;
   int candidates = 0;             // per particle
-  int valid_measurements = 0;     // usable for matching (before thinning and the cap)
+  int usable_measurements = 0;    // inside their use window (before thinning and the cap)
   int matching_measurements = 0;  // matched per candidate
   int update_rays = 0;            // per particle
   bool resampled = false;

@@ -1459,7 +1459,7 @@ SaveOutcome HttpServer::Impl::SaveLocked() {
   last_save.valid = false;
   last_save.started = Clock::now();
   const auto snapshot = service.Snapshot();
-  const OccupancyGrid grid = SnapshotGrid(*snapshot, service.logodds_limit());
+  const OccupancyGrid grid = SnapshotGrid(*snapshot, service.encoded_logodds_limit());
   SaveInputs in;
   in.version = snapshot->map_version;
   in.resolution_m = snapshot->resolution_m;
@@ -1733,7 +1733,7 @@ void HttpServer::Impl::Setup() {
       ServeExport(
           "map." + kind, res,
           [&](const SlamSnapshot& s, std::string& body, std::string& type, std::string& error) {
-            const OccupancyGrid grid = SnapshotGrid(s, service.logodds_limit());
+            const OccupancyGrid grid = SnapshotGrid(s, service.encoded_logodds_limit());
             const io::GridImage image = io::MakeGridImage(grid);
             if (kind == "pgm") {
               body = io::EncodePgm(image);

@@ -73,8 +73,8 @@ std::vector<TimedPose> ScanEndTrajectory(const SlamSnapshot& snapshot) {
   return out;
 }
 
-OccupancyGrid SnapshotGrid(const SlamSnapshot& snapshot, int logodds_limit) {
-  OccupancyGrid grid(GridGeometry(snapshot.resolution_m), logodds_limit);
+OccupancyGrid SnapshotGrid(const SlamSnapshot& snapshot, int encoded_logodds_limit) {
+  OccupancyGrid grid(GridGeometry(snapshot.resolution_m), encoded_logodds_limit);
   grid.BeginWrite();
   for (const TileRef& ref : snapshot.tiles) {
     Tile& tile = grid.MutableTile(ref.index);
@@ -120,7 +120,9 @@ void SlamService::Stop() {
   if (thread_.joinable()) thread_.join();
 }
 
-int SlamService::logodds_limit() const { return EncodeLogOdds(options_.config.logodds_limit); }
+int SlamService::encoded_logodds_limit() const {
+  return EncodeLogOdds(options_.config.logodds_limit);
+}
 
 void SlamService::BuildEngine() {
   SlamParams params;
@@ -133,7 +135,7 @@ void SlamService::BuildEngine() {
   engine_->set_interrupt(&stop_);  // a scan of a huge budget ends soon after Stop()
   if (options_.resume) {
     const SavedState& saved = *options_.resume;
-    OccupancyGrid grid(GridGeometry(options_.config.resolution_m), logodds_limit());
+    OccupancyGrid grid(GridGeometry(options_.config.resolution_m), encoded_logodds_limit());
     grid.BeginWrite();
     for (const SavedTile& tile : saved.tiles) {
       std::copy(tile.cells.begin(), tile.cells.end(), grid.MutableTile(tile.index).cells.begin());

@@ -74,8 +74,9 @@ struct SlamSnapshot {
 /// One pose per scan end (plus the start), resumed part first, times with the offset applied.
 std::vector<TimedPose> ScanEndTrajectory(const SlamSnapshot& snapshot);
 
-/// The best particle's map as a grid holding the snapshot's tiles (shared, not copied).
-OccupancyGrid SnapshotGrid(const SlamSnapshot& snapshot, int logodds_limit);
+/// The best particle's map as a grid holding the snapshot's tiles (shared, not copied);
+/// `encoded_logodds_limit` is the cells' clamp in the grid's encoding (EncodeLogOdds).
+OccupancyGrid SnapshotGrid(const SlamSnapshot& snapshot, int encoded_logodds_limit);
 
 enum class SlamState { kWaiting, kRunning };
 const char* ToString(SlamState state);
@@ -151,7 +152,8 @@ class SlamService {
   bool simulated() const { return truth_source_ != nullptr; }
   const RobotDescription& robot() const { return options_.robot; }
   const SlamConfig& config() const { return options_.config; }
-  int logodds_limit() const;
+  /// config().logodds_limit (natural log-odds) in the grid's cell encoding (EncodeLogOdds).
+  int encoded_logodds_limit() const;
 
  private:
   void Run();

@@ -526,7 +526,7 @@ TEST_F(SlamServiceTest, MapsTheLogAndPublishesSnapshots) {
   replay.config.parallel = false;
   const offline::ReplayResult expected =
       offline::Replay((*experiment_)->robot, (*experiment_)->scans, {}, replay);
-  const OccupancyGrid grid = SnapshotGrid(*last, service.logodds_limit());
+  const OccupancyGrid grid = SnapshotGrid(*last, service.encoded_logodds_limit());
   ASSERT_EQ(grid.TileCount(), expected.map.TileCount());
   for (const TileRef& t : expected.map.Tiles()) {
     ASSERT_NE(grid.FindTile(t.index), nullptr);
@@ -579,7 +579,7 @@ TEST_F(SlamServiceTest, ResumesASavedMap) {
     saved = WaitForScans(service, 10);
     service.Stop();
     link->Stop();
-    const OccupancyGrid grid = SnapshotGrid(*saved, service.logodds_limit());
+    const OccupancyGrid grid = SnapshotGrid(*saved, service.encoded_logodds_limit());
     SaveInputs in;
     in.version = saved->map_version;
     in.grid = &grid;
@@ -599,8 +599,8 @@ TEST_F(SlamServiceTest, ResumesASavedMap) {
   ASSERT_TRUE(resumed->has_pose);
   EXPECT_NEAR(resumed->pose.pose.x, saved->pose.pose.x, 1e-5);  // TUM keeps 6 decimals
   // Cells are restored exactly.
-  const OccupancyGrid a = SnapshotGrid(*saved, service.logodds_limit());
-  const OccupancyGrid b = SnapshotGrid(*resumed, service.logodds_limit());
+  const OccupancyGrid a = SnapshotGrid(*saved, service.encoded_logodds_limit());
+  const OccupancyGrid b = SnapshotGrid(*resumed, service.encoded_logodds_limit());
   for (const TileRef& t : a.Tiles()) {
     ASSERT_NE(b.FindTile(t.index), nullptr);
     EXPECT_EQ(b.FindTile(t.index)->cells, t.tile->cells);
