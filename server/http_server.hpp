@@ -34,35 +34,6 @@ struct HttpOptions {
   std::vector<std::string> allowed_hosts;
 };
 
-/// True for 127.0.0.0/8, ::1 and "localhost".
-bool IsLoopback(const std::string& address);
-
-/// The host of a Host header value without its port: "[::1]:8080" -> "::1", "a:80" -> "a".
-std::string HostName(const std::string& host_header);
-
-/// True for an IPv4 or IPv6 address (without brackets).
-bool IsIpAddress(const std::string& host);
-
-/// Whether the page's static handler may serve `path` (decoded): not the npm folder, the npm
-/// manifests or a hidden file, at any depth.
-bool IsPublicWebPath(std::string_view path);
-
-/// Whether an If-Match or If-None-Match value (a list of entity tags, or "*") matches `etag`
-/// (RFC 9110 13.1): If-None-Match compares weakly (W/"1" matches "1"), If-Match strongly (a
-/// weak tag matches nothing). An empty list matches nothing.
-bool EntityTagListMatches(std::string_view list, std::string_view etag, bool weak);
-
-/// What makes a request head (request line and header lines as received, CRLF-separated, up to
-/// the blank line) ambiguous to read, or nothing (RFC 9112): a header line folded onto the
-/// previous one, a header line without a colon, a field name that is not a token (whitespace
-/// before the colon: "Transfer-Encoding : chunked" is one header to one parser and none to
-/// another), more than one Content-Length, an HTTP/1.1 request without exactly one Host. Two
-/// parsers reading such a request differently is how a request is smuggled inside another.
-std::optional<std::string> AmbiguousFraming(std::string_view head);
-
-/// Constant-time comparison (the time does not depend on where the strings differ).
-bool ConstantTimeEquals(const std::string& a, const std::string& b);
-
 class HttpServer {
  public:
   HttpServer(SlamService& service, hw::Link& link, JobManager& jobs, const HttpOptions& options);

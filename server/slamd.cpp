@@ -23,6 +23,7 @@
 #include "engine/io/robot_json.hpp"
 #include "hw_link/link.hpp"
 #include "server/http_server.hpp"
+#include "server/request_guard.hpp"
 #include "server/slam_service.hpp"
 #include "server/source_spec.hpp"
 #include "server/state_store.hpp"

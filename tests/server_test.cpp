@@ -19,6 +19,7 @@
 #include "hw_link/transports.hpp"
 #include "offline/replay.hpp"
 #include "server/http_server.hpp"
+#include "server/request_guard.hpp"
 #include "server/slam_service.hpp"
 #include "server/state_store.hpp"
 #include "server/tune_jobs.hpp"

@@ -1,0 +1,152 @@
+#include "server/api_json.hpp"
+
+#include <algorithm>
+#include <cctype>
+#include <optional>
+#include <vector>
+
+namespace slam::server {
+
+using json = nlohmann::json;
+
+std::string Lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+std::string MediaType(const std::string& content_type) {
+  std::string type = content_type.substr(0, content_type.find(';'));
+  type.erase(0, type.find_first_not_of(" \t"));
+  type.erase(type.find_last_not_of(" \t") + 1);
+  return Lower(type);
+}
+
+std::string Dump(const json& body) {
+  return body.dump(-1, ' ', false, json::error_handler_t::replace);
+}
+
+void SendJson(httplib::Response& res, const json& body, int status) {
+  res.status = status;
+  res.set_content(Dump(body), kJson);
+}
+
+void SendProblem(httplib::Response& res, int status, const std::string& title,
+                 const std::string& detail, const ConfigErrors& errors) {
+  json body = {{"type", "about:blank"}, {"title", title}, {"status", status}, {"detail", detail}};
+  if (!errors.empty()) {
+    json list = json::array();
+    for (const ConfigError& e : errors)
+      list.push_back({{"pointer", e.pointer}, {"detail", e.detail}});
+    body["errors"] = std::move(list);
+  }
+  res.status = status;
+  res.set_content(Dump(body), kProblem);
+}
+
+json PoseJson(const TimedPose& p) {
+  return {{"t", p.t}, {"x", p.pose.x}, {"y", p.pose.y}, {"theta", p.pose.theta}};
+}
+
+json BudgetJson(const BudgetSettings& b) {
+  return {{"mode", ToString(b.mode)},
+          {"rays_per_scan", b.rays_per_scan},
+          {"cpu_share", b.cpu_share},
+          {"policy", ToString(b.policy)},
+          {"max_particles", b.max_particles}};
+}
+
+ConfigErrors BudgetFromJson(const json& body, BudgetSettings& out) {
+  ConfigErrors errors;
+  if (!body.is_object()) return {{"", "must be a JSON object", 0}};
+  static const std::vector<std::string> kKeys{"mode", "rays_per_scan", "cpu_share", "policy",
+                                              "max_particles"};
+  for (const auto& [key, value] : body.items()) {
+    if (std::find(kKeys.begin(), kKeys.end(), key) == kKeys.end()) {
+      errors.push_back({"/" + key, "unknown field", 0});
+    }
+  }
+  bool missing = false;
+  for (const std::string& key : kKeys) {
+    if (!body.contains(key)) {
+      errors.push_back({"/" + key, "required", 0});
+      missing = true;
+    }
+  }
+  if (missing) return errors;
+  const size_t unknown = errors.size();
+  BudgetSettings b;
+  const auto mode =
+      body["mode"].is_string() ? ParseQuotaMode(body["mode"].get<std::string>()) : std::nullopt;
+  if (!mode) {
+    errors.push_back({"/mode", "must be \"rays\" or \"cpu_share\"", 0});
+  } else {
+    b.mode = *mode;
+  }
+  const auto policy = body["policy"].is_string()
+                          ? ParseBudgetPolicy(body["policy"].get<std::string>())
+                          : std::nullopt;
+  if (!policy) {
+    errors.push_back({"/policy", "must be \"fixed\" or \"adaptive\"", 0});
+  } else {
+    b.policy = *policy;
+  }
+  const json& rays = body["rays_per_scan"];
+  if (!rays.is_number_integer()) {
+    errors.push_back({"/rays_per_scan", "must be an integer", 0});
+  } else {
+    b.rays_per_scan = rays.get<int64_t>();
+  }
+  const json& share = body["cpu_share"];
+  if (!share.is_number()) {
+    errors.push_back({"/cpu_share", "must be a number", 0});
+  } else {
+    b.cpu_share = share.get<double>();
+  }
+  const json& particles = body["max_particles"];
+  if (!particles.is_number_integer()) {
+    errors.push_back({"/max_particles", "must be an integer", 0});
+  } else {
+    const auto n = particles.get<int64_t>();
+    b.max_particles = static_cast<int>(std::clamp<int64_t>(n, -1, 1 << 30));
+  }
+  // Ranges of the values whose type was right (a mistyped value has no range to check).
+  std::vector<std::string> mistyped;
+  for (size_t i = unknown; i < errors.size(); ++i) mistyped.push_back(errors[i].pointer);
+  for (ConfigError& e : Validate(b)) {
+    if (std::find(mistyped.begin(), mistyped.end(), e.pointer) == mistyped.end()) {
+      errors.push_back(std::move(e));
+    }
+  }
+  if (errors.empty()) out = b;
+  return errors;
+}
+
+json MetricsEventJson(const SlamSnapshot& s) {
+  const ScanMetrics& m = *s.last;
+  return {{"scan", m.scan},
+          {"t", s.pose.t},
+          {"rays_planned", m.rays_planned},
+          {"rays_used", m.rays_used},
+          {"quota", m.quota},
+          {"latency_ms", m.latency_s * 1e3},
+          {"cpu_share", m.cpu_share},
+          {"realtime_ratio", m.realtime_ratio},
+          {"particles", m.particles},
+          {"candidates", m.candidates},
+          {"ess", m.ess},
+          {"pose_error_m", m.pose_error_m ? json(*m.pose_error_m) : json(nullptr)}};
+}
+
+json PoseEventJson(const SlamSnapshot& s) {
+  json j = PoseJson(s.pose);
+  j["scan"] = s.last ? s.last->scan : 0;
+  j["truth"] = s.truth ? json{{"x", s.truth->x}, {"y", s.truth->y}, {"theta", s.truth->theta}}
+                       : json(nullptr);
+  return j;
+}
+
+std::string SseEvent(const std::string& name, uint64_t id, const json& data) {
+  return "event: " + name + "\nid: " + std::to_string(id) + "\ndata: " + Dump(data) + "\n\n";
+}
+
+}  // namespace slam::server

@@ -1,0 +1,55 @@
+#pragma once
+// The JSON of slamd's API (docs/http-api.md): plain and problem-details responses, the budget
+// object and its strict reader, and the event stream's events in Server-Sent Events framing.
+
+#include <cstdint>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "engine/config_error.hpp"
+#include "engine/pose.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
+#include "server/http_library.hpp"
+#include "server/slam_service.hpp"
+
+namespace slam::server {
+
+inline constexpr const char* kJson = "application/json; charset=utf-8";
+inline constexpr const char* kProblem = "application/problem+json";
+
+/// `s` in lower case (ASCII).
+std::string Lower(std::string s);
+
+/// The media type of a Content-Type header, lower case, without parameters.
+std::string MediaType(const std::string& content_type);
+
+/// JSON text of `body`; bytes that are not UTF-8 (a client's path or parameter echoed in an
+/// error, say) become U+FFFD instead of throwing.
+std::string Dump(const nlohmann::json& body);
+
+/// `body` as the response, application/json.
+void SendJson(httplib::Response& res, const nlohmann::json& body, int status = 200);
+
+/// An RFC 9457 problem-details response; `errors` become its "errors" list (pointer, detail).
+void SendProblem(httplib::Response& res, int status, const std::string& title,
+                 const std::string& detail, const ConfigErrors& errors = {});
+
+/// {"t", "x", "y", "theta"}.
+nlohmann::json PoseJson(const TimedPose& p);
+
+/// The budget object of GET /api/v1/budget.
+nlohmann::json BudgetJson(const BudgetSettings& b);
+
+/// A whole budget object: every key required (PUT, and a PATCH after merging onto the
+/// current object), no other key, right types; then the ranges of Validate. `out` is set only
+/// when there is no error.
+ConfigErrors BudgetFromJson(const nlohmann::json& body, BudgetSettings& out);
+
+/// The data of the event stream's `metrics` and `pose` events for a snapshot.
+nlohmann::json MetricsEventJson(const SlamSnapshot& s);
+nlohmann::json PoseEventJson(const SlamSnapshot& s);
+
+/// One Server-Sent Event: its name, id and JSON data.
+std::string SseEvent(const std::string& name, uint64_t id, const nlohmann::json& data);
+
+}  // namespace slam::server

@@ -1,0 +1,118 @@
+#pragma once
+// HttpServer's state, shared by its parts inside server/ (not for other modules): the routes
+// and handlers (http_server.cpp), the request guard (request_guard.cpp) and the event stream
+// (event_stream.cpp), over the bounded server (bounded_server.hpp).
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <map>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <utility>
+
+#include "server/bounded_server.hpp"
+#include "server/http_library.hpp"
+#include "server/http_server.hpp"
+
+namespace slam::server {
+
+using json = nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+inline constexpr auto kStreamWake =
+    std::chrono::milliseconds(250);  // <= 0.5 s: disconnects noticed
+inline constexpr double kTilesEverySeconds = 0.5;
+inline constexpr double kPoseEverySeconds = 0.25;
+inline constexpr double kPingEverySeconds = 10.0;
+
+inline double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+struct TileKey {
+  int32_t x, y;
+  friend bool operator<(const TileKey& a, const TileKey& b) {
+    return a.x != b.x ? a.x < b.x : a.y < b.y;
+  }
+};
+
+struct HttpServer::Impl {
+  SlamService& service;
+  hw::Link& link;
+  JobManager& jobs;
+  HttpOptions options;
+  BoundedServer server;
+  Clock::time_point started = Clock::now();
+  // Tells one run of slamd from the next (the page reloads everything when it changes).
+  std::string instance = std::to_string(std::chrono::system_clock::now().time_since_epoch() /
+                                        std::chrono::microseconds(1));
+  std::atomic<bool> stopping{false};
+  std::atomic<int> streams{0};
+  std::atomic<uint64_t> streams_rejected{0};
+
+  // Revisions of the budget and the parameters (the ETags), bumped by every change.
+  std::mutex revision_mutex;  // also serialises read-modify-write of budget and params
+  uint64_t budget_revision = 1;
+  uint64_t params_revision = 1;
+
+  std::mutex save_mutex;  // one save at a time
+  // The last save that succeeded (guarded by save_mutex): when it was started and its answer.
+  // A request that waited for a save started after it arrived shares that save's answer.
+  struct LastSave {
+    bool valid = false;
+    Clock::time_point started;
+    json answer;
+  } last_save;
+  std::atomic<uint64_t> saves_made{0};
+  // A reset request waiting for the SLAM thread to apply its reset (at most one: see HandleReset).
+  std::atomic<bool> reset_waiting{false};
+
+  // Whole-map exports and the trajectory cost time in proportion to the map and the run: each
+  // kind is made at most once per published snapshot, one at a time; requests that come while
+  // one is being made wait for it and share its bytes. Their CPU cost is thus bounded by the scan
+  // rate, whatever the request rate. (Keys are made in Setup; the map is not resized later.)
+  struct Export {
+    std::mutex mutex;
+    bool valid = false;
+    uint64_t sequence = 0;  // of the snapshot it was made from
+    std::string body;
+    std::string type;
+    std::atomic<uint64_t> renders{0};
+  };
+  std::map<std::string, Export> exports;
+  template <typename Make>
+  void ServeExport(const std::string& kind, httplib::Response& res, Make make);
+
+  std::mutex tile_cache_mutex;
+  std::map<TileKey, std::pair<uint64_t, std::string>> tile_cache;  // version, PNG
+
+  std::mutex requests_mutex;
+  std::map<std::pair<std::string, int>, uint64_t> requests;  // (method, code) -> count
+
+  Impl(SlamService& s, hw::Link& l, JobManager& j, const HttpOptions& o)
+      : service(s), link(l), jobs(j), options(o) {}
+
+  std::string BudgetEtag() const { return "\"b" + std::to_string(budget_revision) + "\""; }
+  std::string ParamsEtag() const { return "\"p" + std::to_string(params_revision) + "\""; }
+
+  void Setup();
+  httplib::Server::HandlerResponse Guard(httplib::Request& req, httplib::Response& res);
+  bool ParseBody(const httplib::Request& req, httplib::Response& res, const char* media, json& out);
+  void HandleBudgetChange(const httplib::Request& req, httplib::Response& res, bool patch);
+  void HandleParamsPatch(const httplib::Request& req, httplib::Response& res);
+  void HandleTile(const httplib::Request& req, httplib::Response& res);
+  void HandleEvents(const httplib::Request& req, httplib::Response& res);
+  void HandleSave(httplib::Response& res);
+  /// Saves the newest snapshot into --state-dir (save_mutex held); sets last_save on success.
+  SaveOutcome SaveLocked();
+  void HandleReset(httplib::Response& res);
+  json StatusJson();
+  json SourceJson(const std::string& description) {
+    return {{"spec", options.source_spec},
+            {"description", description},
+            {"simulated", service.simulated()}};
+  }
+  std::string MetricsText();
+};
+
+}  // namespace slam::server
