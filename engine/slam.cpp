@@ -385,153 +385,203 @@ void Slam::Resample(size_t wanted, uint64_t step, uint64_t stream) {
   scans_since_resampling_ = 0;
 }
 
+struct Slam::Prediction {
+  std::vector<ScanPath> paths;   // per particle
+  std::vector<Pose2> predicted;  // per particle: its end pose drawn from the motion model
+  double sigma_trans = 0.0, sigma_rot1 = 0.0, sigma_rot2 = 0.0;  // of the motion model
+};
+
+struct Slam::MatchResult {
+  std::vector<Pose2> chosen;      // per particle: the winning candidate (the prediction without
+  std::vector<double> chosen_ll;  // matching) and its log-likelihood (0 without matching)
+  bool matched = false;           // phase B ran
+  size_t candidates = 1;          // per particle
+  int64_t matching_rays = 0;
+  double ambiguity = 0.0;  // ScanReport::refinement_ambiguity
+  bool interrupted = false;
+};
+
 ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   const uint64_t step = static_cast<uint64_t>(scans_processed_);
   ScanReport report;
   report.scan = scan.index;
+  report.resampled = StartScan(scan, plan, step);
+
+  const std::vector<Measurement> usable = CollectMeasurements(scan);
+  report.usable_measurements = static_cast<int>(usable.size());
+  const std::vector<const Measurement*> matching = SelectMatching(scan, usable, plan);
+
+  const Prediction prediction = PredictMotion(scan, plan.refine, step);
+  const MatchResult match = MatchScan(prediction, matching, plan, step);
+  report.candidates = static_cast<int>(match.candidates);
+  if (match.matched) {
+    report.refinement_ambiguity = match.ambiguity;
+    report.rays.matching = match.matching_rays;
+    report.interrupted = match.interrupted;
+    report.matching_measurements = static_cast<int>(matching.size());
+  }
+
+  const size_t updates = UpdateParticles(scan, usable, prediction, match, plan);
+  report.update_rays = static_cast<int>(updates);
+  report.rays.update = static_cast<int64_t>(updates * particles_.size());
+
+  FinishScan(match, step, report);
+  return report;
+}
+
+bool Slam::StartScan(const Scan& scan, const ScanPlan& plan, uint64_t step) {
   for (Particle& p : particles_) {
     if (!p.history)
       p.history =
           std::make_shared<TrajectoryChunk>(TrajectoryChunk{{{scan.t_begin, p.pose}}, nullptr});
   }
-
   // A new particle count applies from this scan: drawn from the current weights.
   const auto wanted = static_cast<size_t>(std::max(1, plan.particles));
-  if (wanted != particles_.size()) {
-    Resample(wanted, step, 1);
-    report.resampled = true;
-  }
+  if (wanted == particles_.size()) return false;
+  Resample(wanted, step, 1);
+  return true;
+}
 
-  const std::vector<Measurement> usable = CollectMeasurements(scan);
-  report.usable_measurements = static_cast<int>(usable.size());
-
-  // Matching measurements: thinned by platform angle ("angle between scans"), then capped.
+std::vector<const Slam::Measurement*> Slam::SelectMatching(const Scan& scan,
+                                                           const std::vector<Measurement>& usable,
+                                                           const ScanPlan& plan) const {
   const std::vector<size_t> thinned = ThinByAngle(scan, usable);
   std::vector<const Measurement*> matching;
   for (size_t i :
        SpreadEvenly(thinned.size(), static_cast<size_t>(std::max(0, plan.matching_measurements)))) {
     matching.push_back(&usable[thinned[i]]);
   }
+  return matching;
+}
 
-  // Phase A: sample each particle's end pose from the motion model (noise-free without phase B:
-  // odometry-only mapping).
+Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t step) const {
   const size_t n_particles = particles_.size();
   const MotionDelta motion = Decompose(Between(scan.odom_begin, scan.odom_end));
   const double angle_const = DegToRad(params_.angle_error_const_deg);
-  const double sigma_trans =
-      params_.dist_error_ratio * std::abs(motion.trans) + params_.dist_error_const_m;
-  const double sigma_rot1 = params_.angle_error_ratio * std::abs(motion.rot1) + angle_const;
-  const double sigma_rot2 = params_.angle_error_ratio * std::abs(motion.rot2) + angle_const;
-  std::vector<ScanPath> paths;
-  std::vector<Pose2> predicted(n_particles);
-  paths.reserve(n_particles);
+  Prediction out;
+  out.sigma_trans = params_.dist_error_ratio * std::abs(motion.trans) + params_.dist_error_const_m;
+  out.sigma_rot1 = params_.angle_error_ratio * std::abs(motion.rot1) + angle_const;
+  out.sigma_rot2 = params_.angle_error_ratio * std::abs(motion.rot2) + angle_const;
+  out.predicted.resize(n_particles);
+  out.paths.reserve(n_particles);
   for (size_t p = 0; p < n_particles; ++p) {
-    paths.emplace_back(scan, particles_[p].pose);
-    if (!plan.refine) {
-      predicted[p] = paths[p].nominal_end();
+    out.paths.emplace_back(scan, particles_[p].pose);
+    if (!refine) {
+      out.predicted[p] = out.paths[p].nominal_end();
       continue;
     }
     Rng rng = Rng::ForStream(config_.seed, step, p, kStreamMotion);
     MotionDelta noisy = motion;
-    noisy.rot1 += rng.Gaussian(sigma_rot1);
-    noisy.trans += rng.Gaussian(sigma_trans);
-    noisy.rot2 += rng.Gaussian(sigma_rot2);
-    predicted[p] = Compose(particles_[p].pose, Recompose(noisy));
+    noisy.rot1 += rng.Gaussian(out.sigma_rot1);
+    noisy.trans += rng.Gaussian(out.sigma_trans);
+    noisy.rot2 += rng.Gaussian(out.sigma_rot2);
+    out.predicted[p] = Compose(particles_[p].pose, Recompose(noisy));
   }
+  return out;
+}
 
-  // Phase B: eq. (2) for each candidate pose around the prediction; the best candidate wins.
-  const bool match = plan.refine && !matching.empty() && (plan.candidates > 1 || n_particles > 1);
-  const size_t n_candidates = match ? static_cast<size_t>(std::max(1, plan.candidates)) : 1;
-  std::vector<Pose2> chosen = predicted;
-  std::vector<double> chosen_ll(n_particles, 0.0);
-  if (match) {
-    const double sigma_pos = std::max(params_.min_pos_uncertainty_m, sigma_trans);
-    const double sigma_angle =
-        std::max(DegToRad(params_.min_angle_uncertainty_deg), std::hypot(sigma_rot1, sigma_rot2));
-    // A particle whose candidates cast enough rays gets a MatchWindow over the cells they can
-    // reach: every sample position under the predicted correction, moved by up to 4 sigma_pos,
-    // plus the longest reach of a matching ray (candidates drawn farther cast through the map).
-    // Same answers either way; what pays is measured by BM_MatchWindowBuild (about 3 ns per
-    // cell) and BM_MatchingRayWindow (some 30 to 60 ns saved per ray) on this machine.
-    constexpr int64_t kCellsPerRayPaid = 16;
-    double reach = 0.0;
-    for (const Measurement* m : matching)
-      reach = std::max(reach, m->local_origin.norm() + m->match_range_m);
-    const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
-    std::vector<std::optional<MatchWindow>> windows(n_particles);
-    ForEach(config_.parallel, n_particles, [&](size_t p) {
-      const std::array<double, 4> box = paths[p].Extent(paths[p].CorrectionTo(predicted[p]));
-      const double pad = reach + 4.0 * sigma_pos + 3.0 * config_.resolution_m;
-      const CellIndex lo = geometry_.CellOf({box[0] - pad, box[1] - pad});
-      const CellIndex hi = geometry_.CellOf({box[2] + pad, box[3] + pad});
-      const int64_t cells = (int64_t{hi.x} - lo.x + 1) * (int64_t{hi.y} - lo.y + 1);
-      const auto rays = static_cast<int64_t>(n_candidates * matching.size());
-      if (cells <= kMaxMatchWindowCells && rays * kCellsPerRayPaid >= cells) {
-        windows[p].emplace(particles_[p].map, occupied_above, lo, hi);
-      }
-    });
-    std::vector<Pose2> candidate_pose(n_particles * n_candidates);
-    std::vector<double> candidate_ll(n_particles * n_candidates);
-    std::atomic<size_t> skipped{0};
-    ForEach(config_.parallel, candidate_pose.size(), [&](size_t index) {
-      const size_t p = index / n_candidates, c = index % n_candidates;
-      if (c > 0 && interrupt_ != nullptr && interrupt_->load(std::memory_order_relaxed)) {
-        candidate_pose[index] = predicted[p];
-        candidate_ll[index] = -std::numeric_limits<double>::infinity();  // never chosen
-        skipped.fetch_add(1, std::memory_order_relaxed);
-        return;
-      }
-      Pose2 end = predicted[p];
-      if (c > 0) {
-        Rng rng = Rng::ForStream(config_.seed, step, p, kStreamCandidate + c);
-        end.x += rng.Gaussian(sigma_pos);
-        end.y += rng.Gaussian(sigma_pos);
-        end.theta = NormalizeAngle(end.theta + rng.Gaussian(sigma_angle));
-      }
-      const MatchWindow* window = windows[p] ? &*windows[p] : nullptr;
-      const double ll =
-          LogLikelihood(particles_[p].map, window, paths[p], paths[p].CorrectionTo(end), matching);
-      candidate_pose[index] = end;
-      candidate_ll[index] = ll;
-    });
-    double ambiguity = 0.0;
-    for (size_t p = 0; p < n_particles; ++p) {
-      size_t best = p * n_candidates;
-      for (size_t c = 1; c < n_candidates; ++c) {
-        if (candidate_ll[p * n_candidates + c] > candidate_ll[best]) best = p * n_candidates + c;
-      }
-      chosen[p] = candidate_pose[best];
-      chosen_ll[p] = candidate_ll[best];
-      if (n_candidates > 1) {
-        // The candidates' posterior (weights exp(ll - best ll)) around the winner.
-        double weight_sum = 0.0, spread_sq = 0.0;
-        for (size_t c = 0; c < n_candidates; ++c) {
-          const size_t i = p * n_candidates + c;
-          const double w = std::exp(candidate_ll[i] - candidate_ll[best]);
-          const double dx = candidate_pose[i].x - chosen[p].x,
-                       dy = candidate_pose[i].y - chosen[p].y;
-          weight_sum += w;
-          spread_sq += w * (dx * dx + dy * dy);
-        }
-        ambiguity += std::sqrt(spread_sq / weight_sum) / std::max(std::sqrt(2.0) * sigma_pos, 1e-9);
-      }
+Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
+                                  const std::vector<const Measurement*>& matching,
+                                  const ScanPlan& plan, uint64_t step) const {
+  const size_t n_particles = particles_.size();
+  const std::vector<ScanPath>& paths = prediction.paths;
+  const std::vector<Pose2>& predicted = prediction.predicted;
+  MatchResult out;
+  out.chosen = predicted;
+  out.chosen_ll.assign(n_particles, 0.0);
+  out.matched = plan.refine && !matching.empty() && (plan.candidates > 1 || n_particles > 1);
+  if (!out.matched) return out;
+  const size_t n_candidates = static_cast<size_t>(std::max(1, plan.candidates));
+  out.candidates = n_candidates;
+
+  const double sigma_pos = std::max(params_.min_pos_uncertainty_m, prediction.sigma_trans);
+  const double sigma_angle = std::max(DegToRad(params_.min_angle_uncertainty_deg),
+                                      std::hypot(prediction.sigma_rot1, prediction.sigma_rot2));
+  // A particle whose candidates cast enough rays gets a MatchWindow over the cells they can
+  // reach: every sample position under the predicted correction, moved by up to 4 sigma_pos,
+  // plus the longest reach of a matching ray (candidates drawn farther cast through the map).
+  // Same answers either way; what pays is measured by BM_MatchWindowBuild (about 3 ns per
+  // cell) and BM_MatchingRayWindow (some 30 to 60 ns saved per ray) on this machine.
+  constexpr int64_t kCellsPerRayPaid = 16;
+  double reach = 0.0;
+  for (const Measurement* m : matching)
+    reach = std::max(reach, m->local_origin.norm() + m->match_range_m);
+  const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
+  std::vector<std::optional<MatchWindow>> windows(n_particles);
+  ForEach(config_.parallel, n_particles, [&](size_t p) {
+    const std::array<double, 4> box = paths[p].Extent(paths[p].CorrectionTo(predicted[p]));
+    const double pad = reach + 4.0 * sigma_pos + 3.0 * config_.resolution_m;
+    const CellIndex lo = geometry_.CellOf({box[0] - pad, box[1] - pad});
+    const CellIndex hi = geometry_.CellOf({box[2] + pad, box[3] + pad});
+    const int64_t cells = (int64_t{hi.x} - lo.x + 1) * (int64_t{hi.y} - lo.y + 1);
+    const auto rays = static_cast<int64_t>(n_candidates * matching.size());
+    if (cells <= kMaxMatchWindowCells && rays * kCellsPerRayPaid >= cells) {
+      windows[p].emplace(particles_[p].map, occupied_above, lo, hi);
     }
-    report.refinement_ambiguity = ambiguity / static_cast<double>(n_particles);
-    report.rays.matching =
-        static_cast<int64_t>((n_particles * n_candidates - skipped.load()) * matching.size());
-    report.interrupted = skipped.load() > 0;
-    report.matching_measurements = static_cast<int>(matching.size());
+  });
+  std::vector<Pose2> candidate_pose(n_particles * n_candidates);
+  std::vector<double> candidate_ll(n_particles * n_candidates);
+  std::atomic<size_t> skipped{0};
+  ForEach(config_.parallel, candidate_pose.size(), [&](size_t index) {
+    const size_t p = index / n_candidates, c = index % n_candidates;
+    if (c > 0 && interrupt_ != nullptr && interrupt_->load(std::memory_order_relaxed)) {
+      candidate_pose[index] = predicted[p];
+      candidate_ll[index] = -std::numeric_limits<double>::infinity();  // never chosen
+      skipped.fetch_add(1, std::memory_order_relaxed);
+      return;
+    }
+    Pose2 end = predicted[p];
+    if (c > 0) {
+      Rng rng = Rng::ForStream(config_.seed, step, p, kStreamCandidate + c);
+      end.x += rng.Gaussian(sigma_pos);
+      end.y += rng.Gaussian(sigma_pos);
+      end.theta = NormalizeAngle(end.theta + rng.Gaussian(sigma_angle));
+    }
+    const MatchWindow* window = windows[p] ? &*windows[p] : nullptr;
+    const double ll =
+        LogLikelihood(particles_[p].map, window, paths[p], paths[p].CorrectionTo(end), matching);
+    candidate_pose[index] = end;
+    candidate_ll[index] = ll;
+  });
+  double ambiguity = 0.0;
+  for (size_t p = 0; p < n_particles; ++p) {
+    size_t best = p * n_candidates;
+    for (size_t c = 1; c < n_candidates; ++c) {
+      if (candidate_ll[p * n_candidates + c] > candidate_ll[best]) best = p * n_candidates + c;
+    }
+    out.chosen[p] = candidate_pose[best];
+    out.chosen_ll[p] = candidate_ll[best];
+    if (n_candidates > 1) {
+      // The candidates' posterior (weights exp(ll - best ll)) around the winner.
+      double weight_sum = 0.0, spread_sq = 0.0;
+      for (size_t c = 0; c < n_candidates; ++c) {
+        const size_t i = p * n_candidates + c;
+        const double w = std::exp(candidate_ll[i] - candidate_ll[best]);
+        const double dx = candidate_pose[i].x - out.chosen[p].x,
+                     dy = candidate_pose[i].y - out.chosen[p].y;
+        weight_sum += w;
+        spread_sq += w * (dx * dx + dy * dy);
+      }
+      ambiguity += std::sqrt(spread_sq / weight_sum) / std::max(std::sqrt(2.0) * sigma_pos, 1e-9);
+    }
   }
-  report.candidates = static_cast<int>(n_candidates);
+  out.ambiguity = ambiguity / static_cast<double>(n_particles);
+  out.matching_rays =
+      static_cast<int64_t>((n_particles * n_candidates - skipped.load()) * matching.size());
+  out.interrupted = skipped.load() > 0;
+  return out;
+}
 
-  // Phase C: every usable reading updates the map along its ray, from its sample's refined pose.
+size_t Slam::UpdateParticles(const Scan& scan, const std::vector<Measurement>& usable,
+                             const Prediction& prediction, const MatchResult& match,
+                             const ScanPlan& plan) {
   const std::vector<size_t> updates =
       SpreadEvenly(usable.size(), static_cast<size_t>(std::max(0, plan.update_rays)));
   for (Particle& p : particles_) p.map.BeginWrite();  // in order: versions do not depend on threads
-  ForEach(config_.parallel, n_particles, [&](size_t p) {
+  ForEach(config_.parallel, particles_.size(), [&](size_t p) {
     Particle& particle = particles_[p];
-    const ScanPath& path = paths[p];
-    const Pose2 correction = path.CorrectionTo(chosen[p]);
+    const ScanPath& path = prediction.paths[p];
+    const Pose2 correction = path.CorrectionTo(match.chosen[p]);
     for (size_t u : updates) {
       const Measurement& m = usable[u];
       const Pose2 robot = path.SamplePose(m.sample, correction);
@@ -551,21 +601,22 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
         chunk->poses.push_back({scan.samples[i].t, path.SamplePose(i, correction)});
     }
     if (chunk->poses.empty() || chunk->poses.back().t < scan.t_end)
-      chunk->poses.push_back({scan.t_end, chosen[p]});
+      chunk->poses.push_back({scan.t_end, match.chosen[p]});
     chunk->parent = std::move(particle.history);
     particle.history = std::move(chunk);
-    particle.pose = chosen[p];
-    particle.log_weight += chosen_ll[p];
+    particle.pose = match.chosen[p];
+    particle.log_weight += match.chosen_ll[p];
   });
-  report.update_rays = static_cast<int>(updates.size());
-  report.rays.update = static_cast<int64_t>(updates.size() * n_particles);
+  return updates.size();
+}
 
-  // Phase D: resampling every N scans (sort by weight, draw proportionally).
+void Slam::FinishScan(const MatchResult& match, uint64_t step, ScanReport& report) {
+  const size_t n_particles = particles_.size();
   const std::vector<double> weight = NormalizedWeights(particles_);
   double sum_sq = 0.0;
   for (double w : weight) sum_sq += w * w;
   report.effective_sample_size = 1.0 / sum_sq;
-  report.best_log_likelihood = chosen_ll[static_cast<size_t>(&Best() - particles_.data())];
+  report.best_log_likelihood = match.chosen_ll[static_cast<size_t>(&Best() - particles_.data())];
 
   ++scans_since_resampling_;
   if (n_particles > 1 && scans_since_resampling_ >= params_.resampling_period_scans) {
@@ -575,7 +626,6 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   report.particles = static_cast<int>(particles_.size());
   report.pose = Best().pose;
   ++scans_processed_;
-  return report;
 }
 
 }  // namespace slam

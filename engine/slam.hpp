@@ -141,10 +141,37 @@ class Slam {
   double LogLikelihood(const OccupancyGrid& map, const MatchWindow* window, const ScanPath& path,
                        const Pose2& correction,
                        const std::vector<const Measurement*>& matching) const;
+  struct Prediction;
+  struct MatchResult;
+
+  // ProcessScan's steps, in order.
+  /// Gives every particle a history and applies the plan's particle count (drawn from the
+  /// current weights); true when it resampled.
+  bool StartScan(const Scan& scan, const ScanPlan& plan, uint64_t step);
+  /// The readings inside their sensor's use window (the update rays).
   std::vector<Measurement> CollectMeasurements(const Scan& scan) const;
+  /// Those kept for matching: thinned by platform angle ("angle between scans"), then capped.
+  std::vector<const Measurement*> SelectMatching(const Scan& scan,
+                                                 const std::vector<Measurement>& usable,
+                                                 const ScanPlan& plan) const;
   std::vector<size_t> ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable) const;
-  /// Phase D: draws `wanted` particles in proportion to their weights (random stream `stream`
-  /// of scan `step`); the drawn particles share maps and histories with their parents.
+  /// Phase A: each particle's path through the scan and its end pose sampled from the motion
+  /// model (noise-free without refinement: odometry-only mapping).
+  Prediction PredictMotion(const Scan& scan, bool refine, uint64_t step) const;
+  /// Phase B: eq. (2) for each candidate pose around each prediction; the best one wins.
+  MatchResult MatchScan(const Prediction& prediction,
+                        const std::vector<const Measurement*>& matching, const ScanPlan& plan,
+                        uint64_t step) const;
+  /// Phase C: the plan's share of the usable readings updates each particle's map along its
+  /// ray from its sample's refined pose; extends the histories, moves the particles and adds
+  /// the chosen candidates' log-likelihoods to their weights. The number of update rays each.
+  size_t UpdateParticles(const Scan& scan, const std::vector<Measurement>& usable,
+                         const Prediction& prediction, const MatchResult& match,
+                         const ScanPlan& plan);
+  /// Phase D: the effective sample size, then resampling every resampling_period_scans.
+  void FinishScan(const MatchResult& match, uint64_t step, ScanReport& report);
+  /// Draws `wanted` particles in proportion to their weights (random stream `stream` of scan
+  /// `step`); the drawn particles share maps and histories with their parents.
   void Resample(size_t wanted, uint64_t step, uint64_t stream);
 
   RobotDescription robot_;
