@@ -18,11 +18,13 @@
 
 #include "bench/bench_support.hpp"
 #include "engine/cell_encoding.hpp"
+#include "engine/match_window.hpp"
+#include "engine/matching_rays.hpp"
 #include "engine/occupancy_grid.hpp"
 #include "engine/random.hpp"
-#include "engine/ray_cast.hpp"
 #include "engine/sensor_model.hpp"
 #include "engine/slam.hpp"
+#include "engine/update_ray.hpp"
 #include "offline/replay.hpp"
 #include "scheduler/fixed_plan.hpp"
 

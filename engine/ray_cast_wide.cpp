@@ -12,7 +12,7 @@
 #endif
 
 // The wide kernels of CastToObstacles(MatchWindow, ...): FastRay<WindowField>'s traversal
-// (ray_cast.cpp) on four or eight rays per instruction. Every operation is the scalar one on
+// (fast_ray.hpp) on four or eight rays per instruction. Every operation is the scalar one on
 // each lane (IEEE double arithmetic, without contraction: the engine is built with
 // -ffp-contract=off), so every answer is the portable kernel's, bit for bit.
 

@@ -1,10 +1,11 @@
 #pragma once
-// The wide (SIMD) kernels of CastToObstacles(MatchWindow, ...), for ray_cast.cpp, which picks
+// The wide (SIMD) kernels of CastToObstacles(MatchWindow, ...), for match_window.cpp, which picks
 // one at run time (WindowKernel): x86-64 only; elsewhere nothing is supported.
 
 #include <vector>
 
-#include "engine/ray_cast.hpp"
+#include "engine/grid_traversal.hpp"
+#include "engine/match_window.hpp"
 
 namespace slam::wide {
 

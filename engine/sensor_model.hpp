@@ -7,8 +7,8 @@
 #include <optional>
 #include <vector>
 
-#include "engine/ray_cast.hpp"
 #include "engine/robot.hpp"
+#include "engine/update_ray.hpp"
 
 namespace slam {
 

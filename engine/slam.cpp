@@ -12,8 +12,10 @@
 #include <optional>
 
 #include "engine/cell_encoding.hpp"
+#include "engine/match_window.hpp"
+#include "engine/matching_rays.hpp"
 #include "engine/random.hpp"
-#include "engine/ray_cast.hpp"
+#include "engine/update_ray.hpp"
 
 namespace slam {
 

@@ -18,7 +18,7 @@
 #include "engine/io/map_image.hpp"
 #include "engine/io/params_json.hpp"
 #include "engine/io/tum.hpp"
-#include "engine/ray_cast.hpp"
+#include "engine/match_window.hpp"
 #include "hw_link/status_json.hpp"
 #include "server/api_json.hpp"
 #include "server/bounded_server.hpp"

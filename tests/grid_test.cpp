@@ -8,7 +8,7 @@
 #include "engine/cell_encoding.hpp"
 #include "engine/grid_geometry.hpp"
 #include "engine/occupancy_grid.hpp"
-#include "engine/ray_cast.hpp"
+#include "engine/update_ray.hpp"
 
 namespace slam {
 namespace {

@@ -1,5 +1,3 @@
-#include "engine/ray_cast.hpp"
-
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -11,7 +9,11 @@
 #include <utility>
 #include <vector>
 
+#include "engine/grid_traversal.hpp"
+#include "engine/match_window.hpp"
+#include "engine/matching_rays.hpp"
 #include "engine/random.hpp"
+#include "engine/update_ray.hpp"
 
 namespace slam {
 namespace {

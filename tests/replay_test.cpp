@@ -20,7 +20,7 @@
 
 #include "engine/io/map_image.hpp"
 #include "engine/io/tum.hpp"
-#include "engine/ray_cast.hpp"
+#include "engine/match_window.hpp"
 #include "offline/evaluation.hpp"
 #include "offline/experiment_reader.hpp"
 #include "offline/replay_report.hpp"

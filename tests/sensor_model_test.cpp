@@ -6,7 +6,7 @@
 #include <cmath>
 
 #include "engine/cell_encoding.hpp"
-#include "engine/ray_cast.hpp"
+#include "engine/update_ray.hpp"
 
 namespace slam {
 namespace {

@@ -6,8 +6,8 @@
 #include <cmath>
 
 #include "engine/cell_encoding.hpp"
+#include "engine/grid_traversal.hpp"
 #include "engine/quality.hpp"
-#include "engine/ray_cast.hpp"
 #include "engine/sensor_model.hpp"
 #include "scheduler/fixed_plan.hpp"
 #include "sim/scenario.hpp"
