@@ -6,6 +6,8 @@
 #include <exception>
 #include <utility>
 
+#include "engine/thread_safety.hpp"
+
 namespace slam::hw {
 namespace {
 
@@ -79,7 +81,7 @@ bool EventQueue::PopWait(LinkEvent& event, std::chrono::milliseconds timeout) {
   if (TryPop(event)) return true;
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   {
-    std::unique_lock<std::mutex> lock(wait_mutex_);
+    MutexLock lock(wait_mutex_);
     const auto not_empty = [this] {
       return head_.load(std::memory_order_acquire) != tail_.load(std::memory_order_acquire);
     };
@@ -87,7 +89,7 @@ bool EventQueue::PopWait(LinkEvent& event, std::chrono::milliseconds timeout) {
       const auto now = std::chrono::steady_clock::now();
       if (now >= deadline) break;
       const auto slice = std::min<std::chrono::steady_clock::duration>(deadline - now, kWaitSlice);
-      if (wait_cv_.wait_for(lock, slice, not_empty)) break;
+      lock.WaitUntil(wait_cv_, now + slice);
     }
   }
   return TryPop(event);
@@ -115,7 +117,7 @@ Link::~Link() { Stop(); }
 
 void Link::Start() {
   if (thread_.joinable()) return;
-  std::lock_guard<std::mutex> lock(status_mutex_);
+  MutexLock lock(status_mutex_);
   if (!source_) {
     status_.last_error = "no frame source";
     state_.store(LinkState::kEnded);
@@ -130,14 +132,14 @@ void Link::Stop() {
   stop_.store(true, std::memory_order_release);
   if (!thread_.joinable()) return;
   thread_.join();
-  std::lock_guard<std::mutex> lock(status_mutex_);
+  MutexLock lock(status_mutex_);
   if (state_.load() != LinkState::kEnded) state_.store(LinkState::kStopped);
 }
 
 bool Link::Drained() const { return state_.load() == LinkState::kEnded && queue_.size() == 0; }
 
 LinkStatus Link::Status() const {
-  std::lock_guard<std::mutex> lock(status_mutex_);
+  MutexLock lock(status_mutex_);
   LinkStatus status = status_;
   status.state = state_.load();
   status.queue_size = queue_.size();
@@ -180,7 +182,7 @@ void Link::Run() {
     if (outcome.status == ReadStatus::kEnd) next = LinkState::kEnded;
     if (outcome.status == ReadStatus::kError) next = LinkState::kSourceError;
     {
-      std::lock_guard<std::mutex> lock(status_mutex_);
+      MutexLock lock(status_mutex_);
       if (!frames.empty()) status_.last_frame_ns = SteadyNowNs();
       status_.frames = frame_count;
       status_.reassembly = decoder_.reassembly();

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "engine/robot.hpp"
+#include "engine/thread_safety.hpp"
 #include "hw_link/aseba.hpp"
 #include "hw_link/event_decoder.hpp"
 #include "hw_link/frame_decoder.hpp"
@@ -91,7 +92,7 @@ class EventQueue {
   std::vector<LinkEvent> slots_;  // ring with one empty slot
   std::atomic<size_t> head_{0};   // next to pop (consumer)
   std::atomic<size_t> tail_{0};   // next to push (producer)
-  std::mutex wait_mutex_;         // only for the consumer's wait; the producer never takes it
+  Mutex wait_mutex_;              // only for the consumer's wait; the producer never takes it
   std::condition_variable wait_cv_;
 };
 
@@ -130,8 +131,9 @@ class Link {
   std::atomic<bool> stop_{false};
   std::atomic<LinkState> state_{LinkState::kIdle};
   std::thread thread_;
-  mutable std::mutex status_mutex_;
-  LinkStatus status_;  // guarded by status_mutex_, refreshed by the link thread after each read
+  mutable Mutex status_mutex_;
+  LinkStatus status_
+      SLAM_GUARDED_BY(status_mutex_);  // refreshed by the link thread after each read
 };
 
 }  // namespace slam::hw

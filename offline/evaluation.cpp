@@ -12,6 +12,7 @@
 #include <mutex>
 #include <numeric>
 
+#include "engine/thread_safety.hpp"
 #include "offline/replay.hpp"
 #include "offline/replay_report.hpp"
 
@@ -139,7 +140,7 @@ std::vector<EvaluationRun> Evaluate(
     const auto cost = [&](const EvaluationRun& r) { return r.refine ? r.budget : 0; };
     return cost(runs[a]) > cost(runs[b]);
   });
-  std::mutex mutex;
+  Mutex mutex;
   size_t done = 0;
   const int jobs = plan.jobs > 0 ? plan.jobs : tbb::task_arena::automatic;
   tbb::task_arena arena(jobs);
@@ -175,7 +176,7 @@ std::vector<EvaluationRun> Evaluate(
                                  .errors;
               }
             }
-            const std::lock_guard lock(mutex);
+            MutexLock lock(mutex);
             ++done;
             if (on_done) on_done(run, done, runs.size());
           }

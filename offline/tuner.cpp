@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <mutex>
 
+#include "engine/thread_safety.hpp"
 #include "offline/replay.hpp"
 
 namespace slam::offline {
@@ -75,7 +76,7 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
     total += fresh * Work(experiments, run.budget);
   }
   double done_work = 0.0;
-  std::mutex progress_mutex;
+  Mutex progress_mutex;
   const auto cancelled = [&] { return callbacks.cancel && callbacks.cancel->load(); };
 
   tbb::task_arena arena(jobs > 0 ? jobs : tbb::task_arena::automatic);
@@ -102,7 +103,7 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
           e[k] = Fitness({experiment}, population[pending[k / n_exp]].params, run.budget, settings,
                          callbacks.cancel);
           if (callbacks.progress) {
-            const std::lock_guard lock(progress_mutex);
+            MutexLock lock(progress_mutex);
             done_work += item_work * static_cast<double>(experiment.scans->size());
             callbacks.progress(done_work, total);
           }

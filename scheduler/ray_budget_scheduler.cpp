@@ -4,6 +4,7 @@
 #include <cmath>
 #include <sstream>
 
+#include "engine/thread_safety.hpp"
 #include "scheduler/fixed_plan.hpp"
 
 namespace slam {
@@ -66,22 +67,22 @@ RayBudgetScheduler::RayBudgetScheduler(const BudgetSettings& settings,
     : config_(config), settings_(settings), ns_per_ray_(config.initial_ns_per_ray) {}
 
 void RayBudgetScheduler::SetSettings(const BudgetSettings& settings) {
-  std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   settings_ = settings;
 }
 
 BudgetSettings RayBudgetScheduler::settings() const {
-  std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   return settings_;
 }
 
 SchedulerTotals RayBudgetScheduler::totals() const {
-  std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   return totals_;
 }
 
 double RayBudgetScheduler::ns_per_ray() const {
-  std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   return ns_per_ray_;
 }
 
@@ -91,7 +92,7 @@ int64_t RayBudgetScheduler::QuotaFor(const BudgetSettings& settings, double scan
       std::clamp(scan_period_s, config_.min_scan_period_s, config_.max_scan_period_s);
   double ns_per_ray;
   {
-    std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     ns_per_ray = ns_per_ray_;
   }
   const double rays = settings.cpu_share * period * 1e9 / std::max(ns_per_ray, 1e-3);
@@ -143,7 +144,7 @@ PlanRecord RayBudgetScheduler::Record(const ScanReport& report, double cpu_s) {
   filter_ = FilterState{report.particles, report.effective_sample_size, report.refinement_ambiguity,
                         report.rays.matching > 0};
 
-  std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   if (record.used_rays > 0 && cpu_s > 0.0) {
     const double sample = cpu_s * 1e9 / static_cast<double>(record.used_rays);
     ns_per_ray_ += config_.cost_smoothing * (sample - ns_per_ray_);

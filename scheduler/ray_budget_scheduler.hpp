@@ -13,6 +13,7 @@
 #include "engine/config_error.hpp"
 #include "engine/params.hpp"
 #include "engine/slam.hpp"
+#include "engine/thread_safety.hpp"
 
 namespace slam {
 
@@ -130,10 +131,10 @@ class RayBudgetScheduler {
   int64_t QuotaFor(const BudgetSettings& settings, double scan_period_s) const;
 
   const SchedulerConfig config_;
-  mutable std::mutex mutex_;
-  BudgetSettings settings_;  // guarded by mutex_
-  double ns_per_ray_;        // guarded by mutex_
-  SchedulerTotals totals_;   // guarded by mutex_
+  mutable Mutex mutex_;
+  BudgetSettings settings_ SLAM_GUARDED_BY(mutex_);
+  double ns_per_ray_ SLAM_GUARDED_BY(mutex_);
+  SchedulerTotals totals_ SLAM_GUARDED_BY(mutex_);
   // SLAM thread only.
   PlanRecord pending_;
   ScanSummary pending_summary_;

@@ -19,6 +19,7 @@
 #include <utility>
 #include <vector>
 
+#include "engine/thread_safety.hpp"
 #include "server/request_guard.hpp"
 
 namespace slam::server {
@@ -320,14 +321,14 @@ class Gate {
     stop_ = true;
     Wake();
     if (thread_.joinable()) thread_.join();
-    const std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     for (Connection& c : incoming_) Close(c);
     incoming_.clear();
   }
   /// A connection to wait on (from any thread).
   void Add(Connection connection) {
     {
-      const std::lock_guard lock(mutex_);
+      MutexLock lock(mutex_);
       if (stop_) {
         Close(connection);
         return;
@@ -409,7 +410,7 @@ class Gate {
       {
         std::vector<Connection> arrived;
         {
-          const std::lock_guard lock(mutex_);
+          MutexLock lock(mutex_);
           arrived.swap(incoming_);
         }
         for (Connection& c : arrived) Admit(std::move(c));
@@ -460,8 +461,8 @@ class Gate {
   int wake_[2] = {-1, -1};
   std::thread thread_;
   std::atomic<bool> stop_{false};
-  std::mutex mutex_;
-  std::vector<Connection> incoming_;
+  Mutex mutex_;
+  std::vector<Connection> incoming_ SLAM_GUARDED_BY(mutex_);
   std::vector<Connection> waiting_;  // the gate thread's own
   std::atomic<uint64_t> timed_out_{0};
   std::atomic<uint64_t> evicted_{0};

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "engine/io/params_json.hpp"
+#include "engine/thread_safety.hpp"
 #include "server/api_json.hpp"
 #include "server/http_server_impl.hpp"
 
@@ -117,7 +118,7 @@ void HttpServer::Impl::HandleEvents(const httplib::Request& req, httplib::Respon
         }
         s.sequence = snapshot->sequence;
         {
-          std::lock_guard lock(revision_mutex);
+          MutexLock lock(revision_mutex);
           if (s.budget_revision != budget_revision) {
             if (s.budget_revision != 0) {
               out += SseEvent("budget", s.covered, BudgetJson(service.Budget()));

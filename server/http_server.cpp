@@ -19,6 +19,7 @@
 #include "engine/io/params_json.hpp"
 #include "engine/io/tum.hpp"
 #include "engine/match_window.hpp"
+#include "engine/thread_safety.hpp"
 #include "hw_link/status_json.hpp"
 #include "server/api_json.hpp"
 #include "server/bounded_server.hpp"
@@ -73,7 +74,7 @@ void HttpServer::Impl::HandleBudgetChange(const httplib::Request& req, httplib::
   if (!ParseBody(req, res, patch ? "application/merge-patch+json" : "application/json", body)) {
     return;
   }
-  const std::lock_guard lock(revision_mutex);
+  MutexLock lock(revision_mutex);
   const std::string if_match = req.get_header_value("If-Match");
   if (HeadHasField(req, "If-Match") && !EntityTagListMatches(if_match, BudgetEtag(), false)) {
     res.set_header("ETag", BudgetEtag());
@@ -113,7 +114,7 @@ void HttpServer::Impl::HandleBudgetChange(const httplib::Request& req, httplib::
 void HttpServer::Impl::HandleParamsPatch(const httplib::Request& req, httplib::Response& res) {
   json body;
   if (!ParseBody(req, res, "application/merge-patch+json", body)) return;
-  const std::lock_guard lock(revision_mutex);
+  MutexLock lock(revision_mutex);
   const std::string if_match = req.get_header_value("If-Match");
   if (HeadHasField(req, "If-Match") && !EntityTagListMatches(if_match, ParamsEtag(), false)) {
     res.set_header("ETag", ParamsEtag());
@@ -167,7 +168,7 @@ void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response
   }
   std::string png;
   {
-    const std::lock_guard lock(tile_cache_mutex);
+    MutexLock lock(tile_cache_mutex);
     const auto cached = tile_cache.find({x, y});
     if (cached != tile_cache.end() && cached->second.first == version) png = cached->second.second;
   }
@@ -178,7 +179,7 @@ void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response
       return;
     }
     png.assign(bytes.bytes.begin(), bytes.bytes.end());
-    const std::lock_guard lock(tile_cache_mutex);
+    MutexLock lock(tile_cache_mutex);
     tile_cache[{x, y}] = {version, png};
   }
   res.set_content(png, "image/png");
@@ -187,7 +188,7 @@ void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response
 template <typename Make>
 void HttpServer::Impl::ServeExport(const std::string& kind, httplib::Response& res, Make make) {
   Export& e = exports.at(kind);
-  const std::lock_guard lock(e.mutex);
+  MutexLock lock(e.mutex);
   const auto snapshot = service.Snapshot();
   if (!e.valid || e.sequence != snapshot->sequence) {
     e.valid = false;
@@ -212,7 +213,7 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
   // as new as the one before (taken before the lock, a slower save of an older snapshot could
   // land after a newer one and take the saved state back).
   const Clock::time_point arrived = Clock::now();
-  const std::lock_guard lock(save_mutex);
+  MutexLock lock(save_mutex);
   // A save started after this request arrived saved a snapshot at least as new as the one this
   // request would save: its answer is this request's. Requests piling up on the lock thus make
   // one more save between them, not one each (each holds a server thread while it waits).
@@ -259,7 +260,7 @@ SaveOutcome HttpServer::SaveMap() {
     outcome.error = "slamd was started without --state-dir";
     return outcome;
   }
-  const std::lock_guard lock(impl_->save_mutex);
+  MutexLock lock(impl_->save_mutex);
   return impl_->SaveLocked();
 }
 
@@ -380,7 +381,7 @@ std::string HttpServer::Impl::MetricsText() {
   o << "# HELP slamd_http_requests_total HTTP requests answered.\n"
        "# TYPE slamd_http_requests_total counter\n";
   {
-    const std::lock_guard lock(requests_mutex);
+    MutexLock lock(requests_mutex);
     for (const auto& [key, count] : requests) {
       o << "slamd_http_requests_total{method=\"" << key.first << "\",code=\"" << key.second
         << "\"} " << count << '\n';
@@ -444,7 +445,7 @@ void HttpServer::Impl::Setup() {
     // 400 without reaching the guard; what follows it on the connection is not a request to
     // trust: it closes (1000 CRLFs once got 1000 answers on one connection).
     if (res.status == 400) CloseConnectionAfterResponse();
-    const std::lock_guard lock(requests_mutex);
+    MutexLock lock(requests_mutex);
     ++requests[{method, res.status}];
   });
   server.set_exception_handler([](const Request&, Response& res, std::exception_ptr ep) {
@@ -465,7 +466,7 @@ void HttpServer::Impl::Setup() {
              [this](const Request&, Response& res) { SendJson(res, StatusJson()); });
 
   server.Get("/api/v1/budget", [this](const Request&, Response& res) {
-    const std::lock_guard lock(revision_mutex);
+    MutexLock lock(revision_mutex);
     res.set_header("ETag", BudgetEtag());
     SendJson(res, BudgetJson(service.Budget()));
   });
@@ -475,7 +476,7 @@ void HttpServer::Impl::Setup() {
              [this](const Request& req, Response& res) { HandleBudgetChange(req, res, false); });
 
   server.Get("/api/v1/params", [this](const Request&, Response& res) {
-    const std::lock_guard lock(revision_mutex);
+    MutexLock lock(revision_mutex);
     res.set_header("ETag", ParamsEtag());
     SendJson(res, io::ParamsToJson(service.Params()));
   });

@@ -12,6 +12,7 @@
 #include <string>
 #include <utility>
 
+#include "engine/thread_safety.hpp"
 #include "server/bounded_server.hpp"
 #include "server/http_library.hpp"
 #include "server/http_server.hpp"
@@ -51,18 +52,18 @@ struct HttpServer::Impl {
   std::atomic<uint64_t> streams_rejected{0};
 
   // Revisions of the budget and the parameters (the ETags), bumped by every change.
-  std::mutex revision_mutex;  // also serialises read-modify-write of budget and params
-  uint64_t budget_revision = 1;
-  uint64_t params_revision = 1;
+  Mutex revision_mutex;  // also serialises read-modify-write of budget and params
+  uint64_t budget_revision SLAM_GUARDED_BY(revision_mutex) = 1;
+  uint64_t params_revision SLAM_GUARDED_BY(revision_mutex) = 1;
 
-  std::mutex save_mutex;  // one save at a time
+  Mutex save_mutex;  // one save at a time
   // The last save that succeeded (guarded by save_mutex): when it was started and its answer.
   // A request that waited for a save started after it arrived shares that save's answer.
   struct LastSave {
     bool valid = false;
     Clock::time_point started;
     json answer;
-  } last_save;
+  } last_save SLAM_GUARDED_BY(save_mutex);
   std::atomic<uint64_t> saves_made{0};
   // A reset request waiting for the SLAM thread to apply its reset (at most one: see HandleReset).
   std::atomic<bool> reset_waiting{false};
@@ -72,28 +73,34 @@ struct HttpServer::Impl {
   // one is being made wait for it and share its bytes. Their CPU cost is thus bounded by the scan
   // rate, whatever the request rate. (Keys are made in Setup; the map is not resized later.)
   struct Export {
-    std::mutex mutex;
-    bool valid = false;
-    uint64_t sequence = 0;  // of the snapshot it was made from
-    std::string body;
-    std::string type;
+    Mutex mutex;
+    bool valid SLAM_GUARDED_BY(mutex) = false;
+    uint64_t sequence SLAM_GUARDED_BY(mutex) = 0;  // of the snapshot it was made from
+    std::string body SLAM_GUARDED_BY(mutex);
+    std::string type SLAM_GUARDED_BY(mutex);
     std::atomic<uint64_t> renders{0};
   };
   std::map<std::string, Export> exports;
   template <typename Make>
   void ServeExport(const std::string& kind, httplib::Response& res, Make make);
 
-  std::mutex tile_cache_mutex;
-  std::map<TileKey, std::pair<uint64_t, std::string>> tile_cache;  // version, PNG
+  Mutex tile_cache_mutex;
+  std::map<TileKey, std::pair<uint64_t, std::string>> tile_cache
+      SLAM_GUARDED_BY(tile_cache_mutex);  // version, PNG
 
-  std::mutex requests_mutex;
-  std::map<std::pair<std::string, int>, uint64_t> requests;  // (method, code) -> count
+  Mutex requests_mutex;
+  std::map<std::pair<std::string, int>, uint64_t> requests
+      SLAM_GUARDED_BY(requests_mutex);  // (method, code) -> count
 
   Impl(SlamService& s, hw::Link& l, JobManager& j, const HttpOptions& o)
       : service(s), link(l), jobs(j), options(o) {}
 
-  std::string BudgetEtag() const { return "\"b" + std::to_string(budget_revision) + "\""; }
-  std::string ParamsEtag() const { return "\"p" + std::to_string(params_revision) + "\""; }
+  std::string BudgetEtag() const SLAM_REQUIRES(revision_mutex) {
+    return "\"b" + std::to_string(budget_revision) + "\"";
+  }
+  std::string ParamsEtag() const SLAM_REQUIRES(revision_mutex) {
+    return "\"p" + std::to_string(params_revision) + "\"";
+  }
 
   void Setup();
   httplib::Server::HandlerResponse Guard(httplib::Request& req, httplib::Response& res);
@@ -104,7 +111,7 @@ struct HttpServer::Impl {
   void HandleEvents(const httplib::Request& req, httplib::Response& res);
   void HandleSave(httplib::Response& res);
   /// Saves the newest snapshot into --state-dir (save_mutex held); sets last_save on success.
-  SaveOutcome SaveLocked();
+  SaveOutcome SaveLocked() SLAM_REQUIRES(save_mutex);
   void HandleReset(httplib::Response& res);
   json StatusJson();
   json SourceJson(const std::string& description) {

@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "engine/cell_encoding.hpp"
+#include "engine/thread_safety.hpp"
 
 namespace slam::server {
 namespace {
@@ -127,7 +128,7 @@ int SlamService::encoded_logodds_limit() const {
 void SlamService::BuildEngine() {
   SlamParams params;
   {
-    const std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     params = params_;
     params_changed_ = false;
   }
@@ -148,40 +149,43 @@ void SlamService::BuildEngine() {
 }
 
 SlamParams SlamService::Params() const {
-  const std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   return params_;
 }
 
 void SlamService::SetParams(const SlamParams& params) {
-  const std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   params_ = params;
   params_changed_ = true;
 }
 
 void SlamService::RequestReset() {
-  const std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   reset_requested_ = true;
 }
 
 std::shared_ptr<const SlamSnapshot> SlamService::Snapshot() const {
-  const std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   return snapshot_;
 }
 
 std::shared_ptr<const SlamSnapshot> SlamService::WaitNewer(
     uint64_t sequence, std::chrono::milliseconds timeout) const {
-  std::unique_lock lock(mutex_);
-  published_.wait_for(lock, timeout, [&] { return snapshot_->sequence > sequence || stop_; });
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  MutexLock lock(mutex_);
+  while (snapshot_->sequence <= sequence && !stop_) {
+    if (lock.WaitUntil(published_, deadline) == std::cv_status::timeout) break;
+  }
   return snapshot_;
 }
 
 ServiceCounters SlamService::Counters() const {
-  const std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   return counters_;
 }
 
 std::vector<TimedPose> SlamService::GroundTruth() const {
-  const std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   return truth_map_;
 }
 
@@ -189,17 +193,17 @@ void SlamService::ApplyCommands() {
   bool reset = false;
   std::optional<SlamParams> params;
   {
-    const std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     std::swap(reset, reset_requested_);
     if (params_changed_) params = params_;
     params_changed_ = false;
     if (reset) {
       truth_map_.clear();
       ++counters_.resets;
+      version_base_ = snapshot_->map_version + 1;  // versions keep growing across a reset
     }
   }
   if (reset) {
-    version_base_ = snapshot_->map_version + 1;  // versions keep growing across a reset
     ++epoch_;
     options_.resume.reset();
     resumed_.reset();
@@ -218,7 +222,7 @@ void SlamService::Run() {
     hw::LinkEvent event;
     if (!link_.PopWait(event, std::chrono::milliseconds(100))) {
       // Idle: publish the assembler's counters (ProcessScan does it after every scan).
-      const std::lock_guard lock(mutex_);
+      MutexLock lock(mutex_);
       counters_.assembler = assembler_.counters();
       continue;
     }
@@ -230,7 +234,7 @@ void SlamService::Run() {
     }
   }
   {
-    const std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     published_.notify_all();
   }
 }
@@ -302,7 +306,7 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
       // Poses newer than the last mapped one.
       double last_t = -1e300;
       {
-        const std::lock_guard lock(mutex_);
+        MutexLock lock(mutex_);
         if (!truth_map_.empty()) last_t = truth_map_.back().t - time_offset_s_;
       }
       for (const TimedPose& p : truth_world_) {
@@ -320,7 +324,7 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
   }
 
   {
-    const std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     ServiceCounters& c = counters_;
     c.state = SlamState::kRunning;
     ++c.scans;
@@ -369,7 +373,7 @@ void SlamService::Publish(const std::optional<ScanMetrics>& metrics) {
     }
   }
   {
-    const std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     snapshot_ = std::move(s);
   }
   published_.notify_all();

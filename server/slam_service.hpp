@@ -23,6 +23,7 @@
 #include "engine/robot.hpp"
 #include "engine/scan_assembler.hpp"
 #include "engine/slam.hpp"
+#include "engine/thread_safety.hpp"
 #include "hw_link/link.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 #include "server/state_store.hpp"
@@ -181,14 +182,14 @@ class SlamService {
   std::optional<RigidTransform2> world_to_map_;  // set at the first scan after (re)start
 
   // Shared with readers.
-  mutable std::mutex mutex_;
+  mutable Mutex mutex_;
   mutable std::condition_variable published_;
-  std::shared_ptr<const SlamSnapshot> snapshot_;  // guarded by mutex_
-  ServiceCounters counters_;                      // guarded by mutex_
-  std::vector<TimedPose> truth_map_;              // guarded by mutex_, map frame
-  SlamParams params_;                             // guarded by mutex_
-  bool params_changed_ = false;                   // guarded by mutex_
-  bool reset_requested_ = false;                  // guarded by mutex_
+  std::shared_ptr<const SlamSnapshot> snapshot_ SLAM_GUARDED_BY(mutex_);
+  ServiceCounters counters_ SLAM_GUARDED_BY(mutex_);
+  std::vector<TimedPose> truth_map_ SLAM_GUARDED_BY(mutex_);  // map frame
+  SlamParams params_ SLAM_GUARDED_BY(mutex_);
+  bool params_changed_ SLAM_GUARDED_BY(mutex_) = false;
+  bool reset_requested_ SLAM_GUARDED_BY(mutex_) = false;
 
   std::atomic<bool> stop_{false};
   std::thread thread_;

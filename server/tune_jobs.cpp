@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "engine/io/params_json.hpp"
+#include "engine/thread_safety.hpp"
 #include "offline/evaluation.hpp"
 #include "offline/experiment_reader.hpp"
 #include "offline/tuning_report.hpp"
@@ -131,7 +132,7 @@ JobManager::JobManager(std::string experiments_dir, std::string output_dir)
 JobManager::~JobManager() {
   decltype(jobs_) jobs;
   {
-    const std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     jobs.swap(jobs_);
   }
   for (auto& [id, job] : jobs) {
@@ -151,7 +152,7 @@ std::vector<std::string> JobManager::Experiments() const {
 }
 
 int JobManager::running() const {
-  const std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   return static_cast<int>(std::count_if(
       jobs_.begin(), jobs_.end(), [](const auto& j) { return j.second->state == "running"; }));
 }
@@ -165,7 +166,7 @@ std::optional<nlohmann::json> JobManager::Start(const TuneRequest& request, std:
   std::vector<std::unique_ptr<Job>> forgotten;
   nlohmann::json started;
   {
-    const std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     for (const auto& [id, job] : jobs_) {
       if (job->state == "running") {
         conflict = "job " + id + " is running; cancel it (DELETE /api/v1/jobs/" + id + ") or wait";
@@ -244,7 +245,7 @@ void JobManager::Run(Job& job) {
     callbacks.cancel = &job.cancel;
     callbacks.progress = [&](double done, double total) {
       {
-        const std::lock_guard lock(mutex_);
+        MutexLock lock(mutex_);
         job.progress = total > 0.0 ? done / total : 0.0;
       }
       Touch();
@@ -253,7 +254,7 @@ void JobManager::Run(Job& job) {
         output_dir_.empty() ? std::string() : (fs::path(output_dir_) / "jobs" / job.id).string();
     callbacks.generation_done = [&](const offline::TuningState& s, int64_t) {
       {
-        const std::lock_guard lock(mutex_);
+        MutexLock lock(mutex_);
         job.generations = s.budgets.front().generations;
         job.evaluations_done = 0;
         for (const auto& g : job.generations) job.evaluations_done += g.evaluations;
@@ -266,7 +267,7 @@ void JobManager::Run(Job& job) {
     finished = offline::RunTuning(experiments, state, 1, callbacks);
   }
   {
-    const std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     if (!error.empty()) {
       job.state = "failed";
       job.error = error;
@@ -317,7 +318,7 @@ nlohmann::json JobManager::ToJson(const Job& job) const {
 }
 
 std::optional<nlohmann::json> JobManager::Get(const std::string& id) const {
-  const std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   const auto it = jobs_.find(id);
   if (it == jobs_.end()) return std::nullopt;
   return ToJson(*it->second);
@@ -326,7 +327,7 @@ std::optional<nlohmann::json> JobManager::Get(const std::string& id) const {
 int JobManager::Delete(const std::string& id) {
   std::unique_ptr<Job> finished;
   {
-    const std::lock_guard lock(mutex_);
+    MutexLock lock(mutex_);
     const auto it = jobs_.find(id);
     if (it == jobs_.end()) return 404;
     if (it->second->state == "running") {
@@ -343,14 +344,14 @@ int JobManager::Delete(const std::string& id) {
 }
 
 nlohmann::json JobManager::List() const {
-  const std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   nlohmann::json list = nlohmann::json::array();
   for (const auto& [id, job] : jobs_) list.push_back(ToJson(*job));
   return {{"jobs", list}};
 }
 
 std::optional<nlohmann::json> JobManager::Latest() const {
-  const std::lock_guard lock(mutex_);
+  MutexLock lock(mutex_);
   const auto it = jobs_.find(latest_);
   if (it == jobs_.end()) return std::nullopt;
   return ToJson(*it->second);

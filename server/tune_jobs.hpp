@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "engine/config_error.hpp"
+#include "engine/thread_safety.hpp"
 #include "offline/tuner.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 
@@ -87,15 +88,15 @@ class JobManager {
   };
 
   void Run(Job& job);
-  nlohmann::json ToJson(const Job& job) const;  // caller holds mutex_
+  nlohmann::json ToJson(const Job& job) const SLAM_REQUIRES(mutex_);
   void Touch() { revision_.fetch_add(1); }
 
   std::string experiments_dir_;
   std::string output_dir_;
-  mutable std::mutex mutex_;
-  std::map<std::string, std::unique_ptr<Job>, ByNumber> jobs_;  // guarded by mutex_
-  uint64_t next_id_ = 1;                                        // guarded by mutex_
-  std::string latest_;                                          // guarded by mutex_
+  mutable Mutex mutex_;
+  std::map<std::string, std::unique_ptr<Job>, ByNumber> jobs_ SLAM_GUARDED_BY(mutex_);
+  uint64_t next_id_ SLAM_GUARDED_BY(mutex_) = 1;
+  std::string latest_ SLAM_GUARDED_BY(mutex_);
   std::atomic<uint64_t> revision_{0};
 };
 

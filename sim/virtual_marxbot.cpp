@@ -5,6 +5,7 @@
 #include <limits>
 #include <thread>
 
+#include "engine/thread_safety.hpp"
 #include "hw_link/aseba.hpp"
 #include "hw_link/event_decoder.hpp"
 
@@ -99,7 +100,7 @@ void VirtualMarxbotSource::Advance(double until_s) {
   bus_.Deliver(simulator_.time(), delivered);
   ready_.insert(ready_.end(), delivered.begin(), delivered.end());
   if (!output.ground_truth.empty()) {
-    const std::lock_guard lock(truth_mutex_);
+    MutexLock lock(truth_mutex_);
     ground_truth_.insert(ground_truth_.end(), output.ground_truth.begin(),
                          output.ground_truth.end());
     const double keep_from = ground_truth_.back().t - kKeptTruthS;
@@ -162,12 +163,12 @@ hw::SourceCounters VirtualMarxbotSource::Counters() const {
 }
 
 std::vector<TimedPose> VirtualMarxbotSource::GroundTruth() const {
-  const std::lock_guard lock(truth_mutex_);
+  MutexLock lock(truth_mutex_);
   return {ground_truth_.begin(), ground_truth_.end()};
 }
 
 size_t VirtualMarxbotSource::GroundTruthSince(size_t first, std::vector<TimedPose>& out) const {
-  const std::lock_guard lock(truth_mutex_);
+  MutexLock lock(truth_mutex_);
   const size_t made = truth_dropped_ + ground_truth_.size();
   const size_t from = std::max(first, truth_dropped_) - truth_dropped_;
   if (from < ground_truth_.size()) {

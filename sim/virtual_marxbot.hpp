@@ -13,6 +13,7 @@
 
 #include "engine/pose.hpp"
 #include "engine/robot.hpp"
+#include "engine/thread_safety.hpp"
 #include "hw_link/can_frame.hpp"
 #include "hw_link/frame_source.hpp"
 #include "sim/scenario.hpp"
@@ -97,9 +98,9 @@ class VirtualMarxbotSource : public hw::FrameSource {
   bool started_ = false;
   uint64_t events_ = 0;
   uint64_t frames_ = 0;
-  mutable std::mutex truth_mutex_;
-  std::deque<TimedPose> ground_truth_;  // the newest poses, guarded by truth_mutex_
-  size_t truth_dropped_ = 0;            // older poses, no longer kept (guarded too)
+  mutable Mutex truth_mutex_;
+  std::deque<TimedPose> ground_truth_ SLAM_GUARDED_BY(truth_mutex_);  // the newest poses
+  size_t truth_dropped_ SLAM_GUARDED_BY(truth_mutex_) = 0;            // older poses, no longer kept
 };
 
 }  // namespace slam::sim
