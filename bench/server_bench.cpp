@@ -91,12 +91,13 @@ class Slamd {
     server::HttpOptions http;
     http.port = 0;
     server_ = std::make_unique<server::HttpServer>(*service_, *link_, *jobs_, http);
-    std::string error;
-    port_ = server_->Bind(error);
-    if (port_ < 0) {
-      std::fprintf(stderr, "server_bench: %s\n", error.c_str());
+    const Result<int> bound = server_->Bind();
+    if (!bound.ok()) {
+      std::fprintf(stderr, "server_bench: %s\n", bound.Message().c_str());
+      port_ = -1;
       return;
     }
+    port_ = bound.value();
     thread_ = std::thread([this] { server_->Run(); });
   }
   ~Slamd() {

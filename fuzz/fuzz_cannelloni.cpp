@@ -18,15 +18,16 @@ using namespace slam::hw;
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::span<const uint8_t> input(data, size);
   const auto decoded = DecodeCannelloni(input);
-  if (const auto* error = std::get_if<std::string>(&decoded)) {
-    Check(!error->empty(), "error without a reason");
-    Check(error->find('\n') == std::string::npos, "reason spans lines");
+  if (!decoded.ok()) {
+    const std::string error = decoded.Message();
+    Check(!error.empty(), "error without a reason");
+    Check(error.find('\n') == std::string::npos, "reason spans lines");
   } else {
-    const auto& datagram = std::get<CannelloniDatagram>(decoded);
+    const CannelloniDatagram& datagram = decoded.value();
     const std::vector<uint8_t> encoded = EncodeCannelloni(datagram.sequence, datagram.frames);
     const auto again = DecodeCannelloni(encoded);
-    const auto* datagram2 = std::get_if<CannelloniDatagram>(&again);
-    Check(datagram2 != nullptr, "encoded datagram does not decode");
+    Check(again.ok(), "encoded datagram does not decode");
+    const CannelloniDatagram* datagram2 = &again.value();
     Check(datagram2->sequence == datagram.sequence, "sequence does not round-trip");
     Check(datagram2->frames == datagram.frames, "frames do not round-trip");
     bool any_fd = false;

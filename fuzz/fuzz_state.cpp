@@ -37,13 +37,14 @@ namespace {
 constexpr char kMagic[] = "SLMTILE1";
 
 void CheckDecoded(const std::string& bytes) {
-  SavedState state;
-  std::string error;
-  if (!DecodeTiles(bytes, state, error)) {
+  Result<SavedState> decoded = DecodeTiles(bytes);
+  if (!decoded.ok()) {
+    const std::string error = decoded.Message();
     Check(!error.empty(), "DecodeTiles failed without a reason");
     Check(error.find('\n') == std::string::npos, "a decoding error spans lines");
     return;
   }
+  const SavedState state = std::move(decoded).value();
   Check(EncodeTiles(state) == bytes, "a decoded tile file does not encode back to its bytes");
   std::set<std::pair<int32_t, int32_t>> seen;
   OccupancyGrid grid(GridGeometry(0.01), kLogOddsLimit);

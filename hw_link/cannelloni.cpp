@@ -114,29 +114,31 @@ std::vector<uint8_t> EncodeCannelloni(uint8_t sequence, std::span<const CanFrame
   return out;
 }
 
-std::variant<CannelloniDatagram, std::string> DecodeCannelloni(std::span<const uint8_t> bytes) {
+Result<CannelloniDatagram> DecodeCannelloni(std::span<const uint8_t> bytes) {
   if (bytes.size() < kHeaderBytes) {
-    return "truncated header (" + std::to_string(bytes.size()) + " bytes)";
+    return Error("truncated header (" + std::to_string(bytes.size()) + " bytes)");
   }
-  if (bytes[0] != kCannelloniVersion) return "unsupported version " + std::to_string(bytes[0]);
-  if (bytes[1] != kCannelloniOpData) return "unsupported op code " + std::to_string(bytes[1]);
+  if (bytes[0] != kCannelloniVersion)
+    return Error("unsupported version " + std::to_string(bytes[0]));
+  if (bytes[1] != kCannelloniOpData)
+    return Error("unsupported op code " + std::to_string(bytes[1]));
   CannelloniDatagram out;
   out.sequence = bytes[2];
   const size_t count = (static_cast<size_t>(bytes[3]) << 8) | bytes[4];
   Reader in(bytes.subspan(kHeaderBytes));
   // Every frame takes at least 5 bytes: a count the bytes cannot hold is rejected up front.
   if (count > in.remaining() / 5) {
-    return "frame count " + std::to_string(count) + " exceeds the datagram";
+    return Error("frame count " + std::to_string(count) + " exceeds the datagram");
   }
   out.frames.resize(count);
   for (size_t i = 0; i < count; ++i) {
     if (auto reason = ReadFrame(in, out.frames[i])) {
-      return "frame " + std::to_string(i) + " of " + std::to_string(count) + ": " + *reason;
+      return Error("frame " + std::to_string(i) + " of " + std::to_string(count) + ": " + *reason);
     }
   }
   if (in.remaining() != 0) {
-    return std::to_string(in.remaining()) + " trailing bytes after " + std::to_string(count) +
-           " frames";
+    return Error(std::to_string(in.remaining()) + " trailing bytes after " + std::to_string(count) +
+                 " frames");
   }
   return out;
 }

@@ -7,9 +7,9 @@
 #include <cstdint>
 #include <span>
 #include <string>
-#include <variant>
 #include <vector>
 
+#include "engine/result.hpp"
 #include "hw_link/can_frame.hpp"
 
 namespace slam::hw {
@@ -27,7 +27,7 @@ std::vector<uint8_t> EncodeCannelloni(uint8_t sequence, std::span<const CanFrame
 
 /// The datagram, or a one-line reason why these bytes are not one (wrong version or op code,
 /// truncated, frame count disagreeing with the bytes, length out of range, error frames).
-std::variant<CannelloniDatagram, std::string> DecodeCannelloni(std::span<const uint8_t> bytes);
+Result<CannelloniDatagram> DecodeCannelloni(std::span<const uint8_t> bytes);
 
 struct SequenceCounters {
   uint64_t datagrams = 0;

@@ -4,9 +4,9 @@
 
 namespace slam::hw {
 
-std::optional<std::string> DecodeToEnd(FrameSource& source, FrameDecoder& decoder,
-                                       const std::function<void(const RobotEvent&)>& on_event,
-                                       const std::function<void(const TimedFrame&)>& on_frame) {
+Result<void> DecodeToEnd(FrameSource& source, FrameDecoder& decoder,
+                         const std::function<void(const RobotEvent&)>& on_event,
+                         const std::function<void(const TimedFrame&)>& on_frame) {
   std::vector<TimedFrame> frames;
   for (;;) {
     frames.clear();
@@ -15,8 +15,8 @@ std::optional<std::string> DecodeToEnd(FrameSource& source, FrameDecoder& decode
       if (on_frame) on_frame(frame);
       if (auto event = decoder.Push(frame)) on_event(*event);
     }
-    if (outcome.status == ReadStatus::kEnd) return std::nullopt;
-    if (outcome.status == ReadStatus::kError) return outcome.message;
+    if (outcome.status == ReadStatus::kEnd) return {};
+    if (outcome.status == ReadStatus::kError) return Error(outcome.message);
   }
 }
 

@@ -8,6 +8,7 @@
 #include <optional>
 #include <string>
 
+#include "engine/result.hpp"
 #include "engine/robot.hpp"
 #include "hw_link/aseba.hpp"
 #include "hw_link/event_decoder.hpp"
@@ -46,9 +47,9 @@ class FrameDecoder {
 
 /// Reads `source` to its end, handing every decoded event to `on_event` in order, with nothing
 /// dropped, and every frame read to `on_frame` (when given) before it is decoded. Returns the
-/// source's error message if it fails before its end (kError), or nothing.
-std::optional<std::string> DecodeToEnd(FrameSource& source, FrameDecoder& decoder,
-                                       const std::function<void(const RobotEvent&)>& on_event,
-                                       const std::function<void(const TimedFrame&)>& on_frame = {});
+/// source's error if it fails before its end (kError).
+Result<void> DecodeToEnd(FrameSource& source, FrameDecoder& decoder,
+                         const std::function<void(const RobotEvent&)>& on_event,
+                         const std::function<void(const TimedFrame&)>& on_frame = {});
 
 }  // namespace slam::hw

@@ -179,7 +179,7 @@ class SlcanSource final : public FrameSource {
 
 OpenResult OpenSlcan(const std::string& device) {
   auto opened = OpenDevice(device);
-  if (auto* error = std::get_if<std::string>(&opened)) return std::move(*error);
+  if (auto* error = std::get_if<std::string>(&opened)) return Error(std::move(*error));
   return std::make_unique<SlcanSource>(device, std::move(std::get<UniqueFd>(opened)));
 }
 

@@ -159,7 +159,7 @@ class SocketCanSource final : public FrameSource {
 
 OpenResult OpenSocketCan(const std::string& interface) {
   auto opened = OpenSocket(interface);
-  if (auto* error = std::get_if<std::string>(&opened)) return std::move(*error);
+  if (auto* error = std::get_if<std::string>(&opened)) return Error(std::move(*error));
   return std::make_unique<SocketCanSource>(interface, std::move(std::get<UniqueFd>(opened)));
 }
 

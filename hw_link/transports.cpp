@@ -309,16 +309,17 @@ class CandumpReplay final : public FrameSource {
 
 OpenResult OpenCandumpReplay(const std::string& path, const CandumpReplayOptions& options) {
   if (options.paced && !(std::isfinite(options.speed) && options.speed > 0.0)) {
-    return "candump replay speed must be a positive number, got " + std::to_string(options.speed);
+    return Error("candump replay speed must be a positive number, got " +
+                 std::to_string(options.speed));
   }
   UniqueFd fd(::open(path.c_str(), O_RDONLY | O_CLOEXEC));
   if (!fd.valid()) {
     const int err = errno;
-    return "cannot open candump log '" + path + "': " + ErrnoText(err);
+    return Error("cannot open candump log '" + path + "': " + ErrnoText(err));
   }
   struct stat info {};
   if (::fstat(fd.get(), &info) == 0 && S_ISDIR(info.st_mode)) {
-    return "cannot open candump log '" + path + "': " + ErrnoText(EISDIR);
+    return Error("cannot open candump log '" + path + "': " + ErrnoText(EISDIR));
   }
   // A pipe or terminal may go quiet: reads wait in poll() with a timeout instead (LineReader).
   const int flags = ::fcntl(fd.get(), F_GETFL);

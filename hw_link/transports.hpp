@@ -4,14 +4,14 @@
 
 #include <memory>
 #include <string>
-#include <variant>
 
+#include "engine/result.hpp"
 #include "hw_link/frame_source.hpp"
 
 namespace slam::hw {
 
 /// A source, or the reason it could not be opened.
-using OpenResult = std::variant<std::unique_ptr<FrameSource>, std::string>;
+using OpenResult = Result<std::unique_ptr<FrameSource>>;
 
 struct CandumpReplayOptions {
   /// false: as fast as the reader takes frames; true: paced by the log's timestamps.

@@ -10,7 +10,6 @@
 #include <cerrno>
 #include <optional>
 #include <span>
-#include <variant>
 
 #include "hw_link/cannelloni.hpp"
 #include "hw_link/fd_util.hpp"
@@ -86,12 +85,12 @@ class UdpSource final : public FrameSource {
   void Deliver(std::span<const uint8_t> bytes, std::vector<TimedFrame>& out) {
     const int64_t now_ns = SteadyNowNs();
     ++datagrams_;
-    auto decoded = DecodeCannelloni(bytes);
-    const auto* datagram = std::get_if<CannelloniDatagram>(&decoded);
-    if (datagram == nullptr) {
+    const Result<CannelloniDatagram> decoded = DecodeCannelloni(bytes);
+    if (!decoded.ok()) {
       ++bad_datagrams_;
       return;
     }
+    const CannelloniDatagram* datagram = &decoded.value();
     const bool in_sequence = sequence_.Observe(datagram->sequence);
     const size_t first = out.size();
     for (const CanFrame& can_frame : datagram->frames) {
@@ -126,13 +125,13 @@ OpenResult OpenUdp(uint16_t port, const std::string& address, const std::string&
   addr.sin_family = AF_INET;
   addr.sin_port = htons(port);
   if (::inet_pton(AF_INET, address.c_str(), &addr.sin_addr) != 1) {
-    return "invalid IPv4 address '" + address + "' for the UDP source";
+    return Error("invalid IPv4 address '" + address + "' for the UDP source");
   }
   std::optional<in_addr> sender_addr;
   if (!sender.empty()) {
     in_addr parsed{};
     if (::inet_pton(AF_INET, sender.c_str(), &parsed) != 1) {
-      return "invalid IPv4 sender address '" + sender + "' for the UDP source";
+      return Error("invalid IPv4 sender address '" + sender + "' for the UDP source");
     }
     sender_addr = parsed;
   }
@@ -140,19 +139,19 @@ OpenResult OpenUdp(uint16_t port, const std::string& address, const std::string&
   UniqueFd fd(::socket(AF_INET, SOCK_DGRAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0));
   if (!fd.valid()) {
     const int err = errno;
-    return "cannot create a UDP socket for " + where + ": " + ErrnoText(err);
+    return Error("cannot create a UDP socket for " + where + ": " + ErrnoText(err));
   }
   const int size = kReceiveBufferBytes;
   ::setsockopt(fd.get(), SOL_SOCKET, SO_RCVBUF, &size, sizeof size);  // best effort
   if (::bind(fd.get(), reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0) {
     const int err = errno;
-    return "cannot bind UDP " + where + ": " + ErrnoText(err);
+    return Error("cannot bind UDP " + where + ": " + ErrnoText(err));
   }
   sockaddr_in bound{};
   socklen_t bound_size = sizeof bound;
   if (::getsockname(fd.get(), reinterpret_cast<sockaddr*>(&bound), &bound_size) != 0) {
     const int err = errno;
-    return "cannot read the address of UDP " + where + ": " + ErrnoText(err);
+    return Error("cannot read the address of UDP " + where + ": " + ErrnoText(err));
   }
   return std::make_unique<UdpSource>(std::move(fd), address, ntohs(bound.sin_port), sender_addr,
                                      sender);

@@ -82,8 +82,7 @@ std::vector<double> Column(const std::vector<EvaluationRun>& runs, int64_t budge
 
 }  // namespace
 
-std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& paths,
-                                            std::string& error) {
+Result<std::vector<std::string>> FindExperimentDirs(const std::vector<std::string>& paths) {
   std::vector<std::string> dirs;
   for (const std::string& path : paths) {
     std::error_code ec;
@@ -92,8 +91,7 @@ std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& path
       continue;
     }
     if (!std::filesystem::is_directory(path, ec)) {
-      error = path + ": not an experiment or dataset directory";
-      return {};
+      return Error(path + ": not an experiment or dataset directory");
     }
     std::vector<std::string> found;
     for (const std::filesystem::directory_entry& entry :
@@ -103,8 +101,7 @@ std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& path
       }
     }
     if (ec || found.empty()) {
-      error = path + ": no experiment in it (no subdirectory with a can.log)";
-      return {};
+      return Error(path + ": no experiment in it (no subdirectory with a can.log)");
     }
     std::sort(found.begin(), found.end());
     dirs.insert(dirs.end(), found.begin(), found.end());

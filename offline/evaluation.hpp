@@ -11,15 +11,16 @@
 #include <vector>
 
 #include "engine/params.hpp"
+#include "engine/result.hpp"
 #include "offline/experiment_reader.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 
 namespace slam::offline {
 
 /// The experiment directories named by `paths`: each is an experiment (it holds a can.log) or a
-/// dataset of them (its subdirectories holding one, sorted). Empty with `error` set otherwise.
-std::vector<std::string> FindExperimentDirs(const std::vector<std::string>& paths,
-                                            std::string& error);
+/// dataset of them (its subdirectories holding one, sorted); an error naming the path that is
+/// neither.
+Result<std::vector<std::string>> FindExperimentDirs(const std::vector<std::string>& paths);
 
 struct EvaluationPlan {
   std::vector<int64_t> budgets{8125, 16250, 32500, 65000};

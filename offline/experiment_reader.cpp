@@ -145,19 +145,19 @@ ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig&
   }
 
   hw::OpenResult opened = hw::OpenCandumpReplay(file("can.log"));
-  if (auto* message = std::get_if<std::string>(&opened)) {
-    load.error = *message;
+  if (!opened.ok()) {
+    load.error = opened.Message();
     return load;
   }
-  hw::FrameSource& source = *std::get<std::unique_ptr<hw::FrameSource>>(opened);
+  hw::FrameSource& source = *opened.value();
   hw::FrameDecoder decoder(experiment.robot);
   ScanAssembler assembler(experiment.robot, assembler_config);
   LogClock clock;
-  const auto failure = DecodeToEnd(
+  const Result<void> decoded = DecodeToEnd(
       source, decoder, [&](const RobotEvent& event) { assembler.Add(event, experiment.scans); },
       [&](const hw::TimedFrame& frame) { clock.Observe(frame); });
-  if (failure) {
-    load.error = file("can.log") + ": " + *failure;
+  if (!decoded.ok()) {
+    load.error = file("can.log") + ": " + decoded.Message();
     return load;
   }
 

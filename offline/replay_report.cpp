@@ -141,8 +141,8 @@ ReplayOutputs WriteReplayOutputs(const std::string& dir, const offline::Experime
                                  const ReplayResult& run, bool odometry_only,
                                  const BudgetSettings& budget) {
   ReplayOutputs outputs;
-  const auto check = [&](std::optional<std::string> error) {
-    if (error) outputs.errors.push_back(*error);
+  const auto check = [&](const Result<void>& written) {
+    if (!written.ok()) outputs.errors.push_back(written.Message());
   };
   const std::string base = dir + "/";
   const io::GridImage grid = io::MakeGridImage(run.map);

@@ -37,7 +37,7 @@ struct ReadError {
 };
 
 SlamParams ParamsAt(const Json& json, const std::string& pointer) {
-  const io::Result<SlamParams> params = io::ParamsFromJson(json);
+  const Result<SlamParams> params = io::ParamsFromJson(json);
   if (!params.ok()) throw ReadError{pointer, params.Message()};
   return params.value();
 }
@@ -109,7 +109,7 @@ Json TuningStateToJson(const TuningState& state) {
   return j;
 }
 
-io::Result<TuningState> TuningStateFromJson(const Json& json) {
+Result<TuningState> TuningStateFromJson(const Json& json) {
   try {
     if (json.value("format", std::string()) != kFormat) {
       return ConfigErrors{
@@ -279,8 +279,9 @@ std::string Table3Markdown(const TuningState& state) {
 std::vector<std::string> WriteTuningOutputs(const std::string& dir, const TuningState& state) {
   std::vector<std::string> errors;
   const auto write = [&](const std::string& name, const std::string& text) {
-    if (auto error = io::WriteFileAtomic((std::filesystem::path(dir) / name).string(), text))
-      errors.push_back(*error);
+    const Result<void> written =
+        io::WriteFileAtomic((std::filesystem::path(dir) / name).string(), text);
+    if (!written.ok()) errors.push_back(written.Message());
   };
   write("results.json", TuningStateToJson(state).dump(1) + "\n");
   write("table2.md", Table2Markdown(state));
@@ -298,10 +299,9 @@ std::vector<std::string> WriteTuningOutputs(const std::string& dir, const Tuning
   options.title =
       "Fitness per generation (" + std::string(ToString(state.settings.policy)) + " policy)";
   write("fig10.svg", TuningPlotSvg(series, options));
-  if (auto error = io::WritePng((std::filesystem::path(dir) / "fig10.png").string(),
-                                TuningPlotImage(series, options))) {
-    errors.push_back(*error);
-  }
+  const Result<void> plotted = io::WritePng((std::filesystem::path(dir) / "fig10.png").string(),
+                                            TuningPlotImage(series, options));
+  if (!plotted.ok()) errors.push_back(plotted.Message());
 
   std::error_code ec;
   const std::filesystem::path params_dir = std::filesystem::path(dir) / "params";

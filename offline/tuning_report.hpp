@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/io/result.hpp"
+#include "engine/result.hpp"
 #include "offline/tuner.hpp"
 
 namespace slam::offline {
@@ -19,7 +19,7 @@ namespace slam::offline {
 nlohmann::json TuningStateToJson(const TuningState& state);
 
 /// Reads results.json back (for resuming); every error names what is wrong.
-io::Result<TuningState> TuningStateFromJson(const nlohmann::json& json);
+Result<TuningState> TuningStateFromJson(const nlohmann::json& json);
 
 /// Why a saved state cannot be continued with `settings` over `experiments` (empty when it can).
 /// The number of generations may differ: a study can be extended.

@@ -55,9 +55,9 @@ json BudgetJson(const BudgetSettings& b) {
           {"max_particles", b.max_particles}};
 }
 
-ConfigErrors BudgetFromJson(const json& body, BudgetSettings& out) {
+Result<BudgetSettings> BudgetFromJson(const json& body) {
   ConfigErrors errors;
-  if (!body.is_object()) return {{"", "must be a JSON object", 0}};
+  if (!body.is_object()) return ConfigErrors{{"", "must be a JSON object", 0}};
   static const std::vector<std::string> kKeys{"mode", "rays_per_scan", "cpu_share", "policy",
                                               "max_particles"};
   for (const auto& [key, value] : body.items()) {
@@ -117,8 +117,8 @@ ConfigErrors BudgetFromJson(const json& body, BudgetSettings& out) {
       errors.push_back(std::move(e));
     }
   }
-  if (errors.empty()) out = b;
-  return errors;
+  if (!errors.empty()) return errors;
+  return b;
 }
 
 json MetricsEventJson(const SlamSnapshot& s) {

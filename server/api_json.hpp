@@ -8,6 +8,7 @@
 
 #include "engine/config_error.hpp"
 #include "engine/pose.hpp"
+#include "engine/result.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 #include "server/http_library.hpp"
 #include "server/slam_service.hpp"
@@ -41,9 +42,8 @@ nlohmann::json PoseJson(const TimedPose& p);
 nlohmann::json BudgetJson(const BudgetSettings& b);
 
 /// A whole budget object: every key required (PUT, and a PATCH after merging onto the
-/// current object), no other key, right types; then the ranges of Validate. `out` is set only
-/// when there is no error.
-ConfigErrors BudgetFromJson(const nlohmann::json& body, BudgetSettings& out);
+/// current object), no other key, right types; then the ranges of Validate.
+Result<BudgetSettings> BudgetFromJson(const nlohmann::json& body);
 
 /// The data of the event stream's `metrics` and `pose` events for a snapshot.
 nlohmann::json MetricsEventJson(const SlamSnapshot& s);

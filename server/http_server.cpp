@@ -97,12 +97,12 @@ void HttpServer::Impl::HandleBudgetChange(const httplib::Request& req, httplib::
       if (!target.contains(key)) target[key] = value;
     }
   }
-  BudgetSettings settings;
-  const ConfigErrors errors = BudgetFromJson(target, settings);
-  if (!errors.empty()) {
-    SendProblem(res, 422, "Invalid budget", "the budget was not changed", errors);
+  const Result<BudgetSettings> parsed = BudgetFromJson(target);
+  if (!parsed.ok()) {
+    SendProblem(res, 422, "Invalid budget", "the budget was not changed", parsed.errors());
     return;
   }
+  const BudgetSettings& settings = parsed.value();
   if (!(settings == service.Budget())) {
     service.SetBudget(settings);
     ++budget_revision;
@@ -587,20 +587,19 @@ void HttpServer::Impl::Setup() {
                   "slamd was started without --experiments: no recorded experiments to tune on");
       return;
     }
-    TuneRequest request;
-    const ConfigErrors errors = ParseTuneRequest(body, jobs.Experiments(), request);
-    if (!errors.empty()) {
-      SendProblem(res, 422, "Invalid tuning job", "no job was started", errors);
+    const Result<TuneRequest> parsed = ParseTuneRequest(body, jobs.Experiments());
+    if (!parsed.ok()) {
+      SendProblem(res, 422, "Invalid tuning job", "no job was started", parsed.errors());
       return;
     }
-    std::string conflict;
-    const auto job = jobs.Start(request, conflict);
-    if (!job) {
-      SendProblem(res, 409, "Conflict", conflict);
+    const TuneRequest& request = parsed.value();
+    const Result<json> job = jobs.Start(request);
+    if (!job.ok()) {
+      SendProblem(res, 409, "Conflict", job.Message());
       return;
     }
-    res.set_header("Location", "/api/v1/jobs/" + (*job)["id"].get<std::string>());
-    SendJson(res, *job, 202);
+    res.set_header("Location", "/api/v1/jobs/" + job.value()["id"].get<std::string>());
+    SendJson(res, job.value(), 202);
   });
   server.Get("/api/v1/jobs", [this](const Request&, Response& res) { SendJson(res, jobs.List()); });
   server.Get(R"(/api/v1/jobs/([^/]+))", [this](const Request& req, Response& res) {
@@ -675,18 +674,18 @@ HttpServer::HttpServer(SlamService& service, hw::Link& link, JobManager& jobs,
 
 HttpServer::~HttpServer() { Stop(); }
 
-int HttpServer::Bind(std::string& error) {
+Result<int> HttpServer::Bind() {
   auto& s = impl_->server;
   if (impl_->options.port == 0) {
     const int port = s.bind_to_any_port(impl_->options.bind);
-    if (port <= 0) error = "cannot listen on " + impl_->options.bind + " (any port)";
-    if (port > 0) s.WidenListenBacklog();
-    return port > 0 ? port : -1;
+    if (port <= 0) return Error("cannot listen on " + impl_->options.bind + " (any port)");
+    s.WidenListenBacklog();
+    return port;
   }
   if (!s.bind_to_port(impl_->options.bind, impl_->options.port)) {
-    error = "cannot listen on " + impl_->options.bind + ":" + std::to_string(impl_->options.port) +
-            " (in use, or not an address of this machine)";
-    return -1;
+    return Error("cannot listen on " + impl_->options.bind + ":" +
+                 std::to_string(impl_->options.port) +
+                 " (in use, or not an address of this machine)");
   }
   s.WidenListenBacklog();
   return impl_->options.port;

@@ -14,6 +14,7 @@
 #include <string_view>
 #include <vector>
 
+#include "engine/result.hpp"
 #include "hw_link/link.hpp"
 #include "server/slam_service.hpp"
 #include "server/state_store.hpp"
@@ -41,8 +42,8 @@ class HttpServer {
   HttpServer(const HttpServer&) = delete;
   HttpServer& operator=(const HttpServer&) = delete;
 
-  /// Binds the listening socket; the port (useful with port 0), or -1 with `error` set.
-  int Bind(std::string& error);
+  /// Binds the listening socket; the port (useful with port 0).
+  Result<int> Bind();
   /// Serves until Stop (call Bind first).
   void Run();
   /// Stops serving (from any thread); event streams end within half a second.

@@ -99,13 +99,13 @@ bool EntityTagListMatches(std::string_view list, std::string_view etag, bool wea
   return false;
 }
 
-std::optional<std::string> AmbiguousFraming(std::string_view head) {
+Result<void> CheckFraming(std::string_view head) {
   const auto is_token_char = [](char c) {
     return std::isalnum(static_cast<unsigned char>(c)) != 0 ||
            std::string_view("!#$%&'*+-.^_`|~").find(c) != std::string_view::npos;
   };
   const size_t line_end = head.find("\r\n");
-  if (line_end == std::string_view::npos) return std::nullopt;  // the parser judges it
+  if (line_end == std::string_view::npos) return {};  // the parser judges it
   const std::string_view request_line = head.substr(0, line_end);
   const bool http11 = request_line.ends_with(" HTTP/1.1");
   int content_lengths = 0, hosts = 0;
@@ -130,13 +130,13 @@ std::optional<std::string> AmbiguousFraming(std::string_view head) {
     hosts += FieldNameIs(line, "host");
     return true;
   });
-  if (problem) return problem;
-  if (content_lengths > 1) return "more than one Content-Length";
+  if (problem) return Error(*problem);
+  if (content_lengths > 1) return Error("more than one Content-Length");
   if (http11 && hosts != 1) {
-    return hosts == 0 ? "a request of HTTP version 1.1 needs a Host header"
-                      : "more than one Host header";
+    return Error(hosts == 0 ? "a request of HTTP version 1.1 needs a Host header"
+                            : "more than one Host header");
   }
-  return std::nullopt;
+  return {};
 }
 
 bool ConstantTimeEquals(const std::string& a, const std::string& b) {
@@ -185,8 +185,8 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
   // A request whose framing parsers may read differently: 400, and the connection closes (what
   // follows on it may be a request hidden in this one).
   if (const std::string* head = RequestHeadAsReceived(); head != nullptr) {
-    if (const auto problem = AmbiguousFraming(*head)) {
-      return refuse(400, "Bad Request", *problem);
+    if (const Result<void> framing = CheckFraming(*head); !framing.ok()) {
+      return refuse(400, "Bad Request", framing.Message());
     }
   }
   // slamd answers only to loopback names, IP addresses and --allow-host names, with a token or

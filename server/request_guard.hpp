@@ -8,6 +8,7 @@
 #include <string>
 #include <string_view>
 
+#include "engine/result.hpp"
 #include "server/http_library.hpp"
 
 namespace slam::server {
@@ -30,13 +31,14 @@ bool IsPublicWebPath(std::string_view path);
 /// weak tag matches nothing). An empty list matches nothing.
 bool EntityTagListMatches(std::string_view list, std::string_view etag, bool weak);
 
-/// What makes a request head (request line and header lines as received, CRLF-separated, up to
-/// the blank line) ambiguous to read, or nothing (RFC 9112): a header line folded onto the
+/// Checks that a request head (request line and header lines as received, CRLF-separated, up to
+/// the blank line) reads one way only (RFC 9112); the error says what makes it ambiguous: a
+/// header line folded onto the
 /// previous one, a header line without a colon, a field name that is not a token (whitespace
 /// before the colon: "Transfer-Encoding : chunked" is one header to one parser and none to
 /// another), more than one Content-Length, an HTTP/1.1 request without exactly one Host. Two
 /// parsers reading such a request differently is how a request is smuggled inside another.
-std::optional<std::string> AmbiguousFraming(std::string_view head);
+Result<void> CheckFraming(std::string_view head);
 
 /// Constant-time comparison (the time does not depend on where the strings differ).
 bool ConstantTimeEquals(const std::string& a, const std::string& b);

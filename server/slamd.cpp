@@ -195,8 +195,8 @@ int main(int argc, char** argv) {
   source_options.speed = speed;
   source_options.seed = seed;
   auto opened = slam::server::OpenSourceSpec(source, robot.value(), source_options);
-  if (auto* error = std::get_if<std::string>(&opened)) return Fail(*error, 1);
-  auto frame_source = std::move(std::get<std::unique_ptr<slam::hw::FrameSource>>(opened));
+  if (!opened.ok()) return Fail(opened.Message(), 1);
+  auto frame_source = std::move(opened).value();
   const auto* virtual_robot =
       dynamic_cast<const slam::sim::VirtualMarxbotSource*>(frame_source.get());
 
@@ -214,9 +214,9 @@ int main(int argc, char** argv) {
   slam::server::SlamService service(link, virtual_robot, service_options);
   slam::server::JobManager jobs(experiments_dir, state_dir);
   slam::server::HttpServer server(service, link, jobs, http);
-  std::string error;
-  const int bound = server.Bind(error);
-  if (bound < 0) return Fail(error, 1);
+  const slam::Result<int> bound_port = server.Bind();
+  if (!bound_port.ok()) return Fail(bound_port.Message(), 1);
+  const int bound = bound_port.value();
 
   link.Start();
   service.Start();

@@ -27,7 +27,7 @@ hw::OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& r
                               const SourceSpecOptions& options) {
   const size_t colon = spec.find(':');
   if (colon == std::string::npos || colon + 1 == spec.size()) {
-    return "source '" + spec + "': expected " + kForms;
+    return Error("source '" + spec + "': expected " + kForms);
   }
   const std::string kind = spec.substr(0, colon);
   const std::string value = spec.substr(colon + 1);
@@ -36,7 +36,7 @@ hw::OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& r
     if (!world.ok()) {
       std::string error = "source '" + spec + "': ";
       for (const std::string& e : world.errors) error += e + "; ";
-      return error.substr(0, error.size() - 2);
+      return Error(error.substr(0, error.size() - 2));
     }
     const std::string name =
         sim::BuiltinArena(value) ? value : std::filesystem::path(value).stem().string();
@@ -65,8 +65,8 @@ hw::OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& r
     if (const size_t comma = value.find(','); comma != std::string::npos) {
       const std::string option = value.substr(comma + 1);
       if (option.rfind("from=", 0) != 0 || option.size() == 5) {
-        return "source '" + spec + "': unknown UDP option '" + option +
-               "' (expected from=SENDER, the one IPv4 address datagrams are taken from)";
+        return Error("source '" + spec + "': unknown UDP option '" + option +
+                     "' (expected from=SENDER, the one IPv4 address datagrams are taken from)");
       }
       sender = option.substr(5);
       port_text = value.substr(0, comma);
@@ -78,11 +78,11 @@ hw::OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& r
     }
     uint16_t port = 0;
     if (!ParsePort(port_text, port)) {
-      return "source '" + spec + "': '" + port_text + "' is not a UDP port (0..65535)";
+      return Error("source '" + spec + "': '" + port_text + "' is not a UDP port (0..65535)");
     }
     return hw::OpenUdp(port, address, sender);
   }
-  return "source '" + spec + "': unknown kind '" + kind + "'; expected " + kForms;
+  return Error("source '" + spec + "': unknown kind '" + kind + "'; expected " + kForms);
 }
 
 }  // namespace slam::server

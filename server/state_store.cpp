@@ -92,18 +92,17 @@ std::string EncodeTiles(const SavedState& state) {
   return out;
 }
 
-bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error) {
+Result<SavedState> DecodeTiles(const std::string& bytes) {
+  SavedState state;
   if (bytes.size() < sizeof(kMagic) + sizeof(uint64_t) ||
       std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0) {
-    error = "not a slamd tile file (bad magic)";
-    return false;
+    return Error("not a slamd tile file (bad magic)");
   }
   const size_t body = bytes.size() - sizeof(uint64_t);
   uint64_t stored = 0;
   std::memcpy(&stored, bytes.data() + body, sizeof(stored));
   if (stored != TileFileChecksum(std::string_view(bytes).substr(0, body))) {
-    error = "checksum mismatch (truncated or damaged)";
-    return false;
+    return Error("checksum mismatch (truncated or damaged)");
   }
   const std::string payload = bytes.substr(sizeof(kMagic), body - sizeof(kMagic));
   Reader in(payload);
@@ -111,30 +110,26 @@ bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error
   uint64_t count = 0;
   if (!in.Get(tile_size) || !in.Get(state.resolution_m) || !in.Get(state.version) ||
       !in.Get(count)) {
-    error = "truncated header";
-    return false;
+    return Error("truncated header");
   }
   if (tile_size != static_cast<uint32_t>(kTileSize)) {
-    error =
-        "tile size " + std::to_string(tile_size) + ", this build uses " + std::to_string(kTileSize);
-    return false;
+    return Error("tile size " + std::to_string(tile_size) + ", this build uses " +
+                 std::to_string(kTileSize));
   }
   if (!(state.resolution_m > 0.0) || !std::isfinite(state.resolution_m)) {
-    error = "bad resolution";
-    return false;
+    return Error("bad resolution");
   }
   // Map versions only grow, by one per scan at most: a version this large is not a saved run's
   // (and would wrap the resumed map's versions).
   constexpr uint64_t kMaxVersion = uint64_t{1} << 62;
   if (state.version >= kMaxVersion) {
-    error = "map version " + std::to_string(state.version) + " is out of range (at most 2^62)";
-    return false;
+    return Error("map version " + std::to_string(state.version) +
+                 " is out of range (at most 2^62)");
   }
   constexpr size_t kTileBytes =
       2 * sizeof(int32_t) + sizeof(uint64_t) + kTileCells * sizeof(LogOdds);
   if (count != in.remaining() / kTileBytes || in.remaining() % kTileBytes != 0) {
-    error = "tile count does not match the file size";
-    return false;
+    return Error("tile count does not match the file size");
   }
   state.tiles.clear();
   state.tiles.reserve(count);
@@ -146,28 +141,26 @@ bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error
     in.Get(tile.index.y);
     in.Get(tile.version);
     if (!InMapBound(tile.index)) {
-      error = "tile " + std::to_string(i) + " at (" + std::to_string(tile.index.x) + ", " +
-              std::to_string(tile.index.y) + ") is outside the map's bound (tiles -" +
-              std::to_string(kMapTileBound) + " to " + std::to_string(kMapTileBound - 1) + ")";
-      return false;
+      return Error("tile " + std::to_string(i) + " at (" + std::to_string(tile.index.x) + ", " +
+                   std::to_string(tile.index.y) + ") is outside the map's bound (tiles -" +
+                   std::to_string(kMapTileBound) + " to " + std::to_string(kMapTileBound - 1) +
+                   ")");
     }
     if (!seen.insert({tile.index.x, tile.index.y}).second) {
-      error = "tile " + std::to_string(i) + " at (" + std::to_string(tile.index.x) + ", " +
-              std::to_string(tile.index.y) + ") appears twice";
-      return false;
+      return Error("tile " + std::to_string(i) + " at (" + std::to_string(tile.index.x) + ", " +
+                   std::to_string(tile.index.y) + ") appears twice");
     }
     for (LogOdds& cell : tile.cells) {
       in.Get(cell);
       // Saves hold clamped cells only; anything beyond the encoding's limit was not written here.
       if (cell < -kLogOddsLimit || cell > kLogOddsLimit) {
-        error = "tile " + std::to_string(i) + " has a cell of " + std::to_string(cell) +
-                ", beyond the log-odds limit of " + std::to_string(kLogOddsLimit);
-        return false;
+        return Error("tile " + std::to_string(i) + " has a cell of " + std::to_string(cell) +
+                     ", beyond the log-odds limit of " + std::to_string(kLogOddsLimit));
       }
     }
     state.tiles.push_back(std::move(tile));
   }
-  return true;
+  return state;
 }
 
 namespace {
@@ -242,9 +235,13 @@ SaveOutcome SaveState(const std::string& dir, const SaveInputs& in) {
     outcome.error = std::move(error);
     return outcome;
   };
-  if (auto e = io::WriteFileAtomic((base / tiles_name).string(), EncodeTiles(state)))
-    return fail(*e);
-  if (auto e = io::WriteFileAtomic((base / trajectory_name).string(), tum)) return fail(*e);
+  if (Result<void> w = io::WriteFileAtomic((base / tiles_name).string(), EncodeTiles(state));
+      !w.ok()) {
+    return fail(w.Message());
+  }
+  if (Result<void> w = io::WriteFileAtomic((base / trajectory_name).string(), tum); !w.ok()) {
+    return fail(w.Message());
+  }
 
   nlohmann::json meta;
   meta["format"] = kFormat;
@@ -258,23 +255,24 @@ SaveOutcome SaveState(const std::string& dir, const SaveInputs& in) {
     meta["pose"] = {
         {"t", last.t}, {"x", last.pose.x}, {"y", last.pose.y}, {"theta", last.pose.theta}};
   }
-  if (auto e = io::WriteFileAtomic((base / "state.json").string(), meta.dump(2) + "\n")) {
-    return fail(*e);
+  if (Result<void> w = io::WriteFileAtomic((base / "state.json").string(), meta.dump(2) + "\n");
+      !w.ok()) {
+    return fail(w.Message());
   }
   // Committed: the superseded versioned files go before the copies are written.
   RemoveUnnamed(base, {tiles_name, trajectory_name});
 
   // Copies for people and map_server. The state is committed whatever happens to them: a copy
   // that cannot be written is a warning, and the previous copy stays as it was.
-  const auto warn = [&](std::optional<std::string> e) {
-    if (e) outcome.warnings.push_back(std::move(*e));
+  const auto warn = [&](const Result<void>& written) {
+    if (!written.ok()) outcome.warnings.push_back(written.Message());
   };
   const io::GridImage image = io::MakeGridImage(*in.grid);
   warn(io::WritePgm((base / "map.pgm").string(), image));
   warn(io::WriteMapYaml((base / "map.yaml").string(), "map.pgm", image));
   const io::PngBytes png = io::EncodeGrayPng(image.width, image.height, image.gray);
   if (!png.ok()) {
-    warn((base / "map.png").string() + ": " + png.error);
+    warn(Error((base / "map.png").string() + ": " + png.error));
   } else {
     warn(io::WriteFileAtomic((base / "map.png").string(),
                              std::string(png.bytes.begin(), png.bytes.end())));
@@ -284,9 +282,9 @@ SaveOutcome SaveState(const std::string& dir, const SaveInputs& in) {
   return outcome;
 }
 
-io::Result<StateDirLock> StateDirLock::Acquire(const std::string& dir) {
+Result<StateDirLock> StateDirLock::Acquire(const std::string& dir) {
   const auto failed = [&](const std::string& detail) {
-    return io::Result<StateDirLock>(ConfigErrors{{"", "--state-dir " + dir + ": " + detail}});
+    return Result<StateDirLock>(ConfigErrors{{"", "--state-dir " + dir + ": " + detail}});
   };
   std::error_code ec;
   fs::create_directories(dir, ec);
@@ -369,11 +367,12 @@ LoadOutcome LoadState(const std::string& dir) {
     outcome.error = *e;
     return outcome;
   }
-  std::string error;
-  if (!DecodeTiles(bytes, state, error)) {
-    outcome.error = (base / *tiles_name).string() + ": " + error;
+  Result<SavedState> decoded = DecodeTiles(bytes);
+  if (!decoded.ok()) {
+    outcome.error = (base / *tiles_name).string() + ": " + decoded.Message();
     return outcome;
   }
+  state = std::move(decoded).value();
   auto trajectory = io::LoadTum((base / *trajectory_name).string());
   if (!trajectory.ok()) {
     outcome.error = trajectory.Message();

@@ -18,9 +18,9 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/io/result.hpp"
 #include "engine/occupancy_grid.hpp"
 #include "engine/pose.hpp"
+#include "engine/result.hpp"
 
 namespace slam::server {
 
@@ -41,9 +41,9 @@ struct SavedState {
 uint64_t TileFileChecksum(std::string_view bytes);
 /// The tile file's contents (magic, resolution, tiles, checksum).
 std::string EncodeTiles(const SavedState& state);
-/// Parses EncodeTiles' output; false with `error` set when damaged or implausible (a tile outside
-/// the map's bound or twice, a cell beyond kLogOddsLimit, a version of 2^62 or more).
-bool DecodeTiles(const std::string& bytes, SavedState& state, std::string& error);
+/// Parses EncodeTiles' output; an error when damaged or implausible (a tile outside the map's
+/// bound or twice, a cell beyond kLogOddsLimit, a version of 2^62 or more).
+Result<SavedState> DecodeTiles(const std::string& bytes);
 
 struct SaveInputs {
   uint64_t version = 0;
@@ -73,7 +73,7 @@ class StateDirLock {
  public:
   /// Creates `dir` if missing and takes its lock; the error names the directory and, when it can,
   /// the process holding the lock.
-  static io::Result<StateDirLock> Acquire(const std::string& dir);
+  static Result<StateDirLock> Acquire(const std::string& dir);
 
   StateDirLock(StateDirLock&& other) noexcept;
   StateDirLock& operator=(StateDirLock&& other) noexcept;

@@ -56,8 +56,9 @@ bool ReadInt(const nlohmann::json& body, const char* key, T lo, T hi, T& out,
 
 }  // namespace
 
-ConfigErrors ParseTuneRequest(const nlohmann::json& body, const std::vector<std::string>& available,
-                              TuneRequest& request) {
+Result<TuneRequest> ParseTuneRequest(const nlohmann::json& body,
+                                     const std::vector<std::string>& available) {
+  TuneRequest request;
   ConfigErrors errors;
   if (!body.is_object()) {
     errors.push_back({"", "must be a JSON object", 0});
@@ -106,7 +107,8 @@ ConfigErrors ParseTuneRequest(const nlohmann::json& body, const std::vector<std:
       if (it->empty()) errors.push_back({"/experiments", "must name at least one experiment", 0});
     }
   }
-  return errors;
+  if (!errors.empty()) return errors;
+  return request;
 }
 
 JobManager::JobManager(std::string experiments_dir, std::string output_dir)
@@ -144,8 +146,9 @@ JobManager::~JobManager() {
 std::vector<std::string> JobManager::Experiments() const {
   std::vector<std::string> names;
   if (experiments_dir_.empty()) return names;
-  std::string error;
-  for (const std::string& dir : offline::FindExperimentDirs({experiments_dir_}, error)) {
+  const Result<std::vector<std::string>> dirs = offline::FindExperimentDirs({experiments_dir_});
+  if (!dirs.ok()) return names;
+  for (const std::string& dir : dirs.value()) {
     names.push_back(fs::path(dir).filename().string());
   }
   return names;
@@ -157,7 +160,7 @@ int JobManager::running() const {
       jobs_.begin(), jobs_.end(), [](const auto& j) { return j.second->state == "running"; }));
 }
 
-std::optional<nlohmann::json> JobManager::Start(const TuneRequest& request, std::string& conflict) {
+Result<nlohmann::json> JobManager::Start(const TuneRequest& request) {
   std::vector<std::string> names =
       request.experiments.empty() ? Experiments() : request.experiments;
   // Threads of finished jobs are joined (and forgotten jobs freed) after the lock is released:
@@ -169,13 +172,12 @@ std::optional<nlohmann::json> JobManager::Start(const TuneRequest& request, std:
     MutexLock lock(mutex_);
     for (const auto& [id, job] : jobs_) {
       if (job->state == "running") {
-        conflict = "job " + id + " is running; cancel it (DELETE /api/v1/jobs/" + id + ") or wait";
-        return std::nullopt;
+        return Error("job " + id + " is running; cancel it (DELETE /api/v1/jobs/" + id +
+                     ") or wait");
       }
     }
     if (names.empty()) {
-      conflict = "no experiments with ground truth under " + experiments_dir_;
-      return std::nullopt;
+      return Error("no experiments with ground truth under " + experiments_dir_);
     }
     // No job is running: every kept job is finished. Keep the newest kKeptFinishedJobs - 1 and
     // the one being started.

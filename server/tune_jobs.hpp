@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "engine/config_error.hpp"
+#include "engine/result.hpp"
 #include "engine/thread_safety.hpp"
 #include "offline/tuner.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
@@ -32,8 +33,8 @@ struct TuneRequest {
 
 /// Reads a job request (every key optional); errors carry JSON pointers. `available` are the
 /// experiment names that exist.
-ConfigErrors ParseTuneRequest(const nlohmann::json& body, const std::vector<std::string>& available,
-                              TuneRequest& request);
+Result<TuneRequest> ParseTuneRequest(const nlohmann::json& body,
+                                     const std::vector<std::string>& available);
 
 class JobManager {
  public:
@@ -52,8 +53,8 @@ class JobManager {
   /// beyond this, so that a client starting job after job cannot grow slamd's memory.
   static constexpr size_t kKeptFinishedJobs = 16;
 
-  /// Starts a job; nullopt with `conflict` set when one is already running.
-  std::optional<nlohmann::json> Start(const TuneRequest& request, std::string& conflict);
+  /// Starts a job and returns its JSON; an error (a conflict) when one is already running.
+  Result<nlohmann::json> Start(const TuneRequest& request);
   /// The job's JSON, if it exists.
   std::optional<nlohmann::json> Get(const std::string& id) const;
   /// Cancels a running job (returns 202) or forgets a finished one (200); 404 if unknown.

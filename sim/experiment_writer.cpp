@@ -13,14 +13,12 @@
 
 namespace slam::sim {
 
-std::optional<std::string> WriteSimulatedExperiment(const std::string& dir, const World& world,
-                                                    const std::string& world_name,
-                                                    const RobotDescription& robot,
-                                                    const ScenarioConfig& config,
-                                                    ExperimentSummary* summary) {
+Result<void> WriteSimulatedExperiment(const std::string& dir, const World& world,
+                                      const std::string& world_name, const RobotDescription& robot,
+                                      const ScenarioConfig& config, ExperimentSummary* summary) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
-  if (ec) return "cannot create " + dir + ": " + ec.message();
+  if (ec) return Error("cannot create " + dir + ": " + ec.message());
 
   const ScenarioOutput output = RunScenario(world, robot, config);
   const auto frames = SimulatedFrames(robot, output);
@@ -49,14 +47,15 @@ std::optional<std::string> WriteSimulatedExperiment(const std::string& dir, cons
         {"groundtruth.tum", io::FormatTum(truth)},
         {"meta.json", meta.dump(2) + "\n"},
         {"world.json", WorldToJson(world)}}) {
-    if (auto error = io::WriteFileAtomic(base + name, text)) return error;
+    if (Result<void> written = io::WriteFileAtomic(base + name, text); !written.ok())
+      return written;
   }
   if (summary != nullptr) {
     summary->frames = frames.size();
     summary->events = output.odometry.size() + output.scanner.size();
     summary->ground_truth_poses = truth.size();
   }
-  return std::nullopt;
+  return {};
 }
 
 }  // namespace slam::sim

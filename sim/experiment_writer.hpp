@@ -7,6 +7,7 @@
 #include <optional>
 #include <string>
 
+#include "engine/result.hpp"
 #include "engine/robot.hpp"
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
@@ -27,11 +28,10 @@ struct ExperimentSummary {
 };
 
 /// Simulates `config` in `world` and writes the experiment into `dir` (created if needed; files
-/// are replaced atomically). `world_name` goes into meta.json. An error message on failure.
-std::optional<std::string> WriteSimulatedExperiment(const std::string& dir, const World& world,
-                                                    const std::string& world_name,
-                                                    const RobotDescription& robot,
-                                                    const ScenarioConfig& config,
-                                                    ExperimentSummary* summary = nullptr);
+/// are replaced atomically). `world_name` goes into meta.json.
+Result<void> WriteSimulatedExperiment(const std::string& dir, const World& world,
+                                      const std::string& world_name, const RobotDescription& robot,
+                                      const ScenarioConfig& config,
+                                      ExperimentSummary* summary = nullptr);
 
 }  // namespace slam::sim

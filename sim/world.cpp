@@ -376,7 +376,7 @@ std::string WorldToJson(const World& world) {
   return out;
 }
 
-std::optional<std::string> SaveWorld(const std::string& path, const World& world) {
+Result<void> SaveWorld(const std::string& path, const World& world) {
   return io::WriteFileAtomic(path, WorldToJson(world));
 }
 

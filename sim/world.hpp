@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "engine/pose.hpp"
+#include "engine/result.hpp"
 
 namespace slam::sim {
 
@@ -65,8 +66,8 @@ WorldLoadResult LoadWorld(const std::string& path);
 /// The world as world.json text (pretty-printed, exact round trip of every number).
 std::string WorldToJson(const World& world);
 
-/// Writes world.json atomically (temporary file + rename); an error message on failure.
-std::optional<std::string> SaveWorld(const std::string& path, const World& world);
+/// Writes world.json atomically (temporary file + rename).
+Result<void> SaveWorld(const std::string& path, const World& world);
 
 /// Names of the built-in arenas: "box", "rooms", "cluttered".
 std::vector<std::string> BuiltinArenaNames();

@@ -19,7 +19,7 @@ using testing::Remote;
 // The decode error of `bytes`, or "" when they decode.
 std::string ErrorOf(const std::vector<uint8_t>& bytes) {
   const auto r = DecodeCannelloni(bytes);
-  return std::holds_alternative<std::string>(r) ? std::get<std::string>(r) : "";
+  return r.Message();
 }
 
 TEST(CannelloniTest, EncodesBigEndianLayout) {
@@ -38,9 +38,8 @@ TEST(CannelloniTest, EncodesBigEndianLayout) {
   };
   EXPECT_EQ(EncodeCannelloni(0x2A, frames), expected);
   const auto decoded = DecodeCannelloni(expected);
-  ASSERT_TRUE(std::holds_alternative<CannelloniDatagram>(decoded))
-      << std::get<std::string>(decoded);
-  const auto& datagram = std::get<CannelloniDatagram>(decoded);
+  ASSERT_TRUE(decoded.ok()) << decoded.Message();
+  const auto& datagram = decoded.value();
   EXPECT_EQ(datagram.sequence, 0x2A);
   EXPECT_EQ(datagram.frames, frames);
 }
@@ -49,8 +48,8 @@ TEST(CannelloniTest, EmptyDatagram) {
   const auto bytes = EncodeCannelloni(7, {});
   EXPECT_EQ(bytes, (std::vector<uint8_t>{2, 0, 7, 0, 0}));
   const auto decoded = DecodeCannelloni(bytes);
-  ASSERT_TRUE(std::holds_alternative<CannelloniDatagram>(decoded));
-  EXPECT_TRUE(std::get<CannelloniDatagram>(decoded).frames.empty());
+  ASSERT_TRUE(decoded.ok());
+  EXPECT_TRUE(decoded.value().frames.empty());
 }
 
 TEST(CannelloniTest, RoundTripsMixedFrames) {
@@ -75,10 +74,9 @@ TEST(CannelloniTest, RoundTripsMixedFrames) {
     }
     const auto sequence = static_cast<uint8_t>(round);
     const auto decoded = DecodeCannelloni(EncodeCannelloni(sequence, frames));
-    ASSERT_TRUE(std::holds_alternative<CannelloniDatagram>(decoded))
-        << std::get<std::string>(decoded);
-    EXPECT_EQ(std::get<CannelloniDatagram>(decoded).sequence, sequence);
-    EXPECT_EQ(std::get<CannelloniDatagram>(decoded).frames, frames);
+    ASSERT_TRUE(decoded.ok()) << decoded.Message();
+    EXPECT_EQ(decoded.value().sequence, sequence);
+    EXPECT_EQ(decoded.value().frames, frames);
   }
 }
 
@@ -87,9 +85,8 @@ TEST(CannelloniTest, DecodeIgnoresFdFlagsAndRemoteData) {
   const std::vector<uint8_t> bytes = {2,    0,    1,    0,    2, 0, 0,    0, 0x10,
                                       0x81, 0x05, 0xEE, 0x40, 0, 0, 0x10, 8};
   const auto decoded = DecodeCannelloni(bytes);
-  ASSERT_TRUE(std::holds_alternative<CannelloniDatagram>(decoded))
-      << std::get<std::string>(decoded);
-  const auto& frames = std::get<CannelloniDatagram>(decoded).frames;
+  ASSERT_TRUE(decoded.ok()) << decoded.Message();
+  const auto& frames = decoded.value().frames;
   ASSERT_EQ(frames.size(), 2u);
   EXPECT_EQ(frames[0], Frame(0x10, {0xEE}, false, true));
   EXPECT_EQ(frames[1], Remote(0x10, 8));

@@ -52,7 +52,7 @@ class ExperimentReaderTest : public ::testing::Test {
     std::filesystem::remove_all(dir_);
     config_.duration_s = 20.0;
     config_.seed = 3;
-    ASSERT_FALSE(WriteSimulatedExperiment(dir_.string(), world_, "rooms", robot_, config_));
+    ASSERT_TRUE(WriteSimulatedExperiment(dir_.string(), world_, "rooms", robot_, config_).ok());
   }
   void TearDown() override { std::filesystem::remove_all(dir_); }
 

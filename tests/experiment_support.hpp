@@ -20,9 +20,10 @@ inline std::optional<offline::Experiment> GenerateExperiment(const std::string& 
   sim::ScenarioConfig config;
   config.duration_s = duration_s;
   config.seed = seed;
-  if (const auto error = sim::WriteSimulatedExperiment(dir, *sim::BuiltinArena(arena), arena,
-                                                       ShippedRobot(), config)) {
-    ADD_FAILURE() << *error;
+  if (const Result<void> written = sim::WriteSimulatedExperiment(dir, *sim::BuiltinArena(arena),
+                                                                 arena, ShippedRobot(), config);
+      !written.ok()) {
+    ADD_FAILURE() << written.Message();
     return std::nullopt;
   }
   offline::ExperimentLoad load = offline::LoadExperiment(dir);

@@ -555,8 +555,8 @@ TEST(ParamsJson, SaveThenLoadRoundTripsAtomically) {
   TempDir dir("save");
   const std::string path = dir.File("params.json");
   const SlamParams params = TunedParams();
-  ASSERT_EQ(SaveParams(path, SlamParams{}), std::nullopt);
-  ASSERT_EQ(SaveParams(path, params), std::nullopt);  // replaces the existing file
+  ASSERT_TRUE(SaveParams(path, SlamParams{}).ok());
+  ASSERT_TRUE(SaveParams(path, params).ok());  // replaces the existing file
   const Result<SlamParams> loaded = LoadParams(path);
   ASSERT_TRUE(loaded.ok()) << loaded.Message();
   EXPECT_EQ(loaded.value(), params);
@@ -573,14 +573,14 @@ TEST(ParamsJson, SaveRefusesInvalidParamsAndBadPaths) {
   const std::string path = dir.File("params.json");
   SlamParams invalid;
   invalid.particles = 0;
-  const std::optional<std::string> refused = SaveParams(path, invalid);
-  ASSERT_TRUE(refused.has_value());
-  EXPECT_NE(refused->find("/particles"), std::string::npos) << *refused;
+  const Result<void> refused = SaveParams(path, invalid);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.Message().find("/particles"), std::string::npos) << refused.Message();
   EXPECT_FALSE(fs::exists(path));
 
-  const std::optional<std::string> no_dir = SaveParams(dir.File("missing/params.json"), {});
-  ASSERT_TRUE(no_dir.has_value());
-  EXPECT_NE(no_dir->find("missing"), std::string::npos) << *no_dir;
+  const Result<void> no_dir = SaveParams(dir.File("missing/params.json"), {});
+  ASSERT_FALSE(no_dir.ok());
+  EXPECT_NE(no_dir.Message().find("missing"), std::string::npos) << no_dir.Message();
 }
 
 TEST(ParamsJson, LoadErrorsNameThePath) {

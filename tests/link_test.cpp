@@ -421,9 +421,8 @@ TEST(LinkTest, EndToEndFromACandumpReplay) {
   }
   OpenResult opened = OpenCandumpReplay(path.string());
   std::filesystem::remove(path);  // the replay keeps its descriptor
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<FrameSource>>(opened))
-      << std::get<std::string>(opened);
-  Link link(std::move(std::get<std::unique_ptr<FrameSource>>(opened)), robot, FastOptions());
+  ASSERT_TRUE(opened.ok()) << opened.Message();
+  Link link(std::move(opened).value(), robot, FastOptions());
   link.Start();
   const std::vector<LinkEvent> events = PopAll(link);
   ASSERT_EQ(events.size(), traffic.events.size());

@@ -95,7 +95,7 @@ TEST(GridImageTest, EmptyGridIsOneUnknownPixel) {
 TEST(MapFilesTest, PgmReadsBackWithTheSameValues) {
   const std::string dir = TestDir("pgm");
   const GridImage image = MakeGridImage(SampleGrid());
-  ASSERT_FALSE(WritePgm(dir + "/map.pgm", image));
+  ASSERT_TRUE(WritePgm(dir + "/map.pgm", image).ok());
   const Pgm pgm = ParsePgm(ReadFile(dir + "/map.pgm"));
   EXPECT_EQ(pgm.magic, "P5");
   EXPECT_EQ(pgm.width, 128);
@@ -114,7 +114,7 @@ TEST(MapFilesTest, PgmReadsBackWithTheSameValues) {
 TEST(MapFilesTest, YamlFollowsMapServer) {
   const std::string dir = TestDir("yaml");
   const GridImage image = MakeGridImage(SampleGrid());
-  ASSERT_FALSE(WriteMapYaml(dir + "/map.yaml", "map.pgm", image));
+  ASSERT_TRUE(WriteMapYaml(dir + "/map.yaml", "map.pgm", image).ok());
   const auto yaml = ParseYaml(ReadFile(dir + "/map.yaml"));
   EXPECT_EQ(yaml.size(), 6u);
   EXPECT_EQ(yaml.at("image"), "map.pgm");
@@ -139,20 +139,21 @@ TEST(MapFilesTest, YamlFollowsMapServer) {
 
 TEST(MapFilesTest, WriteErrorsNameThePathAndLeaveNothingBehind) {
   const GridImage image = MakeGridImage(SampleGrid());
-  const std::optional<std::string> error = WritePgm("/nonexistent-dir/map.pgm", image);
-  ASSERT_TRUE(error);
-  EXPECT_NE(error->find("/nonexistent-dir/map.pgm"), std::string::npos) << *error;
-  EXPECT_TRUE(WriteMapYaml("/nonexistent-dir/map.yaml", "map.pgm", image));
-  EXPECT_TRUE(WritePng("/nonexistent-dir/map.png", RenderMapPicture(SampleGrid(), {}, 1)));
+  const Result<void> written = WritePgm("/nonexistent-dir/map.pgm", image);
+  ASSERT_FALSE(written.ok());
+  EXPECT_NE(written.Message().find("/nonexistent-dir/map.pgm"), std::string::npos)
+      << written.Message();
+  EXPECT_FALSE(WriteMapYaml("/nonexistent-dir/map.yaml", "map.pgm", image).ok());
+  EXPECT_FALSE(WritePng("/nonexistent-dir/map.png", RenderMapPicture(SampleGrid(), {}, 1)).ok());
   // A directory in the way of the final name: the rename fails, the temporary file is removed.
   const std::string dir = TestDir("blocked");
   fs::create_directory(dir + "/map.pgm");
-  EXPECT_TRUE(WritePgm(dir + "/map.pgm", image));
+  EXPECT_FALSE(WritePgm(dir + "/map.pgm", image).ok());
   EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
   // Inconsistent images are refused.
   GridImage broken = image;
   broken.gray.pop_back();
-  EXPECT_TRUE(WritePgm(dir + "/other.pgm", broken));
+  EXPECT_FALSE(WritePgm(dir + "/other.pgm", broken).ok());
 }
 
 TEST(MapFilesTest, WriteReplacesAnExistingFile) {
@@ -162,7 +163,7 @@ TEST(MapFilesTest, WriteReplacesAnExistingFile) {
     old << "stale contents that are longer than the new file will be, by quite a lot ......\n"
         << std::string(1000, 'x');
   }
-  ASSERT_FALSE(WriteMapYaml(dir + "/map.yaml", "map.pgm", MakeGridImage(SampleGrid())));
+  ASSERT_TRUE(WriteMapYaml(dir + "/map.yaml", "map.pgm", MakeGridImage(SampleGrid())).ok());
   EXPECT_EQ(ReadFile(dir + "/map.yaml").find("stale"), std::string::npos);
   EXPECT_EQ(ParseYaml(ReadFile(dir + "/map.yaml")).at("image"), "map.pgm");
 }
@@ -177,7 +178,7 @@ TEST(PngTest, EncodedBytesAreAValidPng) {
   ASSERT_GT(png.bytes.size(), 8u);
   EXPECT_EQ(png_sig_cmp(png.bytes.data(), 0, 8), 0);
   const std::string dir = TestDir("png");
-  ASSERT_FALSE(WritePng(dir + "/small.png", image));
+  ASSERT_TRUE(WritePng(dir + "/small.png", image).ok());
   const RgbImage back = ReadPng(dir + "/small.png");
   EXPECT_EQ(back.width, 3);
   EXPECT_EQ(back.height, 2);
@@ -214,7 +215,7 @@ TEST(MapPictureTest, MapTrajectoriesAndLegend) {
       "ground truth (aligned)", {{0.0, {0.1025, 0.2025, 0.0}}, {1.0, {0.4525, 0.2025, 0.0}}}, blue};
   const std::string dir = TestDir("picture");
   const RgbImage picture = RenderMapPicture(grid, {slam, truth}, 2);
-  ASSERT_FALSE(WritePng(dir + "/map.png", picture));
+  ASSERT_TRUE(WritePng(dir + "/map.png", picture).ok());
   const RgbImage image = ReadPng(dir + "/map.png");
 
   // One tile (64 cells) at 2 pixels per cell, then a legend of two lines (11 px each + 4).

@@ -71,11 +71,18 @@ void Save(const std::string& dir, const SavedState& s) {
   EXPECT_TRUE(saved.warnings.empty());
 }
 
+// DecodeTiles' verdict, with its message (empty when it decodes) in `error`.
+bool Decodes(const std::string& bytes, std::string& error) {
+  const Result<SavedState> decoded = DecodeTiles(bytes);
+  error = decoded.Message();
+  return decoded.ok();
+}
+
 TEST(StateStore, TilesRoundTripExactly) {
   const SavedState s = SampleState(42, 1);
-  SavedState back;
-  std::string error;
-  ASSERT_TRUE(DecodeTiles(EncodeTiles(s), back, error)) << error;
+  Result<SavedState> decoded = DecodeTiles(EncodeTiles(s));
+  ASSERT_TRUE(decoded.ok()) << decoded.Message();
+  const SavedState back = std::move(decoded).value();
   EXPECT_EQ(back.version, 42u);
   EXPECT_EQ(back.resolution_m, 0.01);
   ASSERT_EQ(back.tiles.size(), s.tiles.size());
@@ -88,16 +95,14 @@ TEST(StateStore, TilesRoundTripExactly) {
 
 TEST(StateStore, DamageIsDetected) {
   const std::string bytes = EncodeTiles(SampleState(7, 2));
-  SavedState back;
-  std::string error;
   std::string flipped = bytes;
   flipped[bytes.size() / 2] = static_cast<char>(flipped[bytes.size() / 2] ^ 0x10);
-  EXPECT_FALSE(DecodeTiles(flipped, back, error));
-  EXPECT_NE(error.find("checksum"), std::string::npos) << error;
-  EXPECT_FALSE(DecodeTiles(bytes.substr(0, bytes.size() - 100), back, error));
-  EXPECT_FALSE(DecodeTiles("", back, error));
-  EXPECT_FALSE(DecodeTiles("SLMTILE0" + bytes.substr(8), back, error));
-  EXPECT_NE(error.find("magic"), std::string::npos) << error;
+  const std::string checksum = DecodeTiles(flipped).Message();
+  EXPECT_NE(checksum.find("checksum"), std::string::npos) << checksum;
+  EXPECT_FALSE(DecodeTiles(bytes.substr(0, bytes.size() - 100)).ok());
+  EXPECT_FALSE(DecodeTiles("").ok());
+  const std::string magic = DecodeTiles("SLMTILE0" + bytes.substr(8)).Message();
+  EXPECT_NE(magic.find("magic"), std::string::npos) << magic;
 }
 
 TEST(StateStore, SaveThenLoadGivesTheMapAndTrajectory) {
@@ -159,25 +164,24 @@ TEST(StateStore, TilesBeyondTheMapsBoundAndWrappingVersionsAreRefused) {
   // 2^64 - 1 wrapped the resumed map's versions.
   SavedState far = SampleState(42, 3);
   far.tiles[1].index = {std::numeric_limits<int32_t>::min() + 5, 0};
-  SavedState back;
   std::string error;
-  EXPECT_FALSE(DecodeTiles(EncodeTiles(far), back, error));
+  EXPECT_FALSE(Decodes(EncodeTiles(far), error));
   EXPECT_NE(error.find("tile 1 at (-2147483643, 0) is outside the map's bound"), std::string::npos)
       << error;
   far.tiles[1].index = {0, kMapTileBound};
-  EXPECT_FALSE(DecodeTiles(EncodeTiles(far), back, error));
+  EXPECT_FALSE(Decodes(EncodeTiles(far), error));
   far.tiles[1].index = {kMapTileBound - 1, -kMapTileBound};  // the bound's last tiles are fine
-  EXPECT_TRUE(DecodeTiles(EncodeTiles(far), back, error)) << error;
+  EXPECT_TRUE(Decodes(EncodeTiles(far), error)) << error;
 
   SavedState wrapping = SampleState(std::numeric_limits<uint64_t>::max(), 4);
-  EXPECT_FALSE(DecodeTiles(EncodeTiles(wrapping), back, error));
+  EXPECT_FALSE(Decodes(EncodeTiles(wrapping), error));
   EXPECT_NE(error.find("map version 18446744073709551615 is out of range"), std::string::npos)
       << error;
 
   // Through LoadState, the error names the file.
   TempDir dir("state_far");
   Save(dir.path().string(), SampleState(10, 8));
-  ASSERT_FALSE(io::WriteFileAtomic(dir.File("map-10.tiles"), EncodeTiles(wrapping)));
+  ASSERT_TRUE(io::WriteFileAtomic(dir.File("map-10.tiles"), EncodeTiles(wrapping)).ok());
   const LoadOutcome loaded = LoadState(dir.path().string());
   EXPECT_FALSE(loaded.state);
   EXPECT_NE(loaded.error.find("map-10.tiles: map version"), std::string::npos) << loaded.error;
@@ -187,19 +191,18 @@ TEST(StateStore, DuplicateTilesAndCellsBeyondTheLimitAreRefused) {
   // Neither is something SaveState writes: a file holding them was made or damaged elsewhere.
   SavedState twice = SampleState(42, 5);
   twice.tiles[2].index = twice.tiles[0].index;
-  SavedState back;
   std::string error;
-  EXPECT_FALSE(DecodeTiles(EncodeTiles(twice), back, error));
+  EXPECT_FALSE(Decodes(EncodeTiles(twice), error));
   EXPECT_NE(error.find("tile 2 at (" + std::to_string(twice.tiles[0].index.x)), std::string::npos)
       << error;
   EXPECT_NE(error.find("appears twice"), std::string::npos) << error;
 
   SavedState hot = SampleState(42, 6);
   hot.tiles[1].cells[7] = static_cast<LogOdds>(kLogOddsLimit + 1);
-  EXPECT_FALSE(DecodeTiles(EncodeTiles(hot), back, error));
+  EXPECT_FALSE(Decodes(EncodeTiles(hot), error));
   EXPECT_NE(error.find("tile 1 has a cell of 16001"), std::string::npos) << error;
   hot.tiles[1].cells[7] = static_cast<LogOdds>(-kLogOddsLimit);  // the limit itself is fine
-  EXPECT_TRUE(DecodeTiles(EncodeTiles(hot), back, error)) << error;
+  EXPECT_TRUE(Decodes(EncodeTiles(hot), error)) << error;
 }
 
 /// Files larger than `bytes` cannot be written while this lives (RLIMIT_FSIZE: write fails with
@@ -332,14 +335,15 @@ TEST(StateStore, DamagedStateIsAnErrorNamingTheFile) {
   EXPECT_FALSE(loaded.state);
   EXPECT_NE(loaded.error.find("map-10.tiles"), std::string::npos) << loaded.error;
 
-  ASSERT_FALSE(io::WriteFileAtomic(
-      dir.File("state.json"),
-      R"({"format": 1, "tiles_file": "../etc/passwd", "trajectory_file": "t.tum"})"));
+  ASSERT_TRUE(io::WriteFileAtomic(
+                  dir.File("state.json"),
+                  R"({"format": 1, "tiles_file": "../etc/passwd", "trajectory_file": "t.tum"})")
+                  .ok());
   loaded = LoadState(dir.path().string());
   EXPECT_FALSE(loaded.state);
   EXPECT_NE(loaded.error.find("tiles_file"), std::string::npos) << loaded.error;
 
-  ASSERT_FALSE(io::WriteFileAtomic(dir.File("state.json"), "{not json"));
+  ASSERT_TRUE(io::WriteFileAtomic(dir.File("state.json"), "{not json").ok());
   EXPECT_FALSE(LoadState(dir.path().string()).error.empty());
 }
 
@@ -365,13 +369,13 @@ TEST(Security, LoopbackAddresses) {
   EXPECT_FALSE(IsLoopback("localhost.evil.example"));
 }
 
-TEST(Security, AmbiguousFramingOfARequestHead) {
+TEST(Security, CheckFramingOfARequestHead) {
   const std::string line = "GET / HTTP/1.1\r\n";
-  EXPECT_EQ(AmbiguousFraming(line + "Host: a\r\nContent-Length: 3\r\n\r\n"), std::nullopt);
-  EXPECT_EQ(AmbiguousFraming("GET / HTTP/1.0\r\n\r\n"), std::nullopt);
-  EXPECT_EQ(AmbiguousFraming(line + "hOsT: a\r\nX-A_b.c~1: \t v \r\n\r\n"), std::nullopt);
-  EXPECT_EQ(AmbiguousFraming("incomplete"), std::nullopt);  // the parser's to refuse
-  const auto problem = [](const std::string& head) { return AmbiguousFraming(head).value_or(""); };
+  EXPECT_TRUE(CheckFraming(line + "Host: a\r\nContent-Length: 3\r\n\r\n").ok());
+  EXPECT_TRUE(CheckFraming("GET / HTTP/1.0\r\n\r\n").ok());
+  EXPECT_TRUE(CheckFraming(line + "hOsT: a\r\nX-A_b.c~1: \t v \r\n\r\n").ok());
+  EXPECT_TRUE(CheckFraming("incomplete").ok());  // the parser's to refuse
+  const auto problem = [](const std::string& head) { return CheckFraming(head).Message(); };
   EXPECT_EQ(problem(line + "Host: a\r\ncontent-length: 1\r\nContent-Length: 1\r\n\r\n"),
             "more than one Content-Length");
   EXPECT_NE(problem(line + "Host: a\r\nTransfer-Encoding : chunked\r\n\r\n").find("not a token"),
@@ -428,20 +432,20 @@ TEST(Security, HostNameOfAHostHeader) {
 }
 
 TEST(TuneRequest, DefaultsAndErrorsWithPointers) {
-  TuneRequest request;
-  EXPECT_TRUE(ParseTuneRequest(nlohmann::json::object(), {"a"}, request).empty());
-  EXPECT_EQ(request.budget, 8125);
-  EXPECT_TRUE(request.experiments.empty());
+  const Result<TuneRequest> defaults = ParseTuneRequest(nlohmann::json::object(), {"a"});
+  ASSERT_TRUE(defaults.ok()) << defaults.Message();
+  EXPECT_EQ(defaults.value().budget, 8125);
+  EXPECT_TRUE(defaults.value().experiments.empty());
 
   const auto body = nlohmann::json::parse(
       R"({"budget": 0, "population": "many", "generations": 2.5, "policy": "greedy",
           "experiments": ["a", "zz", 3], "colour": "red"})");
-  const ConfigErrors errors = ParseTuneRequest(body, {"a", "b"}, request);
+  const ConfigErrors errors = ParseTuneRequest(body, {"a", "b"}).errors();
   std::vector<std::string> pointers;
   for (const auto& e : errors) pointers.push_back(e.pointer);
   EXPECT_EQ(pointers, (std::vector<std::string>{"/colour", "/budget", "/population", "/generations",
                                                 "/policy", "/experiments/1", "/experiments/2"}));
-  EXPECT_FALSE(ParseTuneRequest(nlohmann::json::array(), {}, request).empty());
+  EXPECT_FALSE(ParseTuneRequest(nlohmann::json::array(), {}).ok());
 }
 
 class SlamServiceTest : public ::testing::Test {
@@ -459,7 +463,7 @@ class SlamServiceTest : public ::testing::Test {
   /// A link replaying the experiment's log as fast as it is read, losing nothing.
   std::unique_ptr<hw::Link> MakeLink() {
     auto opened = hw::OpenCandumpReplay(dir_->File("exp/can.log"));
-    auto source = std::move(std::get<std::unique_ptr<hw::FrameSource>>(opened));
+    auto source = std::move(opened).value();
     hw::LinkOptions options;
     options.queue_capacity = 1 << 16;
     return std::make_unique<hw::Link>(std::move(source), testing::ShippedRobot(), options);

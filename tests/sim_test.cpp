@@ -224,7 +224,7 @@ TEST(WorldJsonTest, SavesAndLoadsAFile) {
   world.name = "my \"arena\"";
   world.circles.push_back({{0.1 + 0.2, 1.0 / 3.0}, 0.0123456789012345});
   const std::string path = ::testing::TempDir() + "sim_test_world.json";
-  ASSERT_FALSE(SaveWorld(path, world));
+  ASSERT_TRUE(SaveWorld(path, world).ok());
   const WorldLoadResult loaded = LoadWorld(path);
   ASSERT_TRUE(loaded.ok()) << loaded.errors.front();
   ExpectSameWorld(world, *loaded.world);
@@ -369,9 +369,9 @@ TEST(WorldJsonTest, MissingFileAndUnwritableDirectory) {
   ASSERT_FALSE(r.ok());
   EXPECT_PRED2(Contains, r.errors.front(), "/nonexistent/dir/world.json: cannot open");
   EXPECT_FALSE(ResolveWorld("no-such-arena").ok());
-  const std::optional<std::string> error = SaveWorld("/nonexistent/dir/world.json", World{});
-  ASSERT_TRUE(error);
-  EXPECT_PRED2(Contains, *error, "/nonexistent/dir/world.json");
+  const Result<void> saved = SaveWorld("/nonexistent/dir/world.json", World{});
+  ASSERT_FALSE(saved.ok());
+  EXPECT_PRED2(Contains, saved.Message(), "/nonexistent/dir/world.json");
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -11,33 +11,30 @@
 namespace slam::server {
 namespace {
 
-std::string ErrorOf(const hw::OpenResult& result) {
-  const auto* error = std::get_if<std::string>(&result);
-  return error != nullptr ? *error : std::string();
-}
+std::string ErrorOf(const hw::OpenResult& result) { return result.Message(); }
 
 TEST(SourceSpecTest, OpensTheVirtualMarxbotAndUdp) {
   const RobotDescription robot = testing::ShippedRobot();
   const hw::OpenResult sim = OpenSourceSpec("sim:rooms", robot);
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(sim)) << ErrorOf(sim);
-  EXPECT_EQ(std::get<std::unique_ptr<hw::FrameSource>>(sim)->Describe(), "sim:rooms");
+  ASSERT_TRUE(sim.ok()) << ErrorOf(sim);
+  EXPECT_EQ(sim.value()->Describe(), "sim:rooms");
 
   const hw::OpenResult udp = OpenSourceSpec("udp:127.0.0.1:0", robot);
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(udp)) << ErrorOf(udp);
-  EXPECT_GT(hw::BoundUdpPort(*std::get<std::unique_ptr<hw::FrameSource>>(udp)), 0);
+  ASSERT_TRUE(udp.ok()) << ErrorOf(udp);
+  EXPECT_GT(hw::BoundUdpPort(*udp.value()), 0);
 }
 
 TEST(SourceSpecTest, UdpListensOnLoopbackUnlessToldAndCanNameItsSender) {
   // udp:PORT once listened on every address: anyone on the network could send odometry.
   const RobotDescription robot = testing::ShippedRobot();
   const hw::OpenResult plain = OpenSourceSpec("udp:0", robot);
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(plain)) << ErrorOf(plain);
-  const hw::FrameSource& source = *std::get<std::unique_ptr<hw::FrameSource>>(plain);
+  ASSERT_TRUE(plain.ok()) << ErrorOf(plain);
+  const hw::FrameSource& source = *plain.value();
   EXPECT_EQ(source.Describe(), "udp:127.0.0.1:" + std::to_string(hw::BoundUdpPort(source)));
 
   const hw::OpenResult any = OpenSourceSpec("udp:0.0.0.0:0,from=192.168.1.7", robot);
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(any)) << ErrorOf(any);
-  const hw::FrameSource& restricted = *std::get<std::unique_ptr<hw::FrameSource>>(any);
+  ASSERT_TRUE(any.ok()) << ErrorOf(any);
+  const hw::FrameSource& restricted = *any.value();
   EXPECT_EQ(restricted.Describe(),
             "udp:0.0.0.0:" + std::to_string(hw::BoundUdpPort(restricted)) + ",from=192.168.1.7");
 }

@@ -73,17 +73,14 @@ uint64_t Counter(const SourceCounters& counters, std::string_view name) {
 }
 
 std::unique_ptr<FrameSource> Unwrap(OpenResult result) {
-  if (auto* error = std::get_if<std::string>(&result)) {
-    ADD_FAILURE() << "open failed: " << *error;
+  if (!result.ok()) {
+    ADD_FAILURE() << "open failed: " << result.Message();
     return nullptr;
   }
-  return std::move(std::get<std::unique_ptr<FrameSource>>(result));
+  return std::move(result).value();
 }
 
-std::string ErrorOf(const OpenResult& result) {
-  const auto* error = std::get_if<std::string>(&result);
-  return error != nullptr ? *error : std::string();
-}
+std::string ErrorOf(const OpenResult& result) { return result.Message(); }
 
 // The frames of `count` robot events (odometry and scanner alternating), as the robot sends them.
 std::vector<CanFrame> RobotFrames(const RobotDescription& robot, int count) {

@@ -129,8 +129,8 @@ void ExpectSameEvents(const std::vector<RobotEvent>& got, const sim::ScenarioOut
 
 TEST_F(ExperimentTest, RecordedExperimentReadBackThroughTheLinkGivesTheSimulatorsEvents) {
   ExperimentSummary summary;
-  ASSERT_FALSE(
-      WriteSimulatedExperiment(dir_.string(), world_, "cluttered", robot_, config_, &summary));
+  ASSERT_TRUE(
+      WriteSimulatedExperiment(dir_.string(), world_, "cluttered", robot_, config_, &summary).ok());
   for (const char* name : {"robot.json", "can.log", "groundtruth.tum", "meta.json", "world.json"}) {
     EXPECT_TRUE(std::filesystem::exists(dir_ / name)) << name;
   }
@@ -140,10 +140,9 @@ TEST_F(ExperimentTest, RecordedExperimentReadBackThroughTheLinkGivesTheSimulator
   auto robot = io::LoadRobot((dir_ / "robot.json").string());
   ASSERT_TRUE(robot.ok()) << robot.Message();
   auto source = hw::OpenCandumpReplay((dir_ / "can.log").string());
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(source));
+  ASSERT_TRUE(source.ok());
   hw::LinkStatus status;
-  const auto events = DrainLink(std::move(std::get<std::unique_ptr<hw::FrameSource>>(source)),
-                                robot.value(), &status);
+  const auto events = DrainLink(std::move(source).value(), robot.value(), &status);
   ExpectSameEvents(events, made, static_cast<double>(kSimulationEpochUs) * 1e-6);
   EXPECT_EQ(status.frames, summary.frames);
   EXPECT_EQ(status.reassembly.Rejected(), 0u);
@@ -152,11 +151,11 @@ TEST_F(ExperimentTest, RecordedExperimentReadBackThroughTheLinkGivesTheSimulator
 
   // The same through the thread-less decoder that replays use.
   auto again = hw::OpenCandumpReplay((dir_ / "can.log").string());
-  ASSERT_TRUE(std::holds_alternative<std::unique_ptr<hw::FrameSource>>(again));
+  ASSERT_TRUE(again.ok());
   hw::FrameDecoder decoder(robot.value());
   std::vector<RobotEvent> direct;
-  EXPECT_FALSE(DecodeToEnd(*std::get<std::unique_ptr<hw::FrameSource>>(again), decoder,
-                           [&](const RobotEvent& e) { direct.push_back(e); }));
+  EXPECT_TRUE(
+      DecodeToEnd(*again.value(), decoder, [&](const RobotEvent& e) { direct.push_back(e); }).ok());
   ExpectSameEvents(direct, made, static_cast<double>(kSimulationEpochUs) * 1e-6);
   EXPECT_EQ(decoder.frames(), summary.frames);
 
@@ -183,8 +182,8 @@ TEST_F(ExperimentTest, RecordedExperimentReadBackThroughTheLinkGivesTheSimulator
 TEST_F(ExperimentTest, SameSeedWritesIdenticalFiles) {
   const auto a = dir_ / "a";
   const auto b = dir_ / "b";
-  ASSERT_FALSE(WriteSimulatedExperiment(a.string(), world_, "cluttered", robot_, config_));
-  ASSERT_FALSE(WriteSimulatedExperiment(b.string(), world_, "cluttered", robot_, config_));
+  ASSERT_TRUE(WriteSimulatedExperiment(a.string(), world_, "cluttered", robot_, config_).ok());
+  ASSERT_TRUE(WriteSimulatedExperiment(b.string(), world_, "cluttered", robot_, config_).ok());
   for (const char* name : {"can.log", "groundtruth.tum", "meta.json", "world.json"}) {
     std::ifstream fa(a / name), fb(b / name);
     std::stringstream sa, sb;
@@ -198,10 +197,10 @@ TEST_F(ExperimentTest, SameSeedWritesIdenticalFiles) {
 TEST_F(ExperimentTest, UnwritableDirectoryIsAnError) {
   std::filesystem::create_directories(dir_);
   std::ofstream(dir_ / "file") << "x";
-  const auto error =
+  const Result<void> written =
       WriteSimulatedExperiment((dir_ / "file" / "sub").string(), world_, "w", robot_, config_);
-  ASSERT_TRUE(error);
-  EXPECT_NE(error->find("file"), std::string::npos);
+  ASSERT_FALSE(written.ok());
+  EXPECT_NE(written.Message().find("file"), std::string::npos);
 }
 
 TEST_F(ExperimentTest, LiveVirtualMarxbotSpeaksTheSameFrames) {

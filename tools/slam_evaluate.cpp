@@ -95,9 +95,9 @@ int main(int argc, char** argv) {
     if (!loaded.ok()) return Fail(loaded.Message());
     plan.params = loaded.value();
   }
-  std::string error;
-  const std::vector<std::string> dirs = slam::offline::FindExperimentDirs(inputs, error);
-  if (dirs.empty()) return Fail(error);
+  const slam::Result<std::vector<std::string>> found = slam::offline::FindExperimentDirs(inputs);
+  if (!found.ok()) return Fail(found.Message());
+  const std::vector<std::string>& dirs = found.value();
   std::error_code ec;
   fs::create_directories(out_dir, ec);
   if (ec) return Fail("cannot create " + out_dir + ": " + ec.message());
@@ -140,7 +140,8 @@ int main(int argc, char** argv) {
   for (const auto& [name, text] : {std::pair<std::string, std::string>{"results.md", md},
                                    {"results.csv", slam::offline::EvaluationCsv(experiments, runs)},
                                    {"runs.json", all.dump(2) + "\n"}}) {
-    if (auto e = slam::io::WriteFileAtomic((out / name).string(), text)) return Fail(*e);
+    const slam::Result<void> written = slam::io::WriteFileAtomic((out / name).string(), text);
+    if (!written.ok()) return Fail(written.Message());
   }
   std::cout << md;
   std::fprintf(stderr, "slam-evaluate: %zu runs in %.1f s; results in %s/results.{md,csv}\n",

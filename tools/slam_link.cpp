@@ -85,13 +85,13 @@ int main(int argc, char** argv) {
     options.duration_s = seconds;
   }
   auto opened = slam::server::OpenSourceSpec(spec, robot.value(), options);
-  if (auto* error = std::get_if<std::string>(&opened)) {
-    std::cerr << "slam-link: " << *error << "\n";
+  if (!opened.ok()) {
+    std::cerr << "slam-link: " << opened.Message() << "\n";
     return 1;
   }
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
-  auto source = std::move(std::get<std::unique_ptr<slam::hw::FrameSource>>(opened));
+  auto source = std::move(opened).value();
 
   if (as_fast) {
     // Recorded data: decode on this thread, losing nothing (the link thread would drop events
@@ -99,22 +99,23 @@ int main(int argc, char** argv) {
     slam::hw::FrameDecoder decoder(robot.value());
     slam::ScanAssembler assembler(robot.value());
     std::vector<slam::Scan> scans;
-    const auto error = slam::hw::DecodeToEnd(*source, decoder, [&](const slam::RobotEvent& e) {
-      if (events) PrintEvent(e);
-      scans.clear();
-      assembler.Add(e, scans);
-    });
+    const slam::Result<void> decoded =
+        slam::hw::DecodeToEnd(*source, decoder, [&](const slam::RobotEvent& e) {
+          if (events) PrintEvent(e);
+          scans.clear();
+          assembler.Add(e, scans);
+        });
     slam::hw::LinkStatus status;
-    status.state = error ? slam::hw::LinkState::kSourceError : slam::hw::LinkState::kEnded;
+    status.state = decoded.ok() ? slam::hw::LinkState::kEnded : slam::hw::LinkState::kSourceError;
     status.source = source->Describe();
-    status.last_error = error.value_or("");
+    status.last_error = decoded.ok() ? "" : decoded.Message();
     status.frames = decoder.frames();
     status.reassembly = decoder.reassembly();
     status.decoder = decoder.decoder();
     status.source_counters = source->Counters();
     std::fflush(stdout);
     std::cout << StatusJson(status, assembler.counters()).dump(2) << "\n";
-    return error ? 1 : 0;
+    return decoded.ok() ? 0 : 1;
   }
 
   slam::hw::Link link(std::move(source), robot.value());

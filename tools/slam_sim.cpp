@@ -123,12 +123,12 @@ int main(int argc, char** argv) {
     const Job& job = jobs[i];
     slam::sim::ScenarioConfig config = base;
     config.seed = job.seed;
-    const auto error = slam::sim::WriteSimulatedExperiment(job.dir, job.world, job.world_name,
-                                                           robot.value(), config, &summaries[i]);
+    const slam::Result<void> written = slam::sim::WriteSimulatedExperiment(
+        job.dir, job.world, job.world_name, robot.value(), config, &summaries[i]);
     const std::lock_guard lock(io_mutex);
-    if (error) {
+    if (!written.ok()) {
       failed = true;
-      std::cerr << "slam-sim: " << job.dir << ": " << *error << "\n";
+      std::cerr << "slam-sim: " << job.dir << ": " << written.Message() << "\n";
       return;
     }
     const double elapsed =
@@ -150,10 +150,10 @@ int main(int argc, char** argv) {
                      {"events", summaries[i].events}});
   }
   if (dataset->parsed()) {
-    const auto error = slam::io::WriteFileAtomic(
+    const slam::Result<void> written = slam::io::WriteFileAtomic(
         (std::filesystem::path(out_dir) / "index.json").string(), index.dump(2) + "\n");
-    if (error) {
-      std::cerr << "slam-sim: " << *error << "\n";
+    if (!written.ok()) {
+      std::cerr << "slam-sim: " << written.Message() << "\n";
       return 1;
     }
   }

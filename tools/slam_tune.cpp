@@ -148,9 +148,9 @@ int main(int argc, char** argv) {
     settings.start = loaded.value();
   }
 
-  std::string error;
-  const std::vector<std::string> dirs = slam::offline::FindExperimentDirs(inputs, error);
-  if (dirs.empty()) return Fail(error);
+  const slam::Result<std::vector<std::string>> found = slam::offline::FindExperimentDirs(inputs);
+  if (!found.ok()) return Fail(found.Message());
+  const std::vector<std::string>& dirs = found.value();
   // Decoded once, held in memory for every evaluation.
   std::vector<slam::offline::Experiment> experiments;
   for (const std::string& dir : dirs) {

@@ -34,27 +34,27 @@ bool WriteAll(int fd, const std::string& text) {
 
 }  // namespace
 
-std::optional<std::string> WriteFileAtomic(const std::string& path, const std::string& text) {
+Result<void> WriteFileAtomic(const std::string& path, const std::string& text) {
   static std::atomic<unsigned> counter{0};
   const std::string temp =
       path + ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter.fetch_add(1));
   const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
-  if (fd < 0) return ErrnoText("cannot create", temp);
+  if (fd < 0) return Error(ErrnoText("cannot create", temp));
   if (!WriteAll(fd, text) || ::fsync(fd) != 0) {
     std::string error = ErrnoText("cannot write", temp);
     ::close(fd);
     ::unlink(temp.c_str());
-    return error;
+    return Error(error);
   }
   if (::close(fd) != 0) {
     std::string error = ErrnoText("cannot write", temp);
     ::unlink(temp.c_str());
-    return error;
+    return Error(error);
   }
   if (std::rename(temp.c_str(), path.c_str()) != 0) {
     std::string error = ErrnoText("cannot rename " + temp + " to", path);
     ::unlink(temp.c_str());
-    return error;
+    return Error(error);
   }
   // Make the rename itself durable (best effort).
   std::string directory = std::filesystem::path(path).parent_path().string();
@@ -64,7 +64,7 @@ std::optional<std::string> WriteFileAtomic(const std::string& path, const std::s
     ::fsync(dir_fd);
     ::close(dir_fd);
   }
-  return std::nullopt;
+  return {};
 }
 
 }  // namespace slam::io

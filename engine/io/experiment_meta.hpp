@@ -8,7 +8,7 @@
 #include <optional>
 #include <string>
 
-#include "engine/io/result.hpp"
+#include "engine/result.hpp"
 
 namespace slam::io {
 

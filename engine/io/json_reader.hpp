@@ -21,7 +21,7 @@
 
 #include "engine/config_error.hpp"
 #include "engine/io/json_locate.hpp"
-#include "engine/io/result.hpp"
+#include "engine/result.hpp"
 
 namespace slam::io::detail {
 

@@ -212,22 +212,22 @@ PngBytes EncodeGrayPng(int width, int height, const std::vector<uint8_t>& gray) 
   return Encode(width, height, PNG_COLOR_TYPE_GRAY, 1, gray.data(), gray.size());
 }
 
-std::optional<std::string> WritePgm(const std::string& path, const GridImage& image) {
+Result<void> WritePgm(const std::string& path, const GridImage& image) {
   if (image.width <= 0 || image.height <= 0 ||
       image.gray.size() != static_cast<size_t>(image.width) * static_cast<size_t>(image.height)) {
-    return "cannot write " + path + ": image data does not match its size";
+    return Error("cannot write " + path + ": image data does not match its size");
   }
   return WriteFileAtomic(path, EncodePgm(image));
 }
 
-std::optional<std::string> WriteMapYaml(const std::string& path, const std::string& pgm_name,
-                                        const GridImage& image) {
+Result<void> WriteMapYaml(const std::string& path, const std::string& pgm_name,
+                          const GridImage& image) {
   return WriteFileAtomic(path, MapYaml(pgm_name, image));
 }
 
-std::optional<std::string> WritePng(const std::string& path, const RgbImage& image) {
+Result<void> WritePng(const std::string& path, const RgbImage& image) {
   const PngBytes png = EncodePng(image);
-  if (!png.ok()) return "cannot write " + path + ": " + png.error;
+  if (!png.ok()) return Error("cannot write " + path + ": " + png.error);
   return WriteFileAtomic(path, std::string(png.bytes.begin(), png.bytes.end()));
 }
 

@@ -10,6 +10,7 @@
 
 #include "engine/occupancy_grid.hpp"
 #include "engine/pose.hpp"
+#include "engine/result.hpp"
 
 namespace slam::io {
 
@@ -65,16 +66,15 @@ PngBytes EncodePng(const RgbImage& image);
 /// Encodes an 8-bit grey image (width * height bytes, row 0 at the top) as a grey PNG.
 PngBytes EncodeGrayPng(int width, int height, const std::vector<uint8_t>& gray);
 
-/// Writes a grid image as a binary PGM file, atomically; nullopt on success, else the error.
-[[nodiscard]] std::optional<std::string> WritePgm(const std::string& path, const GridImage& image);
+/// Writes a grid image as a binary PGM file, atomically.
+Result<void> WritePgm(const std::string& path, const GridImage& image);
 
 /// Writes the map_server YAML for `image` stored as `pgm_name`, atomically.
-[[nodiscard]] std::optional<std::string> WriteMapYaml(const std::string& path,
-                                                      const std::string& pgm_name,
-                                                      const GridImage& image);
+Result<void> WriteMapYaml(const std::string& path, const std::string& pgm_name,
+                          const GridImage& image);
 
 /// Writes an RGB image as a PNG file, atomically.
-[[nodiscard]] std::optional<std::string> WritePng(const std::string& path, const RgbImage& image);
+Result<void> WritePng(const std::string& path, const RgbImage& image);
 
 /// A trajectory to draw on the map picture.
 struct TrajectoryLayer {

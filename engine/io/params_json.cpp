@@ -49,9 +49,10 @@ nlohmann::json ParamsToJson(const SlamParams& params) {
   return json;
 }
 
-std::optional<std::string> SaveParams(const std::string& path, const SlamParams& params) {
+Result<void> SaveParams(const std::string& path, const SlamParams& params) {
   const ConfigErrors errors = Validate(params);
-  if (!errors.empty()) return "refusing to write invalid parameters:\n" + FormatErrors(errors);
+  if (!errors.empty())
+    return Error("refusing to write invalid parameters:\n" + FormatErrors(errors));
   return WriteFileAtomic(path, ParamsToJson(params).dump(2) + "\n");
 }
 

@@ -6,8 +6,8 @@
 #include <optional>
 #include <string>
 
-#include "engine/io/result.hpp"
 #include "engine/params.hpp"
+#include "engine/result.hpp"
 
 namespace slam::io {
 
@@ -24,8 +24,7 @@ nlohmann::json ParamsToJson(const SlamParams& params);
 
 /// Validates and writes `params` to `path` atomically (temporary file in the same directory,
 /// then rename); nullopt on success, else why nothing was written.
-[[nodiscard]] std::optional<std::string> SaveParams(const std::string& path,
-                                                    const SlamParams& params);
+Result<void> SaveParams(const std::string& path, const SlamParams& params);
 
 /// Applies an RFC 7396 merge patch to `base` and validates the result; a null member resets
 /// that parameter to its default.

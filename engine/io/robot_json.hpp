@@ -5,7 +5,7 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
-#include "engine/io/result.hpp"
+#include "engine/result.hpp"
 #include "engine/robot.hpp"
 
 namespace slam::io {

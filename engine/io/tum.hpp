@@ -6,8 +6,8 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/io/result.hpp"
 #include "engine/pose.hpp"
+#include "engine/result.hpp"
 
 namespace slam::io {
 
