@@ -93,13 +93,12 @@ class LogClock {
 
 }  // namespace
 
-ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig& assembler_config) {
-  ExperimentLoad load;
+Result<Experiment> LoadExperiment(const std::string& dir,
+                                  const ScanAssemblerConfig& assembler_config) {
   std::error_code ec;
   if (!std::filesystem::is_directory(dir, ec)) {
-    load.error = dir + ": not an experiment directory (" +
-                 (std::filesystem::exists(dir, ec) ? "not a directory" : "does not exist") + ")";
-    return load;
+    return Error(dir + ": not an experiment directory (" +
+                 (std::filesystem::exists(dir, ec) ? "not a directory" : "does not exist") + ")");
   }
   const std::filesystem::path base(dir);
   const auto file = [&](const char* name) { return (base / name).string(); };
@@ -140,15 +139,13 @@ ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig&
     errors.push_back(file("can.log") + ": cannot open (No such file or directory)");
   }
   if (!errors.empty()) {
-    for (const std::string& e : errors) load.error += (load.error.empty() ? "" : "\n") + e;
-    return load;
+    ConfigErrors all;
+    for (std::string& e : errors) all.push_back({"", std::move(e), 0});
+    return all;
   }
 
   hw::OpenResult opened = hw::OpenCandumpReplay(file("can.log"));
-  if (!opened.ok()) {
-    load.error = opened.Message();
-    return load;
-  }
+  if (!opened.ok()) return opened.errors();
   hw::FrameSource& source = *opened.value();
   hw::FrameDecoder decoder(experiment.robot);
   ScanAssembler assembler(experiment.robot, assembler_config);
@@ -156,10 +153,7 @@ ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig&
   const Result<void> decoded = DecodeToEnd(
       source, decoder, [&](const RobotEvent& event) { assembler.Add(event, experiment.scans); },
       [&](const hw::TimedFrame& frame) { clock.Observe(frame); });
-  if (!decoded.ok()) {
-    load.error = file("can.log") + ": " + decoded.Message();
-    return load;
-  }
+  if (!decoded.ok()) return Error(file("can.log") + ": " + decoded.Message());
 
   ExperimentCounters& counters = experiment.counters;
   counters.frames = decoder.frames();
@@ -176,16 +170,14 @@ ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig&
   experiment.t_first = decoder.first_time();
   experiment.t_last = decoder.last_time();
   if (experiment.scans.empty()) {
-    load.error = file("can.log") + ": no complete scan in " + std::to_string(counters.frames) +
+    return Error(file("can.log") + ": no complete scan in " + std::to_string(counters.frames) +
                  " frames (" + std::to_string(counters.bad_lines) + " garbled lines, " +
                  std::to_string(counters.reassembly.Rejected()) + " rejected fragments, " +
                  std::to_string(counters.decoder.odometry) + " odometry and " +
                  std::to_string(counters.decoder.scanner) + " scanner events, " +
-                 std::to_string(counters.decoder.Rejected()) + " unknown messages)";
-    return load;
+                 std::to_string(counters.decoder.Rejected()) + " unknown messages)");
   }
-  load.experiment = std::move(experiment);
-  return load;
+  return experiment;
 }
 
 }  // namespace slam::offline

@@ -67,13 +67,9 @@ struct Experiment {
   double duration_s() const { return t_last - t_first; }
 };
 
-struct ExperimentLoad {
-  std::optional<Experiment> experiment;
-  std::string error;  // one or more lines, each naming its file; empty on success
-  bool ok() const { return experiment.has_value(); }
-};
-
-/// Reads and decodes the experiment in `dir`.
-ExperimentLoad LoadExperiment(const std::string& dir, const ScanAssemblerConfig& assembler = {});
+/// Reads and decodes the experiment in `dir`; the errors (Message(): one line each) name their
+/// files.
+Result<Experiment> LoadExperiment(const std::string& dir,
+                                  const ScanAssemblerConfig& assembler = {});
 
 }  // namespace slam::offline

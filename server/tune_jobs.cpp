@@ -216,17 +216,17 @@ void JobManager::Run(Job& job) {
   std::string error;
   for (const std::string& name : job.experiments) {
     if (job.cancel) break;
-    offline::ExperimentLoad load =
+    Result<offline::Experiment> load =
         offline::LoadExperiment((fs::path(experiments_dir_) / name).string());
     if (!load.ok()) {
-      error = load.error;
+      error = load.Message();
       break;
     }
-    if (load.experiment->ground_truth.empty()) {
+    if (load.value().ground_truth.empty()) {
       error = name + ": no ground truth (groundtruth.tum): it cannot be used for tuning";
       break;
     }
-    loaded.push_back(std::move(*load.experiment));
+    loaded.push_back(std::move(load).value());
   }
   std::vector<offline::TuningExperiment> experiments;
   for (const offline::Experiment& e : loaded) {

@@ -56,13 +56,13 @@ class ExperimentReaderTest : public ::testing::Test {
   }
   void TearDown() override { std::filesystem::remove_all(dir_); }
 
-  ExperimentLoad Load() const { return LoadExperiment(dir_.string()); }
+  Result<Experiment> Load() const { return LoadExperiment(dir_.string()); }
 
   /// The error of loading the experiment, which must fail.
   std::string LoadError() const {
-    const ExperimentLoad load = Load();
+    const Result<Experiment> load = Load();
     EXPECT_FALSE(load.ok());
-    return load.error;
+    return load.Message();
   }
 
   std::filesystem::path dir_;
@@ -72,9 +72,9 @@ class ExperimentReaderTest : public ::testing::Test {
 };
 
 TEST_F(ExperimentReaderTest, ReadsTheSimulatorsScansGroundTruthAndWorld) {
-  const ExperimentLoad load = Load();
-  ASSERT_TRUE(load.ok()) << load.error;
-  const Experiment& e = *load.experiment;
+  const Result<Experiment> load = Load();
+  ASSERT_TRUE(load.ok()) << load.Message();
+  const Experiment& e = load.value();
   const sim::ScenarioOutput made = sim::RunScenario(world_, robot_, config_);
   const std::vector<Scan> expected = sim::BuildScans(robot_, made.odometry, made.scanner);
   // The bus delays the frames by about 0.1 ms, which may leave the log's last scan unfinished.
@@ -103,14 +103,14 @@ TEST_F(ExperimentReaderTest, ReadsTheSimulatorsScansGroundTruthAndWorld) {
 TEST_F(ExperimentReaderTest, OptionalFilesMayBeAbsent) {
   std::filesystem::remove(dir_ / "groundtruth.tum");
   std::filesystem::remove(dir_ / "world.json");
-  const ExperimentLoad load = Load();
-  ASSERT_TRUE(load.ok()) << load.error;
-  EXPECT_TRUE(load.experiment->ground_truth.empty());
-  EXPECT_FALSE(load.experiment->world.has_value());
+  const Result<Experiment> load = Load();
+  ASSERT_TRUE(load.ok()) << load.Message();
+  EXPECT_TRUE(load.value().ground_truth.empty());
+  EXPECT_FALSE(load.value().world.has_value());
 }
 
 TEST_F(ExperimentReaderTest, MissingDirectoryAndRequiredFilesAreNamed) {
-  EXPECT_NE(LoadExperiment((dir_ / "nowhere").string()).error.find("does not exist"),
+  EXPECT_NE(LoadExperiment((dir_ / "nowhere").string()).Message().find("does not exist"),
             std::string::npos);
   for (const char* name : {"robot.json", "can.log", "meta.json"}) {
     SetUp();
@@ -175,17 +175,17 @@ TEST_F(ExperimentReaderTest, NonMonotonicGroundTruthNamesTheLine) {
 
 TEST_F(ExperimentReaderTest, TruncatedLogIsReadUpToTheCutAndCounted) {
   const std::string full = ReadFile(dir_ / "can.log");
-  const ExperimentLoad whole = Load();
+  const Result<Experiment> whole = Load();
   ASSERT_TRUE(whole.ok());
   // Cut in the middle of a line, about halfway.
   const size_t half = full.find('\n', full.size() / 2) + 12;
   WriteFile(dir_ / "can.log", full.substr(0, half));
-  const ExperimentLoad cut = Load();
-  ASSERT_TRUE(cut.ok()) << cut.error;
-  EXPECT_EQ(cut.experiment->counters.bad_lines, 1u);
-  EXPECT_EQ(cut.experiment->counters.FramesRejected(), 1u);
-  EXPECT_LT(cut.experiment->scans.size(), whole.experiment->scans.size());
-  EXPECT_GT(cut.experiment->scans.size(), whole.experiment->scans.size() / 3);
+  const Result<Experiment> cut = Load();
+  ASSERT_TRUE(cut.ok()) << cut.Message();
+  EXPECT_EQ(cut.value().counters.bad_lines, 1u);
+  EXPECT_EQ(cut.value().counters.FramesRejected(), 1u);
+  EXPECT_LT(cut.value().scans.size(), whole.value().scans.size());
+  EXPECT_GT(cut.value().scans.size(), whole.value().scans.size() / 3);
 }
 
 TEST_F(ExperimentReaderTest, GarbageInsideTheLogIsCountedAndSkipped) {
@@ -193,10 +193,10 @@ TEST_F(ExperimentReaderTest, GarbageInsideTheLogIsCountedAndSkipped) {
   const size_t at = text.find('\n', text.size() / 3) + 1;
   text.insert(at, "(garbage line\n(1700000005.000000) can0 1G2#00\n(\x01\x02\xff\n");
   WriteFile(dir_ / "can.log", text);
-  const ExperimentLoad load = Load();
-  ASSERT_TRUE(load.ok()) << load.error;
-  EXPECT_EQ(load.experiment->counters.bad_lines, 3u);
-  EXPECT_GT(load.experiment->scans.size(), 20u);
+  const Result<Experiment> load = Load();
+  ASSERT_TRUE(load.ok()) << load.Message();
+  EXPECT_EQ(load.value().counters.bad_lines, 3u);
+  EXPECT_GT(load.value().scans.size(), 20u);
 }
 
 TEST_F(ExperimentReaderTest, ALogWithoutScansIsAnErrorThatExplains) {

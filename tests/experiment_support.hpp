@@ -26,9 +26,12 @@ inline std::optional<offline::Experiment> GenerateExperiment(const std::string& 
     ADD_FAILURE() << written.Message();
     return std::nullopt;
   }
-  offline::ExperimentLoad load = offline::LoadExperiment(dir);
-  if (!load.ok()) ADD_FAILURE() << load.error;
-  return std::move(load.experiment);
+  Result<offline::Experiment> load = offline::LoadExperiment(dir);
+  if (!load.ok()) {
+    ADD_FAILURE() << load.Message();
+    return std::nullopt;
+  }
+  return std::move(load).value();
 }
 
 }  // namespace slam::testing

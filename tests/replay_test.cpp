@@ -133,9 +133,9 @@ TEST_F(ReplayTest, AClockJumpInTheLogMovesTheGroundTruthWithTheScans) {
   // every pose after the jump was compared with the ground truth an hour later: ATE inflated.
   const fs::path jumped = root_ / "box-clock-ahead";
   CopyWithClockChange(root_ / "box", jumped, 20.0, 3600.0);
-  const offline::ExperimentLoad load = offline::LoadExperiment(jumped.string());
-  ASSERT_TRUE(load.ok()) << load.error;
-  const offline::Experiment& e = *load.experiment;
+  const Result<offline::Experiment> load = offline::LoadExperiment(jumped.string());
+  ASSERT_TRUE(load.ok()) << load.Message();
+  const offline::Experiment& e = load.value();
   EXPECT_EQ(e.counters.clock_jumps, 1u);
   EXPECT_EQ(e.counters.ground_truth_unplaced, 0u);
   ASSERT_EQ(e.ground_truth.size(), Box().ground_truth.size());
@@ -160,9 +160,9 @@ TEST_F(ReplayTest, GroundTruthInASilenceTakenForAClockJumpIsLeftOutAndCounted) {
   // 1 s later, and ground truth from inside the silence matches no replayed time.
   const fs::path silent = root_ / "box-silent";
   CopyWithClockChange(root_ / "box", silent, 1e9, 0.0, 10.0, 17.0);
-  const offline::ExperimentLoad load = offline::LoadExperiment(silent.string());
-  ASSERT_TRUE(load.ok()) << load.error;
-  const offline::Experiment& e = *load.experiment;
+  const Result<offline::Experiment> load = offline::LoadExperiment(silent.string());
+  ASSERT_TRUE(load.ok()) << load.Message();
+  const offline::Experiment& e = load.value();
   EXPECT_EQ(e.counters.clock_jumps, 1u);
   // 7 s of the tracker's 30 Hz, less 0.2 s at either end that still belongs to the frames beside
   // it.

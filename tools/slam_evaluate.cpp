@@ -106,11 +106,11 @@ int main(int argc, char** argv) {
   // Decode every experiment once.
   std::vector<slam::offline::Experiment> experiments;
   for (const std::string& dir : dirs) {
-    slam::offline::ExperimentLoad load = slam::offline::LoadExperiment(dir);
-    if (!load.ok()) return Fail("cannot read " + dir + ":\n" + load.error);
-    std::fprintf(stderr, "%s: %zu scans, %.0f s\n", load.experiment->meta.name.c_str(),
-                 load.experiment->scans.size(), load.experiment->duration_s());
-    experiments.push_back(std::move(*load.experiment));
+    slam::Result<slam::offline::Experiment> load = slam::offline::LoadExperiment(dir);
+    if (!load.ok()) return Fail("cannot read " + dir + ":\n" + load.Message());
+    std::fprintf(stderr, "%s: %zu scans, %.0f s\n", load.value().meta.name.c_str(),
+                 load.value().scans.size(), load.value().duration_s());
+    experiments.push_back(std::move(load).value());
   }
 
   const auto start = std::chrono::steady_clock::now();

@@ -126,9 +126,9 @@ int main(int argc, char** argv) {
   }
 
   const auto load_start = std::chrono::steady_clock::now();
-  slam::offline::ExperimentLoad load = slam::offline::LoadExperiment(experiment_dir);
-  if (!load.ok()) return Fail("cannot replay " + experiment_dir + ":\n" + load.error);
-  const slam::offline::Experiment& experiment = *load.experiment;
+  slam::Result<slam::offline::Experiment> load = slam::offline::LoadExperiment(experiment_dir);
+  if (!load.ok()) return Fail("cannot replay " + experiment_dir + ":\n" + load.Message());
+  const slam::offline::Experiment& experiment = load.value();
   const double load_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - load_start).count();
   if (!quiet) {

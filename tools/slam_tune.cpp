@@ -154,16 +154,16 @@ int main(int argc, char** argv) {
   // Decoded once, held in memory for every evaluation.
   std::vector<slam::offline::Experiment> experiments;
   for (const std::string& dir : dirs) {
-    slam::offline::ExperimentLoad load = slam::offline::LoadExperiment(dir);
-    if (!load.ok()) return Fail("cannot read " + dir + ":\n" + load.error);
-    if (load.experiment->ground_truth.empty()) {
+    slam::Result<slam::offline::Experiment> load = slam::offline::LoadExperiment(dir);
+    if (!load.ok()) return Fail("cannot read " + dir + ":\n" + load.Message());
+    if (load.value().ground_truth.empty()) {
       return Fail(dir + ": no groundtruth.tum: the fitness needs the ground-truth trajectory");
     }
     if (!quiet) {
-      std::fprintf(stderr, "%s: %zu scans, %.0f s\n", load.experiment->meta.name.c_str(),
-                   load.experiment->scans.size(), load.experiment->duration_s());
+      std::fprintf(stderr, "%s: %zu scans, %.0f s\n", load.value().meta.name.c_str(),
+                   load.value().scans.size(), load.value().duration_s());
     }
-    experiments.push_back(std::move(*load.experiment));
+    experiments.push_back(std::move(load).value());
   }
   std::vector<slam::offline::TuningExperiment> tuning;
   std::vector<std::string> names;
