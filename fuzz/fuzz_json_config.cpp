@@ -59,7 +59,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (const auto line = slam::io::LineOfNearestValue(text, pointer)) {
     Check(*line >= 1 && *line <= lines, "LineOfNearestValue gave a line outside the text");
   }
-  const slam::sim::WorldLoadResult world = slam::sim::ParseWorld(text, "world.json");
-  Check(world.ok() == world.errors.empty(), "a world is either read or explained");
+  const slam::Result<slam::sim::World> world = slam::sim::ParseWorld(text, "world.json");
+  Check(world.ok() == world.errors().empty(), "a world is either read or explained");
   return 0;
 }

@@ -6,7 +6,8 @@
 // Invariants: nothing crashes or allocates without bound; a decoded tile file encodes back to
 // the same bytes, its tiles lie within the map's bound, once each, with cells within the limit,
 // and it restores into a grid as slamd does; a parsed trajectory is finite, time-ordered and
-// formats and parses back to as many poses; LoadState gives a state or an error, never both.
+// formats and parses back to as many poses; LoadState gives a state, nothing, or an error with a
+// reason.
 
 #include <unistd.h>
 
@@ -112,11 +113,14 @@ const std::filesystem::path& StateDir() {
 void CheckLoad(const std::string& meta) {
   const auto& dir = StateDir();
   std::ofstream(dir / "state.json", std::ios::binary | std::ios::trunc) << meta;
-  const LoadOutcome outcome = LoadState(dir.string());
-  Check(!(outcome.state && !outcome.error.empty()), "LoadState gave a state and an error");
-  if (outcome.state) {
-    Check(outcome.state->tiles.size() == 1, "LoadState read another tile file");
-    Check(outcome.state->trajectory.size() == 1, "LoadState read another trajectory");
+  const Result<std::optional<SavedState>> outcome = LoadState(dir.string());
+  if (!outcome.ok()) {
+    Check(!outcome.Message().empty(), "LoadState failed without a reason");
+    return;
+  }
+  if (outcome.value()) {
+    Check(outcome.value()->tiles.size() == 1, "LoadState read another tile file");
+    Check(outcome.value()->trajectory.size() == 1, "LoadState read another trajectory");
   }
 }
 

@@ -128,11 +128,11 @@ Result<Experiment> LoadExperiment(const std::string& dir,
     }
   }
   if (std::filesystem::exists(file("world.json"), ec)) {
-    sim::WorldLoadResult world = sim::LoadWorld(file("world.json"));
+    Result<sim::World> world = sim::LoadWorld(file("world.json"));
     if (!world.ok()) {
-      for (const std::string& e : world.errors) errors.push_back(e);
+      for (const ConfigError& e : world.errors()) errors.push_back(e.detail);
     } else {
-      experiment.world = std::move(world.world);
+      experiment.world = std::move(world).value();
     }
   }
   if (!std::filesystem::exists(file("can.log"), ec)) {

@@ -221,15 +221,15 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
     SendJson(res, last_save.answer);
     return;
   }
-  const SaveOutcome saved = SaveLocked();
-  if (saved.error) {
-    SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + *saved.error);
+  const Result<SaveReport> saved = SaveLocked();
+  if (!saved.ok()) {
+    SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + saved.Message());
     return;
   }
   SendJson(res, last_save.answer);
 }
 
-SaveOutcome HttpServer::Impl::SaveLocked() {
+Result<SaveReport> HttpServer::Impl::SaveLocked() {
   last_save.valid = false;
   last_save.started = Clock::now();
   const auto snapshot = service.Snapshot();
@@ -240,26 +240,22 @@ SaveOutcome HttpServer::Impl::SaveLocked() {
   in.grid = &grid;
   in.version_base = snapshot->version_base;
   in.trajectory = ScanEndTrajectory(*snapshot);
-  SaveOutcome saved = SaveState(options.state_dir, in);
-  if (saved.error) return saved;
+  Result<SaveReport> saved = SaveState(options.state_dir, in);
+  if (!saved.ok()) return saved;
   saves_made.fetch_add(1);
   last_save.answer = {{"path", std::filesystem::absolute(options.state_dir).string()},
                       {"version", snapshot->map_version},
                       {"tiles", snapshot->tiles.size()},
-                      {"warnings", saved.warnings}};
-  for (const std::string& warning : saved.warnings) {
+                      {"warnings", saved.value().warnings}};
+  for (const std::string& warning : saved.value().warnings) {
     std::fprintf(stderr, "slamd: map saved, but a copy was not written: %s\n", warning.c_str());
   }
   last_save.valid = true;
   return saved;
 }
 
-SaveOutcome HttpServer::SaveMap() {
-  if (impl_->options.state_dir.empty()) {
-    SaveOutcome outcome;
-    outcome.error = "slamd was started without --state-dir";
-    return outcome;
-  }
+Result<SaveReport> HttpServer::SaveMap() {
+  if (impl_->options.state_dir.empty()) return Error("slamd was started without --state-dir");
   MutexLock lock(impl_->save_mutex);
   return impl_->SaveLocked();
 }

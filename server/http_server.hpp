@@ -51,7 +51,7 @@ class HttpServer {
 
   /// Saves the newest snapshot into --state-dir as POST /api/v1/map/save does (one save at a
   /// time): for the save at a clean stop.
-  SaveOutcome SaveMap();
+  Result<SaveReport> SaveMap();
 
   /// Serves one raw HTTP/1.1 request held in memory, exactly as one arriving on a connection
   /// that closes after it (parser, limits, token, routes, handlers), and returns the raw

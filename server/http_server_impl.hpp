@@ -111,7 +111,7 @@ struct HttpServer::Impl {
   void HandleEvents(const httplib::Request& req, httplib::Response& res);
   void HandleSave(httplib::Response& res);
   /// Saves the newest snapshot into --state-dir (save_mutex held); sets last_save on success.
-  SaveOutcome SaveLocked() SLAM_REQUIRES(save_mutex);
+  Result<SaveReport> SaveLocked() SLAM_REQUIRES(save_mutex);
   void HandleReset(httplib::Response& res);
   json StatusJson();
   json SourceJson(const std::string& description) {

@@ -178,15 +178,15 @@ int main(int argc, char** argv) {
     if (!locked.ok()) return Fail(locked.Message(), 1);
     state_lock.emplace(std::move(locked).value());
     auto loaded = slam::server::LoadState(state_dir);
-    if (!loaded.error.empty()) {
-      return Fail("cannot resume the saved state: " + loaded.error +
+    if (!loaded.ok()) {
+      return Fail("cannot resume the saved state: " + loaded.Message() +
                   "\n(move the state directory away to start with an empty map)");
     }
-    if (loaded.state) {
-      if (std::abs(loaded.state->resolution_m - service_options.config.resolution_m) > 1e-12) {
+    if (std::optional<slam::server::SavedState>& saved = loaded.value(); saved) {
+      if (std::abs(saved->resolution_m - service_options.config.resolution_m) > 1e-12) {
         return Fail(state_dir + ": the saved map's resolution differs from this build's");
       }
-      service_options.resume = std::move(loaded.state);
+      service_options.resume = std::move(saved);
     }
   }
 
@@ -264,9 +264,9 @@ int main(int argc, char** argv) {
   link.Stop();
   // What was mapped since the last save is kept: a clean stop (systemd's SIGTERM) saves.
   if (!state_dir.empty()) {
-    const slam::server::SaveOutcome saved = server.SaveMap();
-    if (saved.error) {
-      std::fprintf(stderr, "slamd: the map was not saved at exit: %s\n", saved.error->c_str());
+    const slam::Result<slam::server::SaveReport> saved = server.SaveMap();
+    if (!saved.ok()) {
+      std::fprintf(stderr, "slamd: the map was not saved at exit: %s\n", saved.Message().c_str());
       return 1;
     }
     if (!quiet) std::fprintf(stderr, "slamd: saved the map in %s\n", state_dir.c_str());

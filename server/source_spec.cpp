@@ -32,10 +32,10 @@ hw::OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& r
   const std::string kind = spec.substr(0, colon);
   const std::string value = spec.substr(colon + 1);
   if (kind == "sim") {
-    const sim::WorldLoadResult world = sim::ResolveWorld(value);
+    const Result<sim::World> world = sim::ResolveWorld(value);
     if (!world.ok()) {
       std::string error = "source '" + spec + "': ";
-      for (const std::string& e : world.errors) error += e + "; ";
+      for (const ConfigError& e : world.errors()) error += e.detail + "; ";
       return Error(error.substr(0, error.size() - 2));
     }
     const std::string name =
@@ -47,7 +47,7 @@ hw::OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& r
     vm.paced = options.paced;
     vm.speed = options.speed;
     vm.duration_s = options.duration_s;
-    return std::make_unique<sim::VirtualMarxbotSource>(*world.world, name, robot, config, vm);
+    return std::make_unique<sim::VirtualMarxbotSource>(world.value(), name, robot, config, vm);
   }
   if (kind == "candump") {
     hw::CandumpReplayOptions replay;

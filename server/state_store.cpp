@@ -200,13 +200,12 @@ void RemoveUnnamed(const fs::path& base, const std::set<std::string>& keep) {
 
 }  // namespace
 
-SaveOutcome SaveState(const std::string& dir, const SaveInputs& in) {
-  SaveOutcome outcome;
+Result<SaveReport> SaveState(const std::string& dir, const SaveInputs& in) {
+  SaveReport report;
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) {
-    outcome.error = dir + ": cannot create: " + ec.message();
-    return outcome;
+    return Error(dir + ": cannot create: " + ec.message());
   }
 
   SavedState state;
@@ -232,8 +231,7 @@ SaveOutcome SaveState(const std::string& dir, const SaveInputs& in) {
   RemoveUnnamed(base, committed);
   const auto fail = [&](std::string error) {
     RemoveUnnamed(base, committed);
-    outcome.error = std::move(error);
-    return outcome;
+    return Result<SaveReport>(Error(std::move(error)));
   };
   if (Result<void> w = io::WriteFileAtomic((base / tiles_name).string(), EncodeTiles(state));
       !w.ok()) {
@@ -265,7 +263,7 @@ SaveOutcome SaveState(const std::string& dir, const SaveInputs& in) {
   // Copies for people and map_server. The state is committed whatever happens to them: a copy
   // that cannot be written is a warning, and the previous copy stays as it was.
   const auto warn = [&](const Result<void>& written) {
-    if (!written.ok()) outcome.warnings.push_back(written.Message());
+    if (!written.ok()) report.warnings.push_back(written.Message());
   };
   const io::GridImage image = io::MakeGridImage(*in.grid);
   warn(io::WritePgm((base / "map.pgm").string(), image));
@@ -279,7 +277,7 @@ SaveOutcome SaveState(const std::string& dir, const SaveInputs& in) {
   }
   warn(io::WriteFileAtomic((base / "trajectory.tum").string(), tum));
   RemoveUnnamed(base, {tiles_name, trajectory_name});  // temporaries of failed copies
-  return outcome;
+  return report;
 }
 
 Result<StateDirLock> StateDirLock::Acquire(const std::string& dir) {
@@ -324,21 +322,18 @@ StateDirLock::~StateDirLock() {
   if (fd_ >= 0) ::close(fd_);
 }
 
-LoadOutcome LoadState(const std::string& dir) {
-  LoadOutcome outcome;
+Result<std::optional<SavedState>> LoadState(const std::string& dir) {
   const fs::path base(dir);
   const fs::path meta_path = base / "state.json";
   std::error_code ec;
-  if (!fs::exists(meta_path, ec)) return outcome;  // nothing saved yet
+  if (!fs::exists(meta_path, ec)) return std::optional<SavedState>();  // nothing saved yet
   std::string text;
   if (auto e = ReadFile(meta_path, text)) {
-    outcome.error = *e;
-    return outcome;
+    return Error(*e);
   }
   const nlohmann::json meta = nlohmann::json::parse(text, nullptr, false);
   if (meta.is_discarded() || !meta.is_object()) {
-    outcome.error = meta_path.string() + ": not valid JSON";
-    return outcome;
+    return Error(meta_path.string() + ": not valid JSON");
   }
   const auto name_of = [&](const char* key) -> std::optional<std::string> {
     const auto it = meta.find(key);
@@ -352,35 +347,29 @@ LoadOutcome LoadState(const std::string& dir) {
   };
   const auto format = meta.find("format");
   if (format == meta.end() || !format->is_number_integer() || format->get<int>() != kFormat) {
-    outcome.error = meta_path.string() + ": unknown format (expected \"format\": 1)";
-    return outcome;
+    return Error(meta_path.string() + ": unknown format (expected \"format\": 1)");
   }
   const auto tiles_name = name_of("tiles_file");
   const auto trajectory_name = name_of("trajectory_file");
   if (!tiles_name || !trajectory_name) {
-    outcome.error = meta_path.string() + ": missing or bad tiles_file / trajectory_file";
-    return outcome;
+    return Error(meta_path.string() + ": missing or bad tiles_file / trajectory_file");
   }
   SavedState state;
   std::string bytes;
   if (auto e = ReadFile(base / *tiles_name, bytes)) {
-    outcome.error = *e;
-    return outcome;
+    return Error(*e);
   }
   Result<SavedState> decoded = DecodeTiles(bytes);
   if (!decoded.ok()) {
-    outcome.error = (base / *tiles_name).string() + ": " + decoded.Message();
-    return outcome;
+    return Error((base / *tiles_name).string() + ": " + decoded.Message());
   }
   state = std::move(decoded).value();
   auto trajectory = io::LoadTum((base / *trajectory_name).string());
   if (!trajectory.ok()) {
-    outcome.error = trajectory.Message();
-    return outcome;
+    return Error(trajectory.Message());
   }
   state.trajectory = std::move(trajectory).value();
-  outcome.state = std::move(state);
-  return outcome;
+  return std::optional<SavedState>(std::move(state));
 }
 
 }  // namespace slam::server

@@ -53,19 +53,15 @@ struct SaveInputs {
   std::vector<TimedPose> trajectory;
 };
 
-struct SaveOutcome {
-  std::optional<std::string> error;   // set: nothing new was committed (the previous state stands)
-  std::vector<std::string> warnings;  // committed, but these copies for people were not written
+/// A committed save.
+struct SaveReport {
+  std::vector<std::string> warnings;  // copies for people that could not be written
 };
 
 /// Saves into `dir` (created if missing) as described above. Files no state.json names (left by
-/// a failed or killed save) are removed first, and again if this save fails to commit.
-[[nodiscard]] SaveOutcome SaveState(const std::string& dir, const SaveInputs& in);
-
-struct LoadOutcome {
-  std::optional<SavedState> state;  // nullopt: nothing saved there yet (or an error)
-  std::string error;                // non-empty: something is saved but damaged
-};
+/// a failed or killed save) are removed first, and again if this save fails to commit. An error:
+/// nothing new was committed (the previous state stands).
+Result<SaveReport> SaveState(const std::string& dir, const SaveInputs& in);
 
 /// One slamd per state directory: holds an exclusive lock on `DIR/slamd.lock` (flock, which the
 /// kernel releases when the process ends, however it ends) for the object's life.
@@ -86,7 +82,8 @@ class StateDirLock {
   int fd_ = -1;
 };
 
-/// Loads the state saved in `dir`.
-LoadOutcome LoadState(const std::string& dir);
+/// Loads the state saved in `dir`: nullopt when nothing is saved there yet; an error when
+/// something is saved but damaged.
+Result<std::optional<SavedState>> LoadState(const std::string& dir);
 
 }  // namespace slam::server

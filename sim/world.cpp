@@ -264,19 +264,16 @@ std::vector<std::string> Validate(const World& world) {
   return errors;
 }
 
-WorldLoadResult ParseWorld(std::string_view json_text, std::string_view source) {
-  WorldLoadResult result;
+Result<World> ParseWorld(std::string_view json_text, std::string_view source) {
   const std::string prefix = std::string(source) + ": ";
   Json doc;
   try {
     doc = Json::parse(json_text);
   } catch (const Json::exception& e) {  // parse_error, and out_of_range for 1e400
-    result.errors.push_back(prefix + "invalid JSON: " + e.what());
-    return result;
+    return Error(prefix + "invalid JSON: " + e.what());
   }
   if (!doc.is_object()) {
-    result.errors.push_back(prefix + "expected a JSON object");
-    return result;
+    return Error(prefix + "expected a JSON object");
   }
   ConfigErrors errors;
   World world;
@@ -324,32 +321,24 @@ WorldLoadResult ParseWorld(std::string_view json_text, std::string_view source) 
   if (errors.empty()) errors = WorldErrors(world);
   if (!errors.empty()) {
     io::detail::AddLines(errors, json_text);
+    ConfigErrors located;
     for (const ConfigError& e : errors) {
       // "source:line: /pointer: detail", or "source: /pointer: detail" when the line is unknown.
       const std::string at =
           e.line > 0 ? std::string(source) + ':' + std::to_string(e.line) + ": " : prefix;
-      result.errors.push_back(at + e.pointer + ": " + e.detail);
+      located.push_back({"", at + e.pointer + ": " + e.detail, 0});
     }
-    return result;
+    return located;
   }
-  result.world = std::move(world);
-  return result;
+  return world;
 }
 
-WorldLoadResult LoadWorld(const std::string& path) {
+Result<World> LoadWorld(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    WorldLoadResult result;
-    result.errors.push_back(path + ": cannot open: " + std::strerror(errno));
-    return result;
-  }
+  if (!in) return Error(path + ": cannot open: " + std::strerror(errno));
   std::ostringstream text;
   text << in.rdbuf();
-  if (in.bad()) {
-    WorldLoadResult result;
-    result.errors.push_back(path + ": read error");
-    return result;
-  }
+  if (in.bad()) return Error(path + ": read error");
   return ParseWorld(text.str(), path);
 }
 
@@ -389,12 +378,8 @@ std::optional<World> BuiltinArena(std::string_view name) {
   return std::nullopt;
 }
 
-WorldLoadResult ResolveWorld(const std::string& name_or_path) {
-  if (auto world = BuiltinArena(name_or_path)) {
-    WorldLoadResult result;
-    result.world = std::move(world);
-    return result;
-  }
+Result<World> ResolveWorld(const std::string& name_or_path) {
+  if (std::optional<World> world = BuiltinArena(name_or_path)) return std::move(*world);
   return LoadWorld(name_or_path);
 }
 

@@ -49,19 +49,13 @@ std::vector<Vec2> Corners(const World& world);
 /// non-finite numbers) as "/pointer: detail" lines; empty when valid.
 std::vector<std::string> Validate(const World& world);
 
-/// A world read from JSON, or the reasons it could not be read.
-struct WorldLoadResult {
-  std::optional<World> world;
-  std::vector<std::string> errors;  // "source:line: /pointer: detail" ("source: /pointer: detail"
-                                    // when the line is unknown), one per problem
-  bool ok() const { return world.has_value(); }
-};
-
-/// Parses world.json text; `source` names the input in error messages. Unknown keys are errors.
-WorldLoadResult ParseWorld(std::string_view json_text, std::string_view source);
+/// Parses world.json text; `source` names the input in error messages, each error's detail
+/// being "source:line: /pointer: detail" ("source: /pointer: detail" when the line is unknown).
+/// Unknown keys are errors.
+Result<World> ParseWorld(std::string_view json_text, std::string_view source);
 
 /// Reads and parses a world.json file.
-WorldLoadResult LoadWorld(const std::string& path);
+Result<World> LoadWorld(const std::string& path);
 
 /// The world as world.json text (pretty-printed, exact round trip of every number).
 std::string WorldToJson(const World& world);
@@ -76,6 +70,6 @@ std::vector<std::string> BuiltinArenaNames();
 std::optional<World> BuiltinArena(std::string_view name);
 
 /// A built-in arena when `name_or_path` names one, else the world.json file at that path.
-WorldLoadResult ResolveWorld(const std::string& name_or_path);
+Result<World> ResolveWorld(const std::string& name_or_path);
 
 }  // namespace slam::sim

@@ -787,16 +787,17 @@ TEST(SlamdFaults, KillDuringMapSavesLeavesALoadableStateThatARestartResumes) {
     other_saver.join();
     EXPECT_EQ(slamd.Stop(), 128 + SIGKILL);
 
-    const slam::server::LoadOutcome loaded = slam::server::LoadState(state.path().string());
-    ASSERT_TRUE(loaded.error.empty()) << "round " << round << ": " << loaded.error;
-    ASSERT_TRUE(loaded.state.has_value()) << "round " << round;
-    EXPECT_GE(loaded.state->version, loaded_version);
+    const slam::Result<std::optional<slam::server::SavedState>> loaded =
+        slam::server::LoadState(state.path().string());
+    ASSERT_TRUE(loaded.ok()) << "round " << round << ": " << loaded.Message();
+    ASSERT_TRUE(loaded.ok() && loaded.value().has_value()) << "round " << round;
+    EXPECT_GE(loaded.value()->version, loaded_version);
     // No acknowledged save is lost: the state is that save or a newer one.
-    EXPECT_GE(loaded.state->version, acknowledged) << "round " << round;
+    EXPECT_GE(loaded.value()->version, acknowledged) << "round " << round;
     EXPECT_GT(acknowledged, 0u) << "round " << round;
-    EXPECT_FALSE(loaded.state->trajectory.empty());
-    loaded_version = loaded.state->version;
-    loaded_tiles = loaded.state->tiles.size();
+    EXPECT_FALSE(loaded.value()->trajectory.empty());
+    loaded_version = loaded.value()->version;
+    loaded_tiles = loaded.value()->tiles.size();
     for (const auto& entry : fs::directory_iterator(state.path())) {
       if (entry.path().filename().string().find("tmp") != std::string::npos) ++interrupted;
     }
@@ -833,11 +834,12 @@ TEST(SlamdFaults, ACleanStopSavesTheMap) {
     EXPECT_FALSE(fs::exists(state.path() / "state.json"));
     EXPECT_EQ(slamd.Stop(), std::optional<int>(0)) << slamd.Stderr();
   }
-  const slam::server::LoadOutcome loaded = slam::server::LoadState(state.path().string());
-  ASSERT_TRUE(loaded.state.has_value()) << loaded.error;
-  EXPECT_GE(static_cast<int64_t>(loaded.state->version), version);
-  EXPECT_GE(loaded.state->tiles.size(), 2u);
-  EXPECT_GE(loaded.state->trajectory.size(), 5u);
+  const slam::Result<std::optional<slam::server::SavedState>> loaded =
+      slam::server::LoadState(state.path().string());
+  ASSERT_TRUE(loaded.ok() && loaded.value().has_value()) << loaded.Message();
+  EXPECT_GE(static_cast<int64_t>(loaded.value()->version), version);
+  EXPECT_GE(loaded.value()->tiles.size(), 2u);
+  EXPECT_GE(loaded.value()->trajectory.size(), 5u);
   for (const char* name : {"map.pgm", "map.yaml", "map.png", "trajectory.tum"}) {
     EXPECT_TRUE(fs::exists(state.path() / name)) << name;
   }

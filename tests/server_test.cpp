@@ -66,9 +66,9 @@ void Save(const std::string& dir, const SavedState& s) {
   in.grid = &grid;
   in.version_base = 100;
   in.trajectory = s.trajectory;
-  const SaveOutcome saved = SaveState(dir, in);
-  ASSERT_FALSE(saved.error) << *saved.error;
-  EXPECT_TRUE(saved.warnings.empty());
+  const Result<SaveReport> saved = SaveState(dir, in);
+  ASSERT_TRUE(saved.ok()) << saved.Message();
+  EXPECT_TRUE(saved.value().warnings.empty());
 }
 
 // DecodeTiles' verdict, with its message (empty when it decodes) in `error`.
@@ -109,21 +109,21 @@ TEST(StateStore, SaveThenLoadGivesTheMapAndTrajectory) {
   TempDir dir("state_roundtrip");
   const SavedState s = SampleState(10, 3);
   Save(dir.path().string(), s);
-  const LoadOutcome loaded = LoadState(dir.path().string());
-  ASSERT_TRUE(loaded.error.empty()) << loaded.error;
-  ASSERT_TRUE(loaded.state);
-  EXPECT_EQ(loaded.state->version, 10u);
-  ASSERT_EQ(loaded.state->tiles.size(), 3u);
+  const Result<std::optional<SavedState>> loaded = LoadState(dir.path().string());
+  ASSERT_TRUE(loaded.ok()) << loaded.Message();
+  ASSERT_TRUE(loaded.ok() && loaded.value());
+  EXPECT_EQ(loaded.value()->version, 10u);
+  ASSERT_EQ(loaded.value()->tiles.size(), 3u);
   // Tiles come back in the grid's row-major order; match them by index.
   for (const SavedTile& t : s.tiles) {
-    const auto it = std::find_if(loaded.state->tiles.begin(), loaded.state->tiles.end(),
+    const auto it = std::find_if(loaded.value()->tiles.begin(), loaded.value()->tiles.end(),
                                  [&](const SavedTile& u) { return u.index == t.index; });
-    ASSERT_NE(it, loaded.state->tiles.end());
+    ASSERT_NE(it, loaded.value()->tiles.end());
     EXPECT_EQ(it->cells, t.cells);
     EXPECT_GT(it->version, 100u);  // the base is added to the grid's own versions
   }
-  ASSERT_EQ(loaded.state->trajectory.size(), 3u);
-  EXPECT_NEAR(loaded.state->trajectory.back().pose.theta, -0.4, 1e-6);
+  ASSERT_EQ(loaded.value()->trajectory.size(), 3u);
+  EXPECT_NEAR(loaded.value()->trajectory.back().pose.theta, -0.4, 1e-6);
   for (const char* name : {"map.pgm", "map.yaml", "map.png", "trajectory.tum", "state.json"}) {
     EXPECT_TRUE(std::filesystem::exists(dir.path() / name)) << name;
   }
@@ -131,9 +131,9 @@ TEST(StateStore, SaveThenLoadGivesTheMapAndTrajectory) {
 
 TEST(StateStore, NothingSavedIsNotAnError) {
   TempDir dir("state_empty");
-  const LoadOutcome loaded = LoadState(dir.path().string());
-  EXPECT_TRUE(loaded.error.empty());
-  EXPECT_FALSE(loaded.state);
+  const Result<std::optional<SavedState>> loaded = LoadState(dir.path().string());
+  EXPECT_TRUE(loaded.ok());
+  EXPECT_FALSE(loaded.ok() && loaded.value());
 }
 
 TEST(StateStore, ANewSaveReplacesTheOldFiles) {
@@ -142,7 +142,7 @@ TEST(StateStore, ANewSaveReplacesTheOldFiles) {
   Save(dir.path().string(), SampleState(20, 5));
   EXPECT_FALSE(std::filesystem::exists(dir.path() / "map-10.tiles"));
   EXPECT_TRUE(std::filesystem::exists(dir.path() / "map-20.tiles"));
-  EXPECT_EQ(LoadState(dir.path().string()).state->version, 20u);
+  EXPECT_EQ(LoadState(dir.path().string()).value()->version, 20u);
 }
 
 TEST(StateStore, ACrashBeforeTheCommitLeavesThePreviousState) {
@@ -153,9 +153,9 @@ TEST(StateStore, ACrashBeforeTheCommitLeavesThePreviousState) {
   const std::string next = EncodeTiles(SampleState(20, 7));
   std::ofstream(dir.File("map-20.tiles"), std::ios::binary) << next.substr(0, next.size() / 3);
   std::ofstream(dir.File(".state.json.tmp-123")) << "{\"format\": 1, \"ver";
-  const LoadOutcome loaded = LoadState(dir.path().string());
-  ASSERT_TRUE(loaded.error.empty()) << loaded.error;
-  EXPECT_EQ(loaded.state->version, 10u);
+  const Result<std::optional<SavedState>> loaded = LoadState(dir.path().string());
+  ASSERT_TRUE(loaded.ok()) << loaded.Message();
+  EXPECT_EQ(loaded.value()->version, 10u);
 }
 
 TEST(StateStore, TilesBeyondTheMapsBoundAndWrappingVersionsAreRefused) {
@@ -182,9 +182,10 @@ TEST(StateStore, TilesBeyondTheMapsBoundAndWrappingVersionsAreRefused) {
   TempDir dir("state_far");
   Save(dir.path().string(), SampleState(10, 8));
   ASSERT_TRUE(io::WriteFileAtomic(dir.File("map-10.tiles"), EncodeTiles(wrapping)).ok());
-  const LoadOutcome loaded = LoadState(dir.path().string());
-  EXPECT_FALSE(loaded.state);
-  EXPECT_NE(loaded.error.find("map-10.tiles: map version"), std::string::npos) << loaded.error;
+  const Result<std::optional<SavedState>> loaded = LoadState(dir.path().string());
+  EXPECT_FALSE(loaded.ok() && loaded.value());
+  EXPECT_NE(loaded.Message().find("map-10.tiles: map version"), std::string::npos)
+      << loaded.Message();
 }
 
 TEST(StateStore, DuplicateTilesAndCellsBeyondTheLimitAreRefused) {
@@ -261,17 +262,17 @@ TEST(StateStore, ASaveThatCannotCommitLeavesNothingBehindAndTheNextOneWorks) {
   const OccupancyGrid grid = GridOf(s);
   {
     const FileSizeLimit limit(64 * 1024);  // the trajectory is about 180 kB
-    const SaveOutcome saved = SaveState(dir.path().string(), InputsOf(s, grid));
-    ASSERT_TRUE(saved.error);
-    EXPECT_NE(saved.error->find("trajectory-20.tum"), std::string::npos) << *saved.error;
+    const Result<SaveReport> saved = SaveState(dir.path().string(), InputsOf(s, grid));
+    ASSERT_FALSE(saved.ok());
+    EXPECT_NE(saved.Message().find("trajectory-20.tum"), std::string::npos) << saved.Message();
   }
   EXPECT_EQ(FilesIn(dir.path()), before);
-  EXPECT_EQ(LoadState(dir.path().string()).state->version, 10u);
+  EXPECT_EQ(LoadState(dir.path().string()).value()->version, 10u);
 
-  const SaveOutcome again = SaveState(dir.path().string(), InputsOf(s, grid));
-  ASSERT_FALSE(again.error) << *again.error;
-  EXPECT_TRUE(again.warnings.empty());
-  EXPECT_EQ(LoadState(dir.path().string()).state->version, 20u);
+  const Result<SaveReport> again = SaveState(dir.path().string(), InputsOf(s, grid));
+  ASSERT_TRUE(again.ok()) << again.Message();
+  EXPECT_TRUE(again.value().warnings.empty());
+  EXPECT_EQ(LoadState(dir.path().string()).value()->version, 20u);
   EXPECT_EQ(FilesIn(dir.path()),
             (std::set<std::string>{"map-20.tiles", "trajectory-20.tum", "state.json", "map.pgm",
                                    "map.yaml", "map.png", "trajectory.tum"}));
@@ -288,17 +289,18 @@ TEST(StateStore, ASaveCommittedWhoseCopiesCannotBeWrittenSucceedsWithWarnings) {
   sparse.tiles[0].index = {-15, -15};
   sparse.tiles[1].index = {15, 15};
   const OccupancyGrid grid = GridOf(sparse);
-  SaveOutcome saved;
+  Result<SaveReport> saved = SaveReport{};
   {
     const FileSizeLimit limit(256 * 1024);
     saved = SaveState(dir.path().string(), InputsOf(sparse, grid));
   }
-  ASSERT_FALSE(saved.error) << *saved.error;
-  ASSERT_FALSE(saved.warnings.empty());
-  EXPECT_NE(saved.warnings[0].find("map.pgm"), std::string::npos) << saved.warnings[0];
-  const LoadOutcome loaded = LoadState(dir.path().string());
-  ASSERT_TRUE(loaded.state);
-  EXPECT_EQ(loaded.state->version, 20u);
+  ASSERT_TRUE(saved.ok()) << saved.Message();
+  ASSERT_FALSE(saved.value().warnings.empty());
+  EXPECT_NE(saved.value().warnings[0].find("map.pgm"), std::string::npos)
+      << saved.value().warnings[0];
+  const Result<std::optional<SavedState>> loaded = LoadState(dir.path().string());
+  ASSERT_TRUE(loaded.ok() && loaded.value());
+  EXPECT_EQ(loaded.value()->version, 20u);
   const std::set<std::string> files = FilesIn(dir.path());
   EXPECT_FALSE(files.contains("map-10.tiles"));
   EXPECT_FALSE(files.contains("trajectory-10.tum"));
@@ -331,20 +333,20 @@ TEST(StateStore, DamagedStateIsAnErrorNamingTheFile) {
     f.seekp(100);
     f.put('\x7f');
   }
-  LoadOutcome loaded = LoadState(dir.path().string());
-  EXPECT_FALSE(loaded.state);
-  EXPECT_NE(loaded.error.find("map-10.tiles"), std::string::npos) << loaded.error;
+  Result<std::optional<SavedState>> loaded = LoadState(dir.path().string());
+  EXPECT_FALSE(loaded.ok() && loaded.value());
+  EXPECT_NE(loaded.Message().find("map-10.tiles"), std::string::npos) << loaded.Message();
 
   ASSERT_TRUE(io::WriteFileAtomic(
                   dir.File("state.json"),
                   R"({"format": 1, "tiles_file": "../etc/passwd", "trajectory_file": "t.tum"})")
                   .ok());
   loaded = LoadState(dir.path().string());
-  EXPECT_FALSE(loaded.state);
-  EXPECT_NE(loaded.error.find("tiles_file"), std::string::npos) << loaded.error;
+  EXPECT_FALSE(loaded.ok() && loaded.value());
+  EXPECT_NE(loaded.Message().find("tiles_file"), std::string::npos) << loaded.Message();
 
   ASSERT_TRUE(io::WriteFileAtomic(dir.File("state.json"), "{not json").ok());
-  EXPECT_FALSE(LoadState(dir.path().string()).error.empty());
+  EXPECT_FALSE(LoadState(dir.path().string()).ok());
 }
 
 TEST(Security, ConstantTimeEqualsComparesWholeStrings) {
@@ -590,12 +592,12 @@ TEST_F(SlamServiceTest, ResumesASavedMap) {
     in.grid = &grid;
     in.version_base = saved->version_base;
     in.trajectory = ScanEndTrajectory(*saved);
-    ASSERT_FALSE(SaveState(state.path().string(), in).error);
+    ASSERT_TRUE(SaveState(state.path().string(), in).ok());
   }
-  LoadOutcome loaded = LoadState(state.path().string());
-  ASSERT_TRUE(loaded.state) << loaded.error;
+  Result<std::optional<SavedState>> loaded = LoadState(state.path().string());
+  ASSERT_TRUE(loaded.ok() && loaded.value()) << loaded.Message();
   ServiceOptions options = Options();
-  options.resume = loaded.state;
+  options.resume = loaded.value();
   auto link = MakeLink();
   SlamService service(*link, nullptr, options);
   const auto resumed = service.Snapshot();
@@ -617,7 +619,7 @@ TEST_F(SlamServiceTest, ResumesASavedMap) {
   service.Stop();
   link->Stop();
   const std::vector<TimedPose> trajectory = ScanEndTrajectory(*later);
-  EXPECT_GT(trajectory.size(), loaded.state->trajectory.size());
+  EXPECT_GT(trajectory.size(), loaded.value()->trajectory.size());
   for (size_t i = 1; i < trajectory.size(); ++i) EXPECT_GT(trajectory[i].t, trajectory[i - 1].t);
 }
 

@@ -213,9 +213,9 @@ TEST(WorldJsonTest, RoundTripsEveryArenaExactly) {
   for (const std::string& name : BuiltinArenaNames()) {
     SCOPED_TRACE(name);
     const World world = *BuiltinArena(name);
-    const WorldLoadResult parsed = ParseWorld(WorldToJson(world), "mem");
-    ASSERT_TRUE(parsed.ok()) << parsed.errors.front();
-    ExpectSameWorld(world, *parsed.world);
+    const Result<World> parsed = ParseWorld(WorldToJson(world), "mem");
+    ASSERT_TRUE(parsed.ok()) << parsed.errors().front().detail;
+    ExpectSameWorld(world, parsed.value());
   }
 }
 
@@ -225,26 +225,26 @@ TEST(WorldJsonTest, SavesAndLoadsAFile) {
   world.circles.push_back({{0.1 + 0.2, 1.0 / 3.0}, 0.0123456789012345});
   const std::string path = ::testing::TempDir() + "sim_test_world.json";
   ASSERT_TRUE(SaveWorld(path, world).ok());
-  const WorldLoadResult loaded = LoadWorld(path);
-  ASSERT_TRUE(loaded.ok()) << loaded.errors.front();
-  ExpectSameWorld(world, *loaded.world);
-  const WorldLoadResult resolved = ResolveWorld(path);
+  const Result<World> loaded = LoadWorld(path);
+  ASSERT_TRUE(loaded.ok()) << loaded.errors().front().detail;
+  ExpectSameWorld(world, loaded.value());
+  const Result<World> resolved = ResolveWorld(path);
   ASSERT_TRUE(resolved.ok());
-  EXPECT_EQ(resolved.world->name, world.name);
+  EXPECT_EQ(resolved.value().name, world.name);
   ASSERT_TRUE(ResolveWorld("rooms").ok());
-  EXPECT_EQ(ResolveWorld("rooms").world->name, "rooms");
+  EXPECT_EQ(ResolveWorld("rooms").value().name, "rooms");
   std::remove(path.c_str());
 }
 
 TEST(WorldJsonTest, ReadsTheDesignFormatWithOptionalLists) {
-  const WorldLoadResult r = ParseWorld(
+  const Result<World> r = ParseWorld(
       R"({"name": "tiny", "bounds": [0, 0, 1, 2], "segments": [[0, 0, 1, 0]]})", "tiny.json");
   ASSERT_TRUE(r.ok());
-  EXPECT_EQ(r.world->name, "tiny");
-  EXPECT_EQ(r.world->bounds, (std::array<double, 4>{0.0, 0.0, 1.0, 2.0}));
-  ASSERT_EQ(r.world->segments.size(), 1u);
-  EXPECT_EQ(r.world->segments[0].b, Vec2(1.0, 0.0));
-  EXPECT_TRUE(r.world->circles.empty());
+  EXPECT_EQ(r.value().name, "tiny");
+  EXPECT_EQ(r.value().bounds, (std::array<double, 4>{0.0, 0.0, 1.0, 2.0}));
+  ASSERT_EQ(r.value().segments.size(), 1u);
+  EXPECT_EQ(r.value().segments[0].b, Vec2(1.0, 0.0));
+  EXPECT_TRUE(r.value().circles.empty());
 }
 
 bool Contains(const std::string& text, const std::string& part) {
@@ -253,10 +253,10 @@ bool Contains(const std::string& text, const std::string& part) {
 
 /// The errors of parsing `json`, joined by newlines.
 std::string ErrorsOf(const std::string& json) {
-  const WorldLoadResult r = ParseWorld(json, "w.json");
+  const Result<World> r = ParseWorld(json, "w.json");
   EXPECT_FALSE(r.ok()) << json;
   std::string text;
-  for (const std::string& e : r.errors) text += e + "\n";
+  for (const ConfigError& e : r.errors()) text += e.detail + "\n";
   return text;
 }
 
@@ -320,10 +320,10 @@ TEST(WorldJsonTest, ImplausiblyLargeWorldsAreRefusedNamingTheKey) {
 }
 
 TEST(WorldJsonTest, ReportsEveryErrorAtOnce) {
-  const WorldLoadResult r =
+  const Result<World> r =
       ParseWorld(R"({"extra": 1, "bounds": [0, 0, 1, 1], "segments": [[0, 0, 1], [1]]})", "w");
   EXPECT_FALSE(r.ok());
-  EXPECT_EQ(r.errors.size(), 4u);  // /extra, /name, /segments/0, /segments/1
+  EXPECT_EQ(r.errors().size(), 4u);  // /extra, /name, /segments/0, /segments/1
 }
 
 TEST(WorldJsonTest, FileErrorsNameTheLine) {
@@ -343,31 +343,31 @@ TEST(WorldJsonTest, FileErrorsNameTheLine) {
     out.close();
     return LoadWorld(path);
   };
-  WorldLoadResult r = load();
-  ASSERT_EQ(r.errors.size(), 2u);
-  EXPECT_EQ(r.errors[0], path + ":3: /colour: unknown key");
-  EXPECT_EQ(r.errors[1], path + ":6: /segments/0/2: expected a number");
-  EXPECT_PRED2(Contains, r.errors[0], "world.json:3: /colour");
+  Result<World> r = load();
+  ASSERT_EQ(r.errors().size(), 2u);
+  EXPECT_EQ(r.errors()[0].detail, path + ":3: /colour: unknown key");
+  EXPECT_EQ(r.errors()[1].detail, path + ":6: /segments/0/2: expected a number");
+  EXPECT_PRED2(Contains, r.errors()[0].detail, "world.json:3: /colour");
 
   // Validation errors too; a missing key names the line of the object that lacks it.
   lines.erase(lines.begin() + 2);
   lines[4] = "    [0, 0, 0, 0],";
   lines[1] = "  \"nom\": \"box\",";
   r = load();
-  ASSERT_EQ(r.errors.size(), 2u);
-  EXPECT_EQ(r.errors[0], path + ":2: /nom: unknown key");
-  EXPECT_EQ(r.errors[1], path + ":1: /name: missing");
+  ASSERT_EQ(r.errors().size(), 2u);
+  EXPECT_EQ(r.errors()[0].detail, path + ":2: /nom: unknown key");
+  EXPECT_EQ(r.errors()[1].detail, path + ":1: /name: missing");
   lines[1] = "  \"name\": \"box\",";
   r = load();
-  ASSERT_EQ(r.errors.size(), 1u);
-  EXPECT_EQ(r.errors[0], path + ":5: /segments/0: the two ends must differ");
+  ASSERT_EQ(r.errors().size(), 1u);
+  EXPECT_EQ(r.errors()[0].detail, path + ":5: /segments/0: the two ends must differ");
   std::remove(path.c_str());
 }
 
 TEST(WorldJsonTest, MissingFileAndUnwritableDirectory) {
-  const WorldLoadResult r = LoadWorld("/nonexistent/dir/world.json");
+  const Result<World> r = LoadWorld("/nonexistent/dir/world.json");
   ASSERT_FALSE(r.ok());
-  EXPECT_PRED2(Contains, r.errors.front(), "/nonexistent/dir/world.json: cannot open");
+  EXPECT_PRED2(Contains, r.errors().front().detail, "/nonexistent/dir/world.json: cannot open");
   EXPECT_FALSE(ResolveWorld("no-such-arena").ok());
   const Result<void> saved = SaveWorld("/nonexistent/dir/world.json", World{});
   ASSERT_FALSE(saved.ok());
@@ -712,9 +712,10 @@ TEST(BuildScansTest, InterpolatesBetweenOdometryReadings) {
 // Found by fuzz_json_config: a number beyond a double made nlohmann throw out_of_range, which
 // escaped ParseWorld and ended the program.
 TEST(WorldJsonRegression, NumberTooLargeIsAnErrorNotACrash) {
-  const slam::sim::WorldLoadResult result = slam::sim::ParseWorld(
+  const slam::Result<slam::sim::World> result = slam::sim::ParseWorld(
       R"({"name": "w", "bounds": [0, 0, 1e400, 1], "segments": [], "circles": []})", "w.json");
   EXPECT_FALSE(result.ok());
-  ASSERT_EQ(result.errors.size(), 1u);
-  EXPECT_NE(result.errors[0].find("w.json: invalid JSON"), std::string::npos) << result.errors[0];
+  ASSERT_EQ(result.errors().size(), 1u);
+  EXPECT_NE(result.errors()[0].detail.find("w.json: invalid JSON"), std::string::npos)
+      << result.errors()[0].detail;
 }

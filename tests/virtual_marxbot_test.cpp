@@ -171,7 +171,7 @@ TEST_F(ExperimentTest, RecordedExperimentReadBackThroughTheLinkGivesTheSimulator
   // The world and meta data.
   const auto world = sim::LoadWorld((dir_ / "world.json").string());
   ASSERT_TRUE(world.ok());
-  EXPECT_EQ(world.world->segments.size(), world_.segments.size());
+  EXPECT_EQ(world.value().segments.size(), world_.segments.size());
   std::ifstream meta_file(dir_ / "meta.json");
   std::stringstream meta;
   meta << meta_file.rdbuf();

@@ -35,10 +35,11 @@ struct Job {
 bool ResolveWorld(const std::string& spec, slam::sim::World& world, std::string& name) {
   auto loaded = slam::sim::ResolveWorld(spec);
   if (!loaded.ok()) {
-    for (const std::string& error : loaded.errors) std::cerr << "slam-sim: " << error << "\n";
+    for (const slam::ConfigError& e : loaded.errors())
+      std::cerr << "slam-sim: " << e.detail << "\n";
     return false;
   }
-  world = *loaded.world;
+  world = loaded.value();
   name = slam::sim::BuiltinArena(spec) ? spec : std::filesystem::path(spec).stem().string();
   return true;
 }
