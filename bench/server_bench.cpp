@@ -41,10 +41,13 @@ void BM_TilePng(benchmark::State& state) {
   size_t i = 0;
   int64_t bytes = 0;
   for (auto _ : state) {
-    const io::PngBytes png =
+    const Result<io::PngBytes> png =
         io::EncodeGrayPng(kTileSize, kTileSize, io::TileGray(*tiles[i++ % tiles.size()].tile));
-    if (!png.ok()) state.SkipWithError(png.error.c_str());
-    bytes += static_cast<int64_t>(png.bytes.size());
+    if (!png.ok()) {
+      state.SkipWithError(png.Message().c_str());
+      break;
+    }
+    bytes += static_cast<int64_t>(png.value().size());
   }
   Items(state, state.iterations(), "tiles");
   state.counters["png_bytes"] =

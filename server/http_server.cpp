@@ -173,12 +173,13 @@ void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response
     if (cached != tile_cache.end() && cached->second.first == version) png = cached->second.second;
   }
   if (png.empty()) {
-    const io::PngBytes bytes = io::EncodeGrayPng(kTileSize, kTileSize, io::TileGray(*it->tile));
+    const Result<io::PngBytes> bytes =
+        io::EncodeGrayPng(kTileSize, kTileSize, io::TileGray(*it->tile));
     if (!bytes.ok()) {
-      SendProblem(res, 500, "Internal Server Error", bytes.error);
+      SendProblem(res, 500, "Internal Server Error", bytes.Message());
       return;
     }
-    png.assign(bytes.bytes.begin(), bytes.bytes.end());
+    png.assign(bytes.value().begin(), bytes.value().end());
     MutexLock lock(tile_cache_mutex);
     tile_cache[{x, y}] = {version, png};
   }
@@ -512,12 +513,13 @@ void HttpServer::Impl::Setup() {
               body = io::MapYaml("map.pgm", image);
               type = "application/yaml";
             } else {
-              const io::PngBytes png = io::EncodeGrayPng(image.width, image.height, image.gray);
+              const Result<io::PngBytes> png =
+                  io::EncodeGrayPng(image.width, image.height, image.gray);
               if (!png.ok()) {
-                error = png.error;
+                error = png.Message();
                 return false;
               }
-              body.assign(png.bytes.begin(), png.bytes.end());
+              body.assign(png.value().begin(), png.value().end());
               type = "image/png";
             }
             return true;

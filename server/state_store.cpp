@@ -268,12 +268,12 @@ Result<SaveReport> SaveState(const std::string& dir, const SaveInputs& in) {
   const io::GridImage image = io::MakeGridImage(*in.grid);
   warn(io::WritePgm((base / "map.pgm").string(), image));
   warn(io::WriteMapYaml((base / "map.yaml").string(), "map.pgm", image));
-  const io::PngBytes png = io::EncodeGrayPng(image.width, image.height, image.gray);
+  const Result<io::PngBytes> png = io::EncodeGrayPng(image.width, image.height, image.gray);
   if (!png.ok()) {
-    warn(Error((base / "map.png").string() + ": " + png.error));
+    warn(Error((base / "map.png").string() + ": " + png.Message()));
   } else {
     warn(io::WriteFileAtomic((base / "map.png").string(),
-                             std::string(png.bytes.begin(), png.bytes.end())));
+                             std::string(png.value().begin(), png.value().end())));
   }
   warn(io::WriteFileAtomic((base / "trajectory.tum").string(), tum));
   RemoveUnnamed(base, {tiles_name, trajectory_name});  // temporaries of failed copies

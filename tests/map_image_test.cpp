@@ -173,10 +173,10 @@ TEST(PngTest, EncodedBytesAreAValidPng) {
   image.width = 3;
   image.height = 2;
   image.rgb = {255, 0, 0, 0, 255, 0, 0, 0, 255, 10, 20, 30, 40, 50, 60, 70, 80, 90};
-  const PngBytes png = EncodePng(image);
-  ASSERT_TRUE(png.ok()) << png.error;
-  ASSERT_GT(png.bytes.size(), 8u);
-  EXPECT_EQ(png_sig_cmp(png.bytes.data(), 0, 8), 0);
+  const Result<PngBytes> png = EncodePng(image);
+  ASSERT_TRUE(png.ok()) << png.Message();
+  ASSERT_GT(png.value().size(), 8u);
+  EXPECT_EQ(png_sig_cmp(png.value().data(), 0, 8), 0);
   const std::string dir = TestDir("png");
   ASSERT_TRUE(WritePng(dir + "/small.png", image).ok());
   const RgbImage back = ReadPng(dir + "/small.png");
@@ -186,11 +186,11 @@ TEST(PngTest, EncodedBytesAreAValidPng) {
 }
 
 TEST(PngTest, GrayPngAndInvalidImages) {
-  const PngBytes gray = EncodeGrayPng(2, 2, {0, 100, 200, 255});
+  const Result<PngBytes> gray = EncodeGrayPng(2, 2, {0, 100, 200, 255});
   ASSERT_TRUE(gray.ok());
   png_image png{};
   png.version = PNG_IMAGE_VERSION;
-  ASSERT_TRUE(png_image_begin_read_from_memory(&png, gray.bytes.data(), gray.bytes.size()));
+  ASSERT_TRUE(png_image_begin_read_from_memory(&png, gray.value().data(), gray.value().size()));
   EXPECT_EQ(png.format, static_cast<png_uint_32>(PNG_FORMAT_GRAY));
   std::vector<uint8_t> pixels(PNG_IMAGE_SIZE(png));
   ASSERT_TRUE(png_image_finish_read(&png, nullptr, pixels.data(), 0, nullptr));

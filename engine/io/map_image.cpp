@@ -102,38 +102,27 @@ bool WriteRows(png_structp png, png_infop info, int width, int height, int color
   return true;
 }
 
-PngBytes Encode(int width, int height, int color_type, int channels, const uint8_t* pixels,
-                size_t size) {
-  PngBytes result;
-  if (width <= 0 || height <= 0) {
-    result.error = "cannot encode an empty image as PNG";
-    return result;
-  }
+Result<PngBytes> Encode(int width, int height, int color_type, int channels, const uint8_t* pixels,
+                        size_t size) {
+  if (width <= 0 || height <= 0) return Error("cannot encode an empty image as PNG");
   if (size !=
       static_cast<size_t>(width) * static_cast<size_t>(height) * static_cast<size_t>(channels)) {
-    result.error = "image data does not match its size";
-    return result;
+    return Error("image data does not match its size");
   }
   char error[256] = "libpng failed";
   png_structp png =
       png_create_write_struct(PNG_LIBPNG_VER_STRING, error, StoreError, IgnoreWarning);
-  if (png == nullptr) {
-    result.error = "cannot initialise libpng";
-    return result;
-  }
+  if (png == nullptr) return Error("cannot initialise libpng");
   png_infop info = png_create_info_struct(png);
   if (info == nullptr) {
     png_destroy_write_struct(&png, nullptr);
-    result.error = "cannot initialise libpng";
-    return result;
+    return Error("cannot initialise libpng");
   }
-  const bool ok = WriteRows(png, info, width, height, color_type, channels, pixels, &result.bytes);
+  PngBytes bytes;
+  const bool ok = WriteRows(png, info, width, height, color_type, channels, pixels, &bytes);
   png_destroy_write_struct(&png, &info);
-  if (!ok) {
-    result.bytes.clear();
-    result.error = std::string("PNG encoding failed: ") + error;
-  }
-  return result;
+  if (!ok) return Error(std::string("PNG encoding failed: ") + error);
+  return bytes;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -203,12 +192,12 @@ std::string MapYaml(const std::string& pgm_name, const GridImage& image) {
          "\nfree_thresh: " + FormatNumber(kFreeThreshold) + "\n";
 }
 
-PngBytes EncodePng(const RgbImage& image) {
+Result<PngBytes> EncodePng(const RgbImage& image) {
   return Encode(image.width, image.height, PNG_COLOR_TYPE_RGB, 3, image.rgb.data(),
                 image.rgb.size());
 }
 
-PngBytes EncodeGrayPng(int width, int height, const std::vector<uint8_t>& gray) {
+Result<PngBytes> EncodeGrayPng(int width, int height, const std::vector<uint8_t>& gray) {
   return Encode(width, height, PNG_COLOR_TYPE_GRAY, 1, gray.data(), gray.size());
 }
 
@@ -226,9 +215,9 @@ Result<void> WriteMapYaml(const std::string& path, const std::string& pgm_name,
 }
 
 Result<void> WritePng(const std::string& path, const RgbImage& image) {
-  const PngBytes png = EncodePng(image);
-  if (!png.ok()) return Error("cannot write " + path + ": " + png.error);
-  return WriteFileAtomic(path, std::string(png.bytes.begin(), png.bytes.end()));
+  const Result<PngBytes> png = EncodePng(image);
+  if (!png.ok()) return Error("cannot write " + path + ": " + png.Message());
+  return WriteFileAtomic(path, std::string(png.value().begin(), png.value().end()));
 }
 
 RgbImage RenderMapPicture(const OccupancyGrid& grid, const std::vector<TrajectoryLayer>& layers,

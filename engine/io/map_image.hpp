@@ -53,18 +53,14 @@ std::string EncodePgm(const GridImage& image);
 /// The map_server YAML describing `image` stored in the file `pgm_name` (relative to the YAML).
 std::string MapYaml(const std::string& pgm_name, const GridImage& image);
 
-/// PNG file contents of an RGB image, or an error message.
-struct PngBytes {
-  std::vector<uint8_t> bytes;
-  std::string error;  // empty on success
-  bool ok() const { return error.empty(); }
-};
+/// PNG file contents.
+using PngBytes = std::vector<uint8_t>;
 
 /// Encodes an RGB image as an 8-bit RGB PNG.
-PngBytes EncodePng(const RgbImage& image);
+Result<PngBytes> EncodePng(const RgbImage& image);
 
 /// Encodes an 8-bit grey image (width * height bytes, row 0 at the top) as a grey PNG.
-PngBytes EncodeGrayPng(int width, int height, const std::vector<uint8_t>& gray);
+Result<PngBytes> EncodeGrayPng(int width, int height, const std::vector<uint8_t>& gray);
 
 /// Writes a grid image as a binary PGM file, atomically.
 Result<void> WritePgm(const std::string& path, const GridImage& image);
