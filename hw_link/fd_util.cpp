@@ -87,14 +87,15 @@ OpenedFd Reopener::TryReopen(int64_t deadline_ns, const std::string& who,
     std::this_thread::sleep_for(
         std::chrono::nanoseconds(std::min(next_attempt_ns_, deadline_ns) - now_ns));
     now_ns = SteadyNowNs();
-    if (now_ns < next_attempt_ns_) return who + ": closed (" + reason_ + "), waiting to reopen";
+    if (now_ns < next_attempt_ns_) {
+      return Error(who + ": closed (" + reason_ + "), waiting to reopen");
+    }
   }
   ++attempts_;
   next_attempt_ns_ = now_ns + kReopenIntervalNs;
   OpenedFd opened = open();
-  if (auto* error = std::get_if<std::string>(&opened)) {
-    return who + ": closed (" + reason_ + "); reopen failed: " + *error;
-  }
+  if (!opened.ok())
+    return Error(who + ": closed (" + reason_ + "); reopen failed: " + opened.Message());
   ++reopens_;
   return opened;
 }

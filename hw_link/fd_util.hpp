@@ -7,9 +7,9 @@
 #include <limits>
 #include <string>
 #include <utility>
-#include <variant>
 #include <vector>
 
+#include "engine/result.hpp"
 #include "hw_link/can_frame.hpp"
 
 namespace slam::hw {
@@ -53,7 +53,7 @@ int PollReadable(int fd, int64_t deadline_ns);
 int WriteAll(int fd, const std::string& bytes, int64_t deadline_ns);
 
 /// A descriptor, or why it could not be opened.
-using OpenedFd = std::variant<UniqueFd, std::string>;
+using OpenedFd = Result<UniqueFd>;
 
 /// The reopen policy of the live transports after their device fails: remember why it closed,
 /// and make an attempt at most every 200 ms, the first one 200 ms after the failure.

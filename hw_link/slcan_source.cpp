@@ -18,7 +18,6 @@
 #include <chrono>
 #include <thread>
 #include <utility>
-#include <variant>
 
 #include "hw_link/fd_util.hpp"
 #include "hw_link/slcan.hpp"
@@ -32,28 +31,29 @@ constexpr size_t kReadChunk = 4096;
 constexpr size_t kMaxBytesPerRead = 64 * 1024;  // then return what we have
 
 // Opens the device in raw mode and sends the open commands; the descriptor or why not.
-std::variant<UniqueFd, std::string> OpenDevice(const std::string& device) {
+OpenedFd OpenDevice(const std::string& device) {
   UniqueFd fd(::open(device.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC));
   if (!fd.valid()) {
     const int err = errno;
-    return "cannot open slcan device '" + device + "': " + ErrnoText(err);
+    return Error("cannot open slcan device '" + device + "': " + ErrnoText(err));
   }
   if (::isatty(fd.get()) == 1) {
     // Raw mode: no echo, no line editing, and above all no '\r' -> '\n' translation.
     termios tio{};
     if (::tcgetattr(fd.get(), &tio) != 0) {
       const int err = errno;
-      return "cannot read the terminal settings of '" + device + "': " + ErrnoText(err);
+      return Error("cannot read the terminal settings of '" + device + "': " + ErrnoText(err));
     }
     ::cfmakeraw(&tio);
     tio.c_cflag |= CLOCAL | CREAD;
     if (::tcsetattr(fd.get(), TCSANOW, &tio) != 0) {
       const int err = errno;
-      return "cannot put '" + device + "' in raw mode: " + ErrnoText(err);
+      return Error("cannot put '" + device + "' in raw mode: " + ErrnoText(err));
     }
   }
   const int err = WriteAll(fd.get(), SlcanOpenCommands(), SteadyNowNs() + kOpenWriteTimeoutNs);
-  if (err != 0) return "cannot write the open commands to '" + device + "': " + ErrnoText(err);
+  if (err != 0)
+    return Error("cannot write the open commands to '" + device + "': " + ErrnoText(err));
   return fd;
 }
 
@@ -155,8 +155,8 @@ class SlcanSource final : public FrameSource {
   std::string TryReopen(int64_t deadline_ns) {
     OpenedFd opened =
         reopener_.TryReopen(deadline_ns, Describe(), [&] { return OpenDevice(device_); });
-    if (auto* error = std::get_if<std::string>(&opened)) return *error;
-    fd_ = std::move(std::get<UniqueFd>(opened));
+    if (!opened.ok()) return opened.Message();
+    fd_ = std::move(opened).value();
     previous_ += parser_.counters();
     parser_ = SlcanParser{};  // a line cut by the hang-up must not glue onto the new stream
     reopened_ = true;         // nor a message cut by it: the next frame comes after a gap
@@ -179,8 +179,8 @@ class SlcanSource final : public FrameSource {
 
 OpenResult OpenSlcan(const std::string& device) {
   auto opened = OpenDevice(device);
-  if (auto* error = std::get_if<std::string>(&opened)) return Error(std::move(*error));
-  return std::make_unique<SlcanSource>(device, std::move(std::get<UniqueFd>(opened)));
+  if (!opened.ok()) return opened.errors();
+  return std::make_unique<SlcanSource>(device, std::move(opened).value());
 }
 
 }  // namespace slam::hw

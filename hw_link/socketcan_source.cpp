@@ -16,7 +16,6 @@
 #include <cerrno>
 #include <cstring>
 #include <thread>
-#include <variant>
 
 #include "hw_link/fd_util.hpp"
 #include "hw_link/transports.hpp"
@@ -27,23 +26,23 @@ namespace {
 constexpr size_t kMaxFramesPerRead = 256;
 
 // A raw CAN socket bound to `interface` (CAN FD frames enabled when possible), or why not.
-std::variant<UniqueFd, std::string> OpenSocket(const std::string& interface) {
+OpenedFd OpenSocket(const std::string& interface) {
   UniqueFd fd(::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW));
   if (!fd.valid()) {
     const int err = errno;
     if (err == EAFNOSUPPORT) {
-      return "SocketCAN is not available: this kernel has no AF_CAN support (socket: " +
-             ErrnoText(err) + ")";
+      return Error("SocketCAN is not available: this kernel has no AF_CAN support (socket: " +
+                   ErrnoText(err) + ")");
     }
-    return "cannot create a SocketCAN socket for '" + interface + "': " + ErrnoText(err);
+    return Error("cannot create a SocketCAN socket for '" + interface + "': " + ErrnoText(err));
   }
   if (interface.empty() || interface.size() >= IFNAMSIZ) {
-    return "invalid CAN interface name '" + interface + "'";
+    return Error("invalid CAN interface name '" + interface + "'");
   }
   const unsigned int index = ::if_nametoindex(interface.c_str());
   if (index == 0) {
     const int err = errno;
-    return "no CAN interface '" + interface + "': " + ErrnoText(err);
+    return Error("no CAN interface '" + interface + "': " + ErrnoText(err));
   }
   const int on = 1;  // best effort: older kernels deliver classic frames only
   ::setsockopt(fd.get(), SOL_CAN_RAW, CAN_RAW_FD_FRAMES, &on, sizeof on);
@@ -52,7 +51,7 @@ std::variant<UniqueFd, std::string> OpenSocket(const std::string& interface) {
   addr.can_ifindex = static_cast<int>(index);
   if (::bind(fd.get(), reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0) {
     const int err = errno;
-    return "cannot bind to CAN interface '" + interface + "': " + ErrnoText(err);
+    return Error("cannot bind to CAN interface '" + interface + "': " + ErrnoText(err));
   }
   return fd;
 }
@@ -141,8 +140,8 @@ class SocketCanSource final : public FrameSource {
   std::string TryReopen(int64_t deadline_ns) {
     OpenedFd opened =
         reopener_.TryReopen(deadline_ns, Describe(), [&] { return OpenSocket(interface_); });
-    if (auto* error = std::get_if<std::string>(&opened)) return *error;
-    fd_ = std::move(std::get<UniqueFd>(opened));
+    if (!opened.ok()) return opened.Message();
+    fd_ = std::move(opened).value();
     return {};
   }
 
@@ -159,8 +158,8 @@ class SocketCanSource final : public FrameSource {
 
 OpenResult OpenSocketCan(const std::string& interface) {
   auto opened = OpenSocket(interface);
-  if (auto* error = std::get_if<std::string>(&opened)) return Error(std::move(*error));
-  return std::make_unique<SocketCanSource>(interface, std::move(std::get<UniqueFd>(opened)));
+  if (!opened.ok()) return opened.errors();
+  return std::make_unique<SocketCanSource>(interface, std::move(opened).value());
 }
 
 bool SocketCanAvailable() {

@@ -54,14 +54,13 @@ class Reader {
   size_t pos_ = 0;
 };
 
-std::optional<std::string> ReadFile(const fs::path& path, std::string& out) {
+Result<std::string> ReadFile(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
-  if (!in) return path.string() + ": cannot open";
+  if (!in) return Error(path.string() + ": cannot open");
   std::ostringstream s;
   s << in.rdbuf();
-  if (in.bad()) return path.string() + ": read error";
-  out = s.str();
-  return std::nullopt;
+  if (in.bad()) return Error(path.string() + ": read error");
+  return s.str();
 }
 
 }  // namespace
@@ -173,9 +172,9 @@ bool IsVersionedName(const std::string& name) {
 /// The versioned files the committed state.json in `base` names (none when there is none).
 std::set<std::string> CommittedNames(const fs::path& base) {
   std::set<std::string> names;
-  std::string text;
-  if (ReadFile(base / "state.json", text)) return names;
-  const nlohmann::json meta = nlohmann::json::parse(text, nullptr, false);
+  const Result<std::string> text = ReadFile(base / "state.json");
+  if (!text.ok()) return names;
+  const nlohmann::json meta = nlohmann::json::parse(text.value(), nullptr, false);
   if (!meta.is_object()) return names;
   for (const char* key : {"tiles_file", "trajectory_file"}) {
     const auto it = meta.find(key);
@@ -327,11 +326,9 @@ Result<std::optional<SavedState>> LoadState(const std::string& dir) {
   const fs::path meta_path = base / "state.json";
   std::error_code ec;
   if (!fs::exists(meta_path, ec)) return std::optional<SavedState>();  // nothing saved yet
-  std::string text;
-  if (auto e = ReadFile(meta_path, text)) {
-    return Error(*e);
-  }
-  const nlohmann::json meta = nlohmann::json::parse(text, nullptr, false);
+  const Result<std::string> text = ReadFile(meta_path);
+  if (!text.ok()) return text.errors();
+  const nlohmann::json meta = nlohmann::json::parse(text.value(), nullptr, false);
   if (meta.is_discarded() || !meta.is_object()) {
     return Error(meta_path.string() + ": not valid JSON");
   }
@@ -355,11 +352,9 @@ Result<std::optional<SavedState>> LoadState(const std::string& dir) {
     return Error(meta_path.string() + ": missing or bad tiles_file / trajectory_file");
   }
   SavedState state;
-  std::string bytes;
-  if (auto e = ReadFile(base / *tiles_name, bytes)) {
-    return Error(*e);
-  }
-  Result<SavedState> decoded = DecodeTiles(bytes);
+  const Result<std::string> bytes = ReadFile(base / *tiles_name);
+  if (!bytes.ok()) return bytes.errors();
+  Result<SavedState> decoded = DecodeTiles(bytes.value());
   if (!decoded.ok()) {
     return Error((base / *tiles_name).string() + ": " + decoded.Message());
   }
