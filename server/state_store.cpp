@@ -351,14 +351,13 @@ Result<std::optional<SavedState>> LoadState(const std::string& dir) {
   if (!tiles_name || !trajectory_name) {
     return Error(meta_path.string() + ": missing or bad tiles_file / trajectory_file");
   }
-  SavedState state;
   const Result<std::string> bytes = ReadFile(base / *tiles_name);
   if (!bytes.ok()) return bytes.errors();
   Result<SavedState> decoded = DecodeTiles(bytes.value());
   if (!decoded.ok()) {
     return Error((base / *tiles_name).string() + ": " + decoded.Message());
   }
-  state = std::move(decoded).value();
+  SavedState state = std::move(decoded).value();
   auto trajectory = io::LoadTum((base / *trajectory_name).string());
   if (!trajectory.ok()) {
     return Error(trajectory.Message());
