@@ -17,12 +17,21 @@
 #include "tests/test_support.hpp"
 // clang-format on
 
+#include <arpa/inet.h>
+#include <fcntl.h>
+#include <netinet/in.h>
+#include <signal.h>
 #include <stdlib.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
 #include <termios.h>
+#include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cstdlib>
 #include <random>
+#include <sstream>
 
 namespace slamd_test {
 namespace {

@@ -5,9 +5,15 @@
 // (403) in slamd_http_test.cpp, event-stream caps (503) and one tuning job at a time (409) there
 // too, the constant-time comparison itself in server_test.cpp.
 
+#include <arpa/inet.h>
 #include <ifaddrs.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
+#include <algorithm>
 #include <iostream>
+#include <sstream>
 
 // clang-format off
 #include "tests/slamd_harness.hpp"

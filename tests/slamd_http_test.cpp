@@ -9,6 +9,12 @@
 // else the one built with the tests; slam-sim (which writes the tuning experiments) is
 // `$SLAM_SIM_BIN`, else `tools/slam-sim` of slamd's build tree.
 
+#include <signal.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <sstream>
+
 #include "tests/slamd_harness.hpp"
 
 namespace slamd_test {
