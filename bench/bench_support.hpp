@@ -63,7 +63,7 @@ inline const SimulatedRun& Run(const std::string& arena, double duration_s, uint
     run->name = arena + "-seed" + std::to_string(seed) + "-" +
                 std::to_string(static_cast<int>(duration_s)) + "s";
     run->duration_s = duration_s;
-    run->output = sim::RunScenario(*sim::BuiltinArena(arena), ShippedRobot(), config);
+    run->output = sim::RunScenario(*sim::BuiltinWorld(arena), ShippedRobot(), config);
     run->scans = sim::BuildScans(ShippedRobot(), run->output.odometry, run->output.scanner);
     run->ground_truth = run->output.ground_truth;
     slot = std::move(run);

@@ -66,7 +66,7 @@ class Slamd {
     virtual_options.paced = false;
     virtual_options.duration_s = 20.0;
     auto source = std::make_unique<sim::VirtualMarxbotSource>(
-        *sim::BuiltinArena("rooms"), "rooms", ShippedRobot(), scenario, virtual_options);
+        *sim::BuiltinWorld("rooms"), "rooms", ShippedRobot(), scenario, virtual_options);
     const sim::VirtualMarxbotSource* truth = source.get();
     hw::LinkOptions link_options;
     link_options.queue_capacity = 1 << 16;  // the unpaced source must not lose events

@@ -56,7 +56,7 @@ struct Slamd {
     options.paced = false;
     options.duration_s = 4.0;
     auto source = std::make_unique<slam::sim::VirtualMarxbotSource>(
-        *slam::sim::BuiltinArena("box"), "box", robot.value(), scenario, options);
+        *slam::sim::BuiltinWorld("box"), "box", robot.value(), scenario, options);
     const slam::sim::VirtualMarxbotSource* truth = source.get();
     slam::hw::LinkOptions link_options;
     link_options.queue_capacity = 1 << 16;

@@ -39,7 +39,7 @@ hw::OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& r
       return Error(error.substr(0, error.size() - 2));
     }
     const std::string name =
-        sim::BuiltinArena(value) ? value : std::filesystem::path(value).stem().string();
+        sim::BuiltinWorld(value) ? value : std::filesystem::path(value).stem().string();
     sim::ScenarioConfig config;
     config.seed = options.seed;
     config.duration_s = options.duration_s > 0.0 ? options.duration_s : 1.0;

@@ -27,6 +27,8 @@ enum Stream : uint64_t {
   kStreamTracker = 6,
   kStreamTicks = 7,
   kStreamRectifier = 8,
+  kStreamSystematic = 9,  // the per-run scale errors
+  kStreamTurnDrift = 10,
 };
 
 constexpr double kControlDt = 0.01;       // the motion is a constant twist over each step
@@ -72,6 +74,17 @@ Pose2 Advance(const Pose2& p, double v, double w, double dt) {
     dy = -r * (std::cos(p.theta + dtheta) - std::cos(p.theta));
   }
   return {p.x + dx, p.y + dy, p.theta + dtheta};
+}
+
+/// Advance, plus a body-frame velocity (ex, ey) that the encoders do not see (skid, drift),
+/// applied along the heading at mid-step.
+Pose2 Move(const Pose2& p, double v, double w, const Vec2& extra, double dt) {
+  Pose2 next = Advance(p, v, w, dt);
+  if (extra.x() == 0.0 && extra.y() == 0.0) return next;
+  const double mid = p.theta + w * dt / 2.0;
+  next.x += (std::cos(mid) * extra.x() - std::sin(mid) * extra.y()) * dt;
+  next.y += (std::sin(mid) * extra.x() + std::cos(mid) * extra.y()) * dt;
+  return next;
 }
 
 Pose2 Normalized(Pose2 p) {
@@ -256,6 +269,10 @@ std::vector<std::string> ScenarioConfig::Validate() const {
   non_negative(gyro_noise_dps, "gyro_noise_dps");
   non_negative(gyro_bias_dps, "gyro_bias_dps");
   positive(gyro_bias_walk_s, "gyro_bias_walk_s");
+  non_negative(translation_scale_sigma, "translation_scale_sigma");
+  non_negative(gyro_scale_sigma, "gyro_scale_sigma");
+  non_negative(skid_s, "skid_s");
+  non_negative(turn_drift_m_per_rad, "turn_drift_m_per_rad");
   non_negative(sensor_noise_scale, "sensor_noise_scale");
   non_negative(corner_radius_m, "corner_radius_m");
   non_negative(floor_offset_raw, "floor_offset_raw");
@@ -269,6 +286,44 @@ std::vector<std::string> ScenarioConfig::Validate() const {
     errors.push_back("/near_floor_fraction: must be in [0, 1]");
   }
   return errors;
+}
+
+std::optional<OdometryProfile> OdometryProfileFromName(std::string_view name) {
+  if (name == "gentle") return OdometryProfile::kGentle;
+  if (name == "tracked") return OdometryProfile::kTracked;
+  return std::nullopt;
+}
+
+std::string_view OdometryProfileName(OdometryProfile profile) {
+  return profile == OdometryProfile::kTracked ? "tracked" : "gentle";
+}
+
+ScenarioConfig WithOdometryProfile(ScenarioConfig config, OdometryProfile profile) {
+  const ScenarioConfig gentle;
+  config.translation_slip_ratio = gentle.translation_slip_ratio;
+  config.rotation_slip_ratio = gentle.rotation_slip_ratio;
+  config.slip_correlation_s = gentle.slip_correlation_s;
+  config.accel_slip_s = gentle.accel_slip_s;
+  config.gyro_noise_dps = gentle.gyro_noise_dps;
+  config.gyro_bias_dps = gentle.gyro_bias_dps;
+  config.gyro_bias_walk_s = gentle.gyro_bias_walk_s;
+  config.translation_scale_sigma = gentle.translation_scale_sigma;
+  config.gyro_scale_sigma = gentle.gyro_scale_sigma;
+  config.skid_s = gentle.skid_s;
+  config.turn_drift_m_per_rad = gentle.turn_drift_m_per_rad;
+  config.odometry_profile = OdometryProfileName(profile);
+  if (profile == OdometryProfile::kTracked) {
+    // Values of the kind published for small tracked and skid-steered robots with a consumer
+    // MEMS gyro calibrated at rest; not fitted to any recording.
+    config.gyro_noise_dps = 0.5;
+    config.gyro_bias_dps = 0.25;
+    config.gyro_bias_walk_s = 120.0;
+    config.translation_scale_sigma = 0.03;
+    config.gyro_scale_sigma = 0.02;
+    config.skid_s = 0.08;
+    config.turn_drift_m_per_rad = 0.02;
+  }
+  return config;
 }
 
 /// Everything the simulation carries from one control step to the next.
@@ -285,25 +340,34 @@ struct Simulator::State {
         tracker_rng(Rng::ForStream(c.seed, kStreamTracker)),
         ticks_rng(Rng::ForStream(c.seed, kStreamTicks)),
         rectifier_rng(Rng::ForStream(c.seed, kStreamRectifier)),
+        drift_rng(Rng::ForStream(c.seed, kStreamTurnDrift)),
         wanderer(c, Rng::ForStream(c.seed, kStreamWander)),
         slip_t(c.translation_slip_ratio, c.slip_correlation_s, kControlDt, slip_rng),
         slip_turn(c.translation_slip_ratio, c.slip_correlation_s, kControlDt, slip_rng),
         slip_r(c.rotation_slip_ratio, c.slip_correlation_s, kControlDt, slip_rng),
+        drift_x(1.0, 1.0, kControlDt, drift_rng),
+        drift_y(1.0, 1.0, kControlDt, drift_rng),
         bias(gyro_rng.Gaussian(DegToRad(c.gyro_bias_dps))),
         bias_step(DegToRad(c.gyro_bias_dps) * std::sqrt(kControlDt / c.gyro_bias_walk_s)),
         left_offset(static_cast<int32_t>(static_cast<uint32_t>(ticks_rng.Next()))),
         right_offset(static_cast<int32_t>(static_cast<uint32_t>(ticks_rng.Next()))),
         pose(StartPose(motion_world, c, Rng::ForStream(c.seed, kStreamStart))),
-        last_gyro_theta(pose.theta) {}
+        last_gyro_theta(pose.theta) {
+    Rng systematic = Rng::ForStream(c.seed, kStreamSystematic);
+    translation_scale = systematic.Gaussian(c.translation_scale_sigma);
+    gyro_scale = systematic.Gaussian(c.gyro_scale_sigma);
+  }
 
   World world;
   RobotDescription robot;
   ScenarioConfig config;
   World motion_world;
   std::vector<Vec2> corners;
-  Rng slip_rng, gyro_rng, sensor_rng, tracker_rng, ticks_rng, rectifier_rng;
+  Rng slip_rng, gyro_rng, sensor_rng, tracker_rng, ticks_rng, rectifier_rng, drift_rng;
   Wanderer wanderer;
   GaussMarkov slip_t, slip_turn, slip_r;
+  GaussMarkov drift_x, drift_y;                      // direction of the turning drift (body frame)
+  double translation_scale = 0.0, gyro_scale = 0.0;  // this run's systematic errors
   double bias;
   double bias_step;
   int64_t left_offset, right_offset;
@@ -340,13 +404,33 @@ void Simulator::Step(ScenarioOutput& out) {
   const Pose2 pose = st.pose;
 
   auto [v, w] = st.wanderer.Command(st.motion_world, pose);
-  Pose2 next = Advance(pose, v, w, kControlDt);
+  const FloorTraction floor = TractionOf(FloorAt(st.world, pose.translation()));
+  // What the treels do not report: sideways skid in turns (outwards) and the wandering centre
+  // of rotation.
+  const auto extra_motion = [&](double speed) -> Vec2 {
+    if (config.skid_s == 0.0 && config.turn_drift_m_per_rad == 0.0) return Vec2::Zero();
+    const double drift = config.turn_drift_m_per_rad * std::abs(w);
+    return {drift * st.drift_x.value(),
+            -config.skid_s * floor.skid_factor * speed * w + drift * st.drift_y.value()};
+  };
+  if (config.turn_drift_m_per_rad > 0.0) {
+    st.drift_x.Step(st.drift_rng);
+    st.drift_y.Step(st.drift_rng);
+  }
+  Vec2 extra = extra_motion(v);
+  Pose2 next = Move(pose, v, w, extra, kControlDt);
+  const double clearance_now = ClearanceAt(st.motion_world, pose.translation());
   const double clearance_next = ClearanceAt(st.motion_world, next.translation());
-  if (clearance_next < min_clearance &&
-      clearance_next < ClearanceAt(st.motion_world, pose.translation())) {
+  if (clearance_next < min_clearance && clearance_next < clearance_now) {
     st.wanderer.Blocked(st.motion_world, pose);
     v = 0.0;
-    next = Advance(pose, v, w, kControlDt);
+    extra = extra_motion(v);
+    next = Move(pose, v, w, extra, kControlDt);
+    const double clearance_still = ClearanceAt(st.motion_world, next.translation());
+    if (clearance_still < min_clearance && clearance_still < clearance_now) {
+      extra = Vec2::Zero();  // pressed against the obstacle: it stops the drift
+      next = Move(pose, v, w, extra, kControlDt);
+    }
   }
   st.slip_t.Step(st.slip_rng);
   st.slip_turn.Step(st.slip_rng);
@@ -359,21 +443,26 @@ void Simulator::Step(ScenarioOutput& out) {
   const double angular_accel = (w - st.w) / kControlDt;
   st.v = v;
   st.w = w;
-  const double v_enc = v * (1.0 + st.slip_t.value() * (1.0 + std::abs(w))) +
-                       st.slip_turn.value() * std::abs(w) * half_track +
+  // A run's scale error and the floor's bias are systematic: the encoders read that much more
+  // than the true distance, turn after turn.
+  const double scale = 1.0 + (st.translation_scale + floor.scale_bias);
+  const double v_enc = v * (scale + st.slip_t.value() * (1.0 + std::abs(w)) * floor.slip_factor) +
+                       st.slip_turn.value() * std::abs(w) * half_track * floor.slip_factor +
                        config.accel_slip_s * accel;
-  const double w_enc = w * (1.0 + st.slip_r.value()) + config.accel_slip_s * angular_accel;
+  const double w_enc =
+      w * (1.0 + st.slip_r.value() * floor.slip_factor) + config.accel_slip_s * angular_accel;
   const double left_rate = v_enc - w_enc * half_track;
   const double right_rate = v_enc + w_enc * half_track;
 
   const auto in_step = [&](int64_t n, double rate) { return static_cast<double>(n) / rate < t1; };
   while (in_step(st.next_odometry, config.odometry_rate_hz)) {
     const double t = static_cast<double>(st.next_odometry) / config.odometry_rate_hz;
-    const Pose2 p = Advance(pose, v, w, t - t0);
+    const Pose2 p = Move(pose, v, w, extra, t - t0);
     // The gyro reports its mean rate since the previous reading (plus bias and noise).
     const double rate =
         st.next_odometry == 0 ? w : (p.theta - st.last_gyro_theta) / (t - st.last_gyro_t);
-    const double measured = rate + st.bias + st.gyro_rng.Gaussian(DegToRad(config.gyro_noise_dps));
+    const double measured = rate * (1.0 + st.gyro_scale) + st.bias +
+                            st.gyro_rng.Gaussian(DegToRad(config.gyro_noise_dps));
     const double gyro_units = RadToDeg(measured) / robot.base.gyro_unit_dps;
     OdometryReading r;
     r.t = t;
@@ -390,7 +479,7 @@ void Simulator::Step(ScenarioOutput& out) {
   }
   while (in_step(st.next_sample, sample_rate)) {
     const double t = static_cast<double>(st.next_sample) / sample_rate;
-    const Pose2 p = Advance(pose, v, w, t - t0);
+    const Pose2 p = Move(pose, v, w, extra, t - t0);
     const double platform = kPi * config.scans_per_s * t;
     ScannerReading r;
     r.t = t;
@@ -413,7 +502,7 @@ void Simulator::Step(ScenarioOutput& out) {
   }
   while (in_step(st.next_tracker, config.tracker_rate_hz)) {
     const double t = static_cast<double>(st.next_tracker) / config.tracker_rate_hz;
-    Pose2 p = Normalized(Advance(pose, v, w, t - t0));
+    Pose2 p = Normalized(Move(pose, v, w, extra, t - t0));
     p.x += st.tracker_rng.Gaussian(config.tracker_noise_m);
     p.y += st.tracker_rng.Gaussian(config.tracker_noise_m);
     p.theta = NormalizeAngle(p.theta + st.tracker_rng.Gaussian(config.tracker_noise_rad));

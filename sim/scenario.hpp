@@ -5,7 +5,9 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "engine/pose.hpp"
@@ -42,6 +44,19 @@ struct ScenarioConfig {
   double gyro_bias_dps = 0.05;
   double gyro_bias_walk_s = 60.0;
 
+  // A tracked robot's systematic errors, each run drawing its own (0: none; the kTracked profile
+  // sets them). Floors (world.json "floors") scale the slip and skid and bias the encoders.
+  double translation_scale_sigma = 0.0;  // relative error of the encoders' distance scale
+  double gyro_scale_sigma = 0.0;         // relative error of the gyro's scale factor
+  // In turns the treels skid sideways: the body moves outwards at skid_s x v x w (m/s), which
+  // the encoders do not see.
+  double skid_s = 0.0;
+  // Turning, the centre of rotation wanders: the body drifts about this far per radian turned,
+  // in a direction that changes slowly (Gauss-Markov, 1 s).
+  double turn_drift_m_per_rad = 0.0;
+  // The OdometryProfile the odometry errors came from, written into meta.json.
+  std::string odometry_profile = "gentle";
+
   // Sensor artefacts.
   double sensor_noise_scale = 1.0;       // times the robot's sigma_m of each sensor type
   double corner_hole_probability = 0.3;  // a beam hitting near a corner reads as nothing
@@ -57,6 +72,20 @@ struct ScenarioConfig {
   /// Problems with the configuration as "/key: detail" lines; empty when valid.
   std::vector<std::string> Validate() const;
 };
+
+/// How the simulated odometry errs: kGentle is the small zero-mean slip and gyro bias of the
+/// original reference set (dead reckoning ends a 300 s run about 10 cm off in a 2 m arena);
+/// kTracked adds what a tracked robot with a MEMS gyro shows: per-run scale errors of the
+/// encoders and the gyro, a larger drifting gyro bias, sideways skid in turns and a wandering
+/// centre of rotation, so that dead reckoning drifts tens of centimetres to metres in 300 s.
+enum class OdometryProfile { kGentle, kTracked };
+
+/// "gentle", "tracked"; nullopt for anything else.
+std::optional<OdometryProfile> OdometryProfileFromName(std::string_view name);
+std::string_view OdometryProfileName(OdometryProfile profile);
+
+/// `config` with the odometry error parameters of `profile` (the others unchanged).
+ScenarioConfig WithOdometryProfile(ScenarioConfig config, OdometryProfile profile);
 
 /// Everything a simulated run produces, time-ordered; times in seconds from the start.
 struct ScenarioOutput {

@@ -12,6 +12,7 @@
 #include "engine/config_error.hpp"
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/json_reader.hpp"
+#include "sim/builtin_worlds.hpp"
 
 namespace slam::sim {
 namespace {
@@ -142,6 +143,21 @@ ConfigErrors WorldErrors(const World& world) {
     within(at + "/2", c.radius_m);
     surface_m += 2.0 * kPi * std::abs(c.radius_m);
   }
+  for (size_t i = 0; i < world.floors.size(); ++i) {
+    const auto& a = world.floors[i].area;
+    const std::string at = Pointer("/floors", i) + "/area";
+    bool finite = true;
+    for (size_t k = 0; k < 4; ++k) {
+      if (!std::isfinite(a[k])) {
+        errors.push_back({Pointer(at, k), "must be finite"});
+        finite = false;
+      }
+      within(Pointer(at, k), a[k]);
+    }
+    if (finite && (!(a[0] < a[2]) || !(a[1] < a[3]))) {
+      errors.push_back({at, "expected x0 < x1 and y0 < y1"});
+    }
+  }
   if (surface_m > kMaxSurfaceM) {
     errors.push_back({"/segments", "the walls and circles measure " + Num(surface_m) +
                                        " m in all, beyond the plausible " + Num(kMaxSurfaceM) +
@@ -226,6 +242,45 @@ std::optional<double> RayDistance(const World& world, const Vec2& origin, double
   return best;
 }
 
+FloorTraction TractionOf(FloorMaterial material) {
+  switch (material) {
+    case FloorMaterial::kCarpet:
+      return {0.025, 1.5, 2.0};
+    case FloorMaterial::kRug:
+      return {0.04, 2.5, 3.0};
+    case FloorMaterial::kHard:
+      break;
+  }
+  return {};
+}
+
+std::optional<FloorMaterial> FloorMaterialFromName(std::string_view name) {
+  if (name == "hard") return FloorMaterial::kHard;
+  if (name == "carpet") return FloorMaterial::kCarpet;
+  if (name == "rug") return FloorMaterial::kRug;
+  return std::nullopt;
+}
+
+std::string_view FloorMaterialName(FloorMaterial material) {
+  switch (material) {
+    case FloorMaterial::kCarpet:
+      return "carpet";
+    case FloorMaterial::kRug:
+      return "rug";
+    case FloorMaterial::kHard:
+      break;
+  }
+  return "hard";
+}
+
+FloorMaterial FloorAt(const World& world, const Vec2& p) {
+  for (auto it = world.floors.rbegin(); it != world.floors.rend(); ++it) {
+    const auto& a = it->area;
+    if (p.x() >= a[0] && p.x() <= a[2] && p.y() >= a[1] && p.y() <= a[3]) return it->material;
+  }
+  return FloorMaterial::kHard;
+}
+
 double ClearanceAt(const World& world, const Vec2& p) {
   double best = std::numeric_limits<double>::infinity();
   for (const Segment& seg : world.segments) {
@@ -278,7 +333,8 @@ Result<World> ParseWorld(std::string_view json_text, std::string_view source) {
   ConfigErrors errors;
   World world;
   for (const auto& [key, value] : doc.items()) {
-    if (key != "name" && key != "bounds" && key != "segments" && key != "circles") {
+    if (key != "name" && key != "bounds" && key != "segments" && key != "circles" &&
+        key != "floors") {
       errors.push_back({io::detail::Child("", key), "unknown key"});
     }
   }
@@ -315,6 +371,53 @@ Result<World> ParseWorld(std::string_view json_text, std::string_view source) {
         if (const auto v = ReadNumbers(list[i], 3, Pointer("/circles", i), errors)) {
           world.circles.push_back({{(*v)[0], (*v)[1]}, (*v)[2]});
         }
+      }
+    }
+  }
+  if (doc.contains("floors")) {
+    const Json& list = doc["floors"];
+    if (!list.is_array()) {
+      errors.push_back({"/floors",
+                        "expected an array of {\"area\": [x0, y0, x1, y1], "
+                        "\"material\": \"hard\"|\"carpet\"|\"rug\"}"});
+    } else {
+      for (size_t i = 0; i < list.size(); ++i) {
+        const std::string at = Pointer("/floors", i);
+        const Json& item = list[i];
+        if (!item.is_object()) {
+          errors.push_back({at, "expected an object with \"area\" and \"material\""});
+          continue;
+        }
+        for (const auto& [key, value] : item.items()) {
+          if (key != "area" && key != "material") {
+            errors.push_back({io::detail::Child(at, key), "unknown key"});
+          }
+        }
+        FloorPatch patch;
+        bool ok = true;
+        if (!item.contains("area")) {
+          errors.push_back({at + "/area", "missing"});
+          ok = false;
+        } else if (const auto v = ReadNumbers(item["area"], 4, at + "/area", errors)) {
+          std::copy(v->begin(), v->end(), patch.area.begin());
+        } else {
+          ok = false;
+        }
+        if (!item.contains("material")) {
+          errors.push_back({at + "/material", "missing"});
+          ok = false;
+        } else if (!item["material"].is_string()) {
+          errors.push_back({at + "/material", "expected \"hard\", \"carpet\" or \"rug\""});
+          ok = false;
+        } else if (const auto m = FloorMaterialFromName(item["material"].get<std::string>())) {
+          patch.material = *m;
+        } else {
+          errors.push_back({at + "/material", "unknown material \"" +
+                                                  item["material"].get<std::string>() +
+                                                  "\" (expected hard, carpet or rug)"});
+          ok = false;
+        }
+        if (ok) world.floors.push_back(patch);
       }
     }
   }
@@ -361,8 +464,18 @@ std::string WorldToJson(const World& world) {
     const Circle& c = world.circles[i];
     out += (i ? ",\n    " : "\n    ") + row({c.center.x(), c.center.y(), c.radius_m});
   }
-  out += world.circles.empty() ? "]\n}\n" : "\n  ]\n}\n";
-  return out;
+  out += world.circles.empty() ? "]" : "\n  ]";
+  if (!world.floors.empty()) {
+    out += ",\n  \"floors\": [";
+    for (size_t i = 0; i < world.floors.size(); ++i) {
+      const auto& a = world.floors[i].area;
+      out += std::string(i ? ",\n    " : "\n    ") + "{\"area\": " + row({a[0], a[1], a[2], a[3]}) +
+             ", \"material\": \"" + std::string(FloorMaterialName(world.floors[i].material)) +
+             "\"}";
+    }
+    out += "\n  ]";
+  }
+  return out + "\n}\n";
 }
 
 Result<void> SaveWorld(const std::string& path, const World& world) {
@@ -371,15 +484,28 @@ Result<void> SaveWorld(const std::string& path, const World& world) {
 
 std::vector<std::string> BuiltinArenaNames() { return {"box", "rooms", "cluttered"}; }
 
-std::optional<World> BuiltinArena(std::string_view name) {
+std::vector<std::string> BuiltinWorldNames() {
+  std::vector<std::string> names = BuiltinArenaNames();
+  for (const WorldFile& file : BuiltinWorldFiles()) names.emplace_back(file.name);
+  return names;
+}
+
+std::optional<World> BuiltinWorld(std::string_view name) {
   if (name == "box") return BoxArena();
   if (name == "rooms") return RoomsArena();
   if (name == "cluttered") return ClutteredArena();
+  for (const WorldFile& file : BuiltinWorldFiles()) {
+    if (file.name != name) continue;
+    // The files are parsed when used; a test parses every one of them.
+    Result<World> world = ParseWorld(file.json, "sim/worlds/" + std::string(name) + ".json");
+    if (!world.ok()) return std::nullopt;
+    return std::move(world).value();
+  }
   return std::nullopt;
 }
 
 Result<World> ResolveWorld(const std::string& name_or_path) {
-  if (std::optional<World> world = BuiltinArena(name_or_path)) return std::move(*world);
+  if (std::optional<World> world = BuiltinWorld(name_or_path)) return std::move(*world);
   return LoadWorld(name_or_path);
 }
 

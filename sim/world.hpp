@@ -1,7 +1,7 @@
 #pragma once
 // Simulated worlds: walls as line segments and round obstacles as circles, in metres
-// (docs/design.md section 5, world.json), with exact ray casting for the simulated sensors and the
-// built-in arenas of about 2 m modelled on the paper's Fig. 9.
+// (docs/design.md section 5, world.json), with exact ray casting for the simulated sensors, the
+// built-in arenas of about 2 m modelled on the paper's Fig. 9 and real-size rooms (sim/worlds/).
 
 #include <array>
 #include <optional>
@@ -26,12 +26,42 @@ struct Circle {
   double radius_m = 0.0;
 };
 
+/// What the treels run on: how far the encoders' distance departs from the true one, and how
+/// much the treels slip and skid, compared with a hard floor (tiles, wood, linoleum).
+enum class FloorMaterial { kHard, kCarpet, kRug };
+
+/// A rectangle of floor of one material.
+struct FloorPatch {
+  std::array<double, 4> area{0.0, 0.0, 0.0, 0.0};  // x0, y0, x1, y1
+  FloorMaterial material = FloorMaterial::kHard;
+};
+
+/// How a floor material changes the treels' odometry (sim/scenario.cpp applies it).
+struct FloorTraction {
+  double scale_bias = 0.0;   // the encoders read this much more than the true distance (0.03 = 3%)
+  double slip_factor = 1.0;  // times the slip noise of a hard floor
+  double skid_factor = 1.0;  // times the sideways skid of a hard floor
+};
+
+/// The traction of each material: a carpet's pile compresses under the treels (they travel less
+/// than their sprockets turn) and lets them skid more in turns; a loose rug more so.
+FloorTraction TractionOf(FloorMaterial material);
+
+/// "hard", "carpet", "rug"; nullopt for anything else.
+std::optional<FloorMaterial> FloorMaterialFromName(std::string_view name);
+std::string_view FloorMaterialName(FloorMaterial material);
+
 struct World {
   std::string name;
   std::array<double, 4> bounds{0.0, 0.0, 0.0, 0.0};  // x0, y0, x1, y1: the area the robot may use
   std::vector<Segment> segments;
   std::vector<Circle> circles;
+  // Floor patches, later ones over earlier ones; a hard floor where none lies.
+  std::vector<FloorPatch> floors;
 };
+
+/// The floor material at `p`: the last patch containing it, hard where none does.
+FloorMaterial FloorAt(const World& world, const Vec2& p);
 
 /// Distance from `origin` along `angle` (radians) to the first segment or circle, when one lies
 /// within `max_range_m`. A ray starting inside a circle or on a segment gives 0; a ray running
@@ -63,13 +93,18 @@ std::string WorldToJson(const World& world);
 /// Writes world.json atomically (temporary file + rename).
 Result<void> SaveWorld(const std::string& path, const World& world);
 
-/// Names of the built-in arenas: "box", "rooms", "cluttered".
+/// Names of the built-in arenas of the paper's size (about 2 m, Fig. 9): "box", "rooms",
+/// "cluttered".
 std::vector<std::string> BuiltinArenaNames();
 
-/// A built-in arena by name, nullopt for an unknown name.
-std::optional<World> BuiltinArena(std::string_view name);
+/// Names of every built-in world: the arenas, then the real-size rooms of sim/worlds/ ("flat",
+/// "corridor", "office", "studio").
+std::vector<std::string> BuiltinWorldNames();
 
-/// A built-in arena when `name_or_path` names one, else the world.json file at that path.
+/// A built-in world by name, nullopt for an unknown name.
+std::optional<World> BuiltinWorld(std::string_view name);
+
+/// A built-in world when `name_or_path` names one, else the world.json file at that path.
 Result<World> ResolveWorld(const std::string& name_or_path);
 
 }  // namespace slam::sim

@@ -67,7 +67,7 @@ class ExperimentReaderTest : public ::testing::Test {
 
   std::filesystem::path dir_;
   RobotDescription robot_ = testing::ShippedRobot();
-  sim::World world_ = *sim::BuiltinArena("rooms");
+  sim::World world_ = *sim::BuiltinWorld("rooms");
   sim::ScenarioConfig config_;
 };
 

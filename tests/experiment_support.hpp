@@ -20,7 +20,7 @@ inline std::optional<offline::Experiment> GenerateExperiment(const std::string& 
   sim::ScenarioConfig config;
   config.duration_s = duration_s;
   config.seed = seed;
-  if (const Result<void> written = sim::WriteSimulatedExperiment(dir, *sim::BuiltinArena(arena),
+  if (const Result<void> written = sim::WriteSimulatedExperiment(dir, *sim::BuiltinWorld(arena),
                                                                  arena, ShippedRobot(), config);
       !written.ok()) {
     ADD_FAILURE() << written.Message();

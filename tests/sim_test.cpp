@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <set>
 #include <sstream>
 #include <string>
@@ -13,6 +14,7 @@
 #include "engine/pose.hpp"
 #include "engine/robot.hpp"
 #include "engine/sensor_model.hpp"
+#include "sim/dataset.hpp"
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
 #include "test_support.hpp"
@@ -113,7 +115,7 @@ TEST(ArenaTest, BuiltinsAreValidNamedAndAboutTwoMetres) {
   EXPECT_EQ(names, (std::vector<std::string>{"box", "rooms", "cluttered"}));
   for (const std::string& name : names) {
     SCOPED_TRACE(name);
-    const std::optional<World> world = BuiltinArena(name);
+    const std::optional<World> world = BuiltinWorld(name);
     ASSERT_TRUE(world);
     EXPECT_EQ(world->name, name);
     EXPECT_TRUE(Validate(*world).empty());
@@ -124,9 +126,42 @@ TEST(ArenaTest, BuiltinsAreValidNamedAndAboutTwoMetres) {
     EXPECT_GE(height, 1.5);
     EXPECT_LE(height, 3.0);
   }
-  EXPECT_FALSE(BuiltinArena("moon"));
-  EXPECT_EQ(BuiltinArena("cluttered")->circles.size(), 5u);
-  EXPECT_GE(BuiltinArena("cluttered")->segments.size(), 12u);  // walls and square obstacles
+  EXPECT_FALSE(BuiltinWorld("moon"));
+  EXPECT_EQ(BuiltinWorld("cluttered")->circles.size(), 5u);
+  EXPECT_GE(BuiltinWorld("cluttered")->segments.size(), 12u);  // walls and square obstacles
+}
+
+TEST(ArenaTest, RealSizeWorldsAreBuiltInValidAndOfRealSize) {
+  EXPECT_EQ(BuiltinWorldNames(), (std::vector<std::string>{"box", "rooms", "cluttered", "flat",
+                                                           "corridor", "office", "studio"}));
+  // Free floor area of at least this many square metres, and the longest side.
+  const std::map<std::string, std::pair<double, double>> expected = {{"flat", {20.0, 6.0}},
+                                                                     {"corridor", {12.0, 10.0}},
+                                                                     {"office", {30.0, 7.0}},
+                                                                     {"studio", {15.0, 5.0}}};
+  for (const auto& [name, size] : expected) {
+    SCOPED_TRACE(name);
+    const std::optional<World> world = BuiltinWorld(name);
+    ASSERT_TRUE(world) << "sim/worlds/" << name << ".json does not parse";
+    EXPECT_EQ(world->name, name);
+    EXPECT_TRUE(Validate(*world).empty());
+    EXPECT_FALSE(world->floors.empty());
+    // Mostly floor, not furniture: points of a 5 cm lattice with 10 cm of clearance cover at
+    // least half the stated area.
+    int free_points = 0;
+    for (double x = world->bounds[0] + 0.025; x < world->bounds[2]; x += 0.05) {
+      for (double y = world->bounds[1] + 0.025; y < world->bounds[3]; y += 0.05) {
+        free_points += ClearanceAt(*world, {x, y}) > 0.1;
+      }
+    }
+    EXPECT_GE(free_points * 0.05 * 0.05, size.first * 0.5);
+    const double longest =
+        std::max(world->bounds[2] - world->bounds[0], world->bounds[3] - world->bounds[1]);
+    EXPECT_NEAR(longest, size.second, 1e-9);
+    const double area =
+        (world->bounds[2] - world->bounds[0]) * (world->bounds[3] - world->bounds[1]);
+    EXPECT_GE(area, size.first);
+  }
 }
 
 /// Component label of every segment: segments that touch (directly or through others) form one
@@ -149,31 +184,41 @@ std::vector<size_t> SegmentComponents(const World& world) {
   return label;
 }
 
+/// Whether a gap between two obstacles is fine: the robot (17 cm across) passes it with room
+/// to spare, or cannot enter it at all; in the arenas every gap is passable.
+bool GapIsFine(const std::string& world, double gap) {
+  const bool arena = world == "box" || world == "rooms" || world == "cluttered";
+  return gap >= 0.25 || (!arena && gap < 0.16);
+}
+
 TEST(ArenaTest, ObstaclesLeaveRoomForTheRobot) {
-  // Any two distinct obstacles are at least 25 cm apart (the robot is 17 cm across).
-  constexpr double kGap = 0.25;
-  for (const std::string& name : BuiltinArenaNames()) {
+  // Any two distinct obstacles are at least 25 cm apart (the robot is 17 cm across); in the
+  // real-size worlds, closer obstacles leave no gap the robot could squeeze into.
+  for (const std::string& name : BuiltinWorldNames()) {
     SCOPED_TRACE(name);
-    const World world = *BuiltinArena(name);
+    const World world = *BuiltinWorld(name);
     const std::vector<size_t> component = SegmentComponents(world);
     for (size_t i = 0; i < world.segments.size(); ++i) {
       for (size_t j = i + 1; j < world.segments.size(); ++j) {
         if (component[i] != component[j]) {
-          EXPECT_GE(SegmentDistance(world.segments[i], world.segments[j]), kGap)
-              << "segments " << i << " and " << j;
+          const double gap = SegmentDistance(world.segments[i], world.segments[j]);
+          EXPECT_TRUE(GapIsFine(name, gap)) << "segments " << i << " and " << j << ": " << gap;
         }
       }
-      for (const Circle& c : world.circles) {
+      for (size_t k = 0; k < world.circles.size(); ++k) {
+        const Circle& c = world.circles[k];
         World one;
         one.segments = {world.segments[i]};
-        EXPECT_GE(ClearanceAt(one, c.center) - c.radius_m, kGap) << "segment " << i;
+        const double gap = ClearanceAt(one, c.center) - c.radius_m;
+        EXPECT_TRUE(GapIsFine(name, gap)) << "segment " << i << ", circle " << k << ": " << gap;
       }
     }
     for (size_t i = 0; i < world.circles.size(); ++i) {
       for (size_t j = i + 1; j < world.circles.size(); ++j) {
         const Circle& a = world.circles[i];
         const Circle& b = world.circles[j];
-        EXPECT_GE((a.center - b.center).norm() - a.radius_m - b.radius_m, kGap);
+        const double gap = (a.center - b.center).norm() - a.radius_m - b.radius_m;
+        EXPECT_TRUE(GapIsFine(name, gap)) << "circles " << i << " and " << j << ": " << gap;
       }
     }
   }
@@ -182,8 +227,8 @@ TEST(ArenaTest, ObstaclesLeaveRoomForTheRobot) {
 TEST(ArenaTest, CornersAreWhereWallsMeet) {
   // A room with a box: 4 + 4 corners. Rooms: 4 room corners, 4 junctions of inner walls;
   // door jambs are free ends, not corners.
-  EXPECT_EQ(Corners(*BuiltinArena("box")).size(), 8u);
-  const std::vector<Vec2> corners = Corners(*BuiltinArena("rooms"));
+  EXPECT_EQ(Corners(*BuiltinWorld("box")).size(), 8u);
+  const std::vector<Vec2> corners = Corners(*BuiltinWorld("rooms"));
   EXPECT_EQ(corners.size(), 8u);
   for (const Vec2& jamb : {Vec2(1.1, 0.3), Vec2(1.1, 0.8), Vec2(1.6, 1.1), Vec2(2.1, 1.1)}) {
     for (const Vec2& c : corners) EXPECT_GT((c - jamb).norm(), 0.01);
@@ -207,20 +252,74 @@ void ExpectSameWorld(const World& a, const World& b) {
     EXPECT_EQ(a.circles[i].center, b.circles[i].center);
     EXPECT_EQ(a.circles[i].radius_m, b.circles[i].radius_m);
   }
+  ASSERT_EQ(a.floors.size(), b.floors.size());
+  for (size_t i = 0; i < a.floors.size(); ++i) {
+    EXPECT_EQ(a.floors[i].area, b.floors[i].area);
+    EXPECT_EQ(a.floors[i].material, b.floors[i].material);
+  }
 }
 
-TEST(WorldJsonTest, RoundTripsEveryArenaExactly) {
-  for (const std::string& name : BuiltinArenaNames()) {
+TEST(WorldJsonTest, RoundTripsEveryBuiltinWorldExactly) {
+  for (const std::string& name : BuiltinWorldNames()) {
     SCOPED_TRACE(name);
-    const World world = *BuiltinArena(name);
+    const World world = *BuiltinWorld(name);
     const Result<World> parsed = ParseWorld(WorldToJson(world), "mem");
     ASSERT_TRUE(parsed.ok()) << parsed.errors().front().detail;
     ExpectSameWorld(world, parsed.value());
   }
 }
 
+TEST(WorldJsonTest, FloorsAreReadWithTheirMaterialsAndTheLastPatchWins) {
+  const Result<World> world = ParseWorld(R"({"name": "w", "bounds": [0, 0, 4, 3],
+      "floors": [{"area": [0, 0, 4, 3], "material": "carpet"},
+                 {"area": [1, 1, 2, 2], "material": "rug"},
+                 {"area": [3, 0, 4, 1], "material": "hard"}]})",
+                                         "mem");
+  ASSERT_TRUE(world.ok()) << world.Message();
+  ASSERT_EQ(world.value().floors.size(), 3u);
+  EXPECT_EQ(FloorAt(world.value(), {0.5, 0.5}), FloorMaterial::kCarpet);
+  EXPECT_EQ(FloorAt(world.value(), {1.5, 1.5}), FloorMaterial::kRug);
+  EXPECT_EQ(FloorAt(world.value(), {3.5, 0.5}), FloorMaterial::kHard);
+  EXPECT_EQ(FloorAt(world.value(), {5.0, 5.0}), FloorMaterial::kHard);  // outside every patch
+  EXPECT_EQ(FloorAt(World{}, {0.0, 0.0}), FloorMaterial::kHard);
+  // Carpets and rugs make the encoders read long and the treels slip and skid more.
+  EXPECT_EQ(TractionOf(FloorMaterial::kHard).scale_bias, 0.0);
+  EXPECT_GT(TractionOf(FloorMaterial::kCarpet).scale_bias, 0.0);
+  EXPECT_GT(TractionOf(FloorMaterial::kRug).slip_factor,
+            TractionOf(FloorMaterial::kCarpet).slip_factor);
+}
+
+TEST(WorldJsonTest, BadFloorsAreErrorsNamingThePointer) {
+  const Result<World> world = ParseWorld(R"({"name": "w", "bounds": [0, 0, 4, 3],
+      "floors": [{"area": [0, 0, 4, 3], "material": "grass"},
+                 {"area": [2, 0, 1, 1], "material": "rug"},
+                 {"material": "rug"},
+                 {"area": [0, 0, 1, 1], "material": "rug", "colour": "red"},
+                 "carpet"]})",
+                                         "mem");
+  ASSERT_FALSE(world.ok());
+  const std::string message = world.Message();
+  EXPECT_NE(message.find("/floors/0/material: unknown material \"grass\""), std::string::npos)
+      << message;
+  EXPECT_NE(message.find("/floors/2/area: missing"), std::string::npos) << message;
+  EXPECT_NE(message.find("/floors/3/colour: unknown key"), std::string::npos) << message;
+  EXPECT_NE(message.find("/floors/4: expected an object"), std::string::npos) << message;
+  const Result<World> reversed = ParseWorld(
+      R"({"name": "w", "bounds": [0, 0, 4, 3], "floors": [{"area": [2, 0, 1, 1], "material": "rug"}]})",
+      "mem");
+  ASSERT_FALSE(reversed.ok());
+  EXPECT_NE(reversed.Message().find("/floors/0/area: expected x0 < x1 and y0 < y1"),
+            std::string::npos)
+      << reversed.Message();
+  const Result<World> not_a_list =
+      ParseWorld(R"({"name": "w", "bounds": [0, 0, 4, 3], "floors": {}})", "mem");
+  ASSERT_FALSE(not_a_list.ok());
+  EXPECT_NE(not_a_list.Message().find("/floors: expected an array"), std::string::npos)
+      << not_a_list.Message();
+}
+
 TEST(WorldJsonTest, SavesAndLoadsAFile) {
-  World world = *BuiltinArena("cluttered");
+  World world = *BuiltinWorld("cluttered");
   world.name = "my \"arena\"";
   world.circles.push_back({{0.1 + 0.2, 1.0 / 3.0}, 0.0123456789012345});
   const std::string path = ::testing::TempDir() + "sim_test_world.json";
@@ -329,7 +428,7 @@ TEST(WorldJsonTest, ReportsEveryErrorAtOnce) {
 TEST(WorldJsonTest, FileErrorsNameTheLine) {
   // A saved arena has one obstacle per line: edit known lines and read the file back.
   const std::string path = ::testing::TempDir() + "sim_test_lines.world.json";
-  const std::string text = WorldToJson(*BuiltinArena("box"));
+  const std::string text = WorldToJson(*BuiltinWorld("box"));
   std::vector<std::string> lines;
   std::istringstream in(text);
   for (std::string line; std::getline(in, line);) lines.push_back(line);
@@ -396,7 +495,7 @@ TEST(ScenarioTest, ConfigValidation) {
 }
 
 TEST(ScenarioTest, EventRatesAndTimes) {
-  const ScenarioOutput out = RunScenario(*BuiltinArena("box"), TestRobot(), ShortRun(10.0, 3));
+  const ScenarioOutput out = RunScenario(*BuiltinWorld("box"), TestRobot(), ShortRun(10.0, 3));
   ASSERT_EQ(out.odometry.size(), 501u);  // 50 Hz, t = 0 .. 10 s inclusive
   ASSERT_EQ(out.scanner.size(), 601u);   // 60 Hz
   ASSERT_EQ(out.ground_truth.size(), 301u);
@@ -416,7 +515,7 @@ TEST(ScenarioTest, EventRatesAndTimes) {
 }
 
 TEST(ScenarioTest, SameSeedSameOutputOtherSeedOtherOutput) {
-  const World world = *BuiltinArena("cluttered");
+  const World world = *BuiltinWorld("cluttered");
   const ScenarioOutput a = RunScenario(world, TestRobot(), ShortRun(20.0, 7));
   const ScenarioOutput b = RunScenario(world, TestRobot(), ShortRun(20.0, 7));
   const ScenarioOutput c = RunScenario(world, TestRobot(), ShortRun(20.0, 8));
@@ -443,10 +542,10 @@ TEST(ScenarioTest, SameSeedSameOutputOtherSeedOtherOutput) {
 }
 
 TEST(ScenarioTest, RobotKeepsClearOfObstaclesAndMovesAround) {
-  for (const std::string& name : BuiltinArenaNames()) {
+  for (const std::string& name : BuiltinWorldNames()) {
     for (const uint64_t seed : {1u, 2u}) {
       SCOPED_TRACE(name + " seed " + std::to_string(seed));
-      const World world = *BuiltinArena(name);
+      const World world = *BuiltinWorld(name);
       const ScenarioConfig config = ShortRun(120.0, seed);
       const ScenarioOutput out = RunScenario(world, TestRobot(), config);
       double min_clearance = 1e9, path_length = 0.0;
@@ -488,7 +587,7 @@ TEST(ScenarioTest, NoiseFreeOdometryIntegratesToTheTruePath) {
   config.accel_slip_s = 0.0;
   config.gyro_bias_dps = 0.0;
   const RobotDescription robot = TestRobot();
-  const ScenarioOutput out = RunScenario(*BuiltinArena("rooms"), robot, config);
+  const ScenarioOutput out = RunScenario(*BuiltinWorld("rooms"), robot, config);
   const std::vector<TimedPose> odom = DeadReckoning(robot, out.odometry);
   const Pose2 start = out.true_path.front().pose;
   double worst = 0.0;
@@ -513,7 +612,7 @@ TEST(ScenarioTest, NoisyOdometryDriftsWithinSlipBounds) {
   double largest_error = 0.0;
   for (const uint64_t seed : {1u, 2u, 3u, 4u, 5u}) {
     SCOPED_TRACE(seed);
-    const ScenarioOutput out = RunScenario(*BuiltinArena("box"), robot, ShortRun(20.0, seed));
+    const ScenarioOutput out = RunScenario(*BuiltinWorld("box"), robot, ShortRun(20.0, seed));
     const std::vector<TimedPose> odom = DeadReckoning(robot, out.odometry);
     const Pose2 start = out.true_path.front().pose;
     double travelled = 0.0;
@@ -532,6 +631,148 @@ TEST(ScenarioTest, NoisyOdometryDriftsWithinSlipBounds) {
   EXPECT_GT(largest_error, 0.005);  // the noise is really there
 }
 
+/// Final and largest position error of dead reckoning against the true path (from the true
+/// start), sampled every second.
+std::pair<double, double> DeadReckoningError(const RobotDescription& robot,
+                                             const ScenarioOutput& out) {
+  const std::vector<TimedPose> odom = DeadReckoning(robot, out.odometry);
+  const Pose2 start = out.true_path.front().pose;
+  double last = 0.0, largest = 0.0;
+  for (const TimedPose& truth : out.true_path) {
+    if (std::fmod(truth.t, 1.0) > 1e-6) continue;
+    last = (Compose(start, At(odom, truth.t)).translation() - truth.pose.translation()).norm();
+    largest = std::max(largest, last);
+  }
+  return {last, largest};
+}
+
+TEST(ScenarioTest, TrackedOdometryDriftsDecimetresToMetresWhereGentleDriftsCentimetres) {
+  // 300 s in the flat, four seeds: the tracked profile's dead reckoning ends tens of centimetres
+  // to metres off (a tracked robot with a MEMS gyro), the gentle one centimetres.
+  const RobotDescription robot = TestRobot();
+  const World flat = *BuiltinWorld("flat");
+  double gentle_sum = 0.0, tracked_sum = 0.0, tracked_min = 1e9;
+  for (const uint64_t seed : {1u, 2u, 3u, 4u}) {
+    SCOPED_TRACE(seed);
+    const ScenarioConfig base = ShortRun(300.0, seed);
+    const auto gentle = DeadReckoningError(
+        robot, RunScenario(flat, robot, WithOdometryProfile(base, OdometryProfile::kGentle)));
+    const auto tracked = DeadReckoningError(
+        robot, RunScenario(flat, robot, WithOdometryProfile(base, OdometryProfile::kTracked)));
+    gentle_sum += gentle.second;
+    tracked_sum += tracked.second;
+    tracked_min = std::min(tracked_min, tracked.second);
+  }
+  SCOPED_TRACE("largest error, mean of 4 runs: gentle " + std::to_string(gentle_sum / 4.0) +
+               " m, tracked " + std::to_string(tracked_sum / 4.0) + " m (least " +
+               std::to_string(tracked_min) + " m)");
+  EXPECT_GE(tracked_sum / 4.0, 0.5);
+  EXPECT_LE(tracked_sum / 4.0, 4.0);
+  EXPECT_GE(tracked_min, 0.2);
+  EXPECT_GE(tracked_sum, 2.0 * gentle_sum);
+}
+
+TEST(ScenarioTest, ProfilesSetOnlyTheOdometryErrorsAndGentleIsTheDefault) {
+  ScenarioConfig config;
+  config.seed = 77;
+  config.speed_m_s = 0.2;
+  config.sensor_noise_scale = 2.0;
+  const ScenarioConfig gentle = WithOdometryProfile(config, OdometryProfile::kGentle);
+  const ScenarioConfig tracked = WithOdometryProfile(config, OdometryProfile::kTracked);
+  for (const ScenarioConfig& c : {gentle, tracked}) {
+    EXPECT_EQ(c.seed, 77u);
+    EXPECT_EQ(c.speed_m_s, 0.2);
+    EXPECT_EQ(c.sensor_noise_scale, 2.0);
+    EXPECT_TRUE(c.Validate().empty());
+  }
+  const ScenarioConfig defaults;
+  EXPECT_EQ(gentle.gyro_bias_dps, defaults.gyro_bias_dps);
+  EXPECT_EQ(gentle.skid_s, 0.0);
+  EXPECT_EQ(gentle.odometry_profile, "gentle");
+  EXPECT_GT(tracked.skid_s, 0.0);
+  EXPECT_GT(tracked.gyro_bias_dps, defaults.gyro_bias_dps);
+  EXPECT_EQ(tracked.odometry_profile, "tracked");
+  EXPECT_EQ(OdometryProfileFromName("tracked"), OdometryProfile::kTracked);
+  EXPECT_FALSE(OdometryProfileFromName("bumpy").has_value());
+  // The same seed and profile give the same readings.
+  const ScenarioOutput a =
+      RunScenario(*BuiltinWorld("studio"), TestRobot(),
+                  WithOdometryProfile(ShortRun(20.0, 5), OdometryProfile::kTracked));
+  const ScenarioOutput b =
+      RunScenario(*BuiltinWorld("studio"), TestRobot(),
+                  WithOdometryProfile(ShortRun(20.0, 5), OdometryProfile::kTracked));
+  ASSERT_EQ(a.odometry.size(), b.odometry.size());
+  for (size_t i = 0; i < a.odometry.size(); ++i) {
+    EXPECT_EQ(a.odometry[i].left_ticks, b.odometry[i].left_ticks);
+    EXPECT_EQ(a.odometry[i].gyro_raw, b.odometry[i].gyro_raw);
+  }
+  EXPECT_EQ(a.true_path.back().pose.x, b.true_path.back().pose.x);
+}
+
+TEST(ScenarioTest, ACarpetMakesTheEncodersReadLong) {
+  // Noise-free but for the floor: on carpet the encoders report 2.5 % more than the true path.
+  ScenarioConfig config = ShortRun(60.0, 6);
+  config.translation_slip_ratio = 0.0;
+  config.rotation_slip_ratio = 0.0;
+  config.accel_slip_s = 0.0;
+  World hard = *BuiltinWorld("box");
+  World carpet = hard;
+  carpet.floors.push_back({hard.bounds, FloorMaterial::kCarpet});
+  const RobotDescription robot = TestRobot();
+  for (const auto& [world, expected] :
+       {std::pair{hard, 1.0},
+        std::pair{carpet, 1.0 + TractionOf(FloorMaterial::kCarpet).scale_bias}}) {
+    const ScenarioOutput out = RunScenario(world, robot, config);
+    double truth = 0.0;
+    for (size_t i = 1; i < out.true_path.size(); ++i) {
+      truth +=
+          (out.true_path[i].pose.translation() - out.true_path[i - 1].pose.translation()).norm();
+    }
+    const OdometryReading& first = out.odometry.front();
+    const OdometryReading& last = out.odometry.back();
+    // The robot drives forwards only, so the treels' mean travel is the path length.
+    const double ticks =
+        (static_cast<double>(static_cast<int32_t>(last.left_ticks - first.left_ticks)) +
+         static_cast<double>(static_cast<int32_t>(last.right_ticks - first.right_ticks))) /
+        2.0;
+    const double encoders = ticks / robot.base.ticks_per_m;
+    EXPECT_NEAR(encoders / truth, expected, 0.004) << "floors: " << world.floors.size();
+  }
+}
+
+TEST(DatasetTest, SetsAreDisjointAndHoldTheirWorlds) {
+  std::map<std::pair<std::string, uint64_t>, std::string> owner;
+  for (const DatasetKind kind : {DatasetKind::kArenas, DatasetKind::kTraining,
+                                 DatasetKind::kValidation, DatasetKind::kReference}) {
+    const DatasetPlan plan = PlanDataset(kind);
+    std::set<std::string> worlds;
+    for (const DatasetRun& run : plan.runs) {
+      EXPECT_TRUE(BuiltinWorld(run.world).has_value()) << run.world;
+      const auto [it, fresh] =
+          owner.emplace(std::pair{run.world, run.seed}, std::string(DatasetKindName(kind)));
+      EXPECT_TRUE(fresh) << run.world << " seed " << run.seed << " is in " << it->second << " and "
+                         << DatasetKindName(kind);
+      worlds.insert(run.world);
+    }
+    EXPECT_EQ(plan.duration_s, 300.0);
+    EXPECT_EQ(DatasetKindFromName(DatasetKindName(kind)), kind);
+    if (kind == DatasetKind::kArenas) {
+      EXPECT_EQ(plan.odometry, OdometryProfile::kGentle);
+      EXPECT_EQ(plan.runs.size(), 15u);
+    } else {
+      EXPECT_EQ(plan.odometry, OdometryProfile::kTracked);
+      EXPECT_TRUE(worlds.count("flat") && worlds.count("corridor") && worlds.count("office"));
+    }
+    // The studio is never trained on.
+    EXPECT_EQ(worlds.count("studio"),
+              kind == DatasetKind::kValidation || kind == DatasetKind::kReference ? 1u : 0u);
+  }
+  // More runs per world extend the same seed series.
+  const DatasetPlan more = PlanDataset(DatasetKind::kTraining, 3);
+  EXPECT_EQ(more.runs.size(), 18u);
+  EXPECT_EQ(more.runs[2].seed, more.runs[0].seed + 2);
+}
+
 TEST(ScenarioTest, NoiseFreeReadingsMatchTheGeometry) {
   // Oracle: recast every beam from the true pose and check the raw value against the table.
   ScenarioConfig config = ShortRun(30.0, 5);
@@ -539,7 +780,7 @@ TEST(ScenarioTest, NoiseFreeReadingsMatchTheGeometry) {
   config.corner_hole_probability = 1.0;  // every beam near a corner reads as a hole
   config.floor_noise_raw = 0.0;
   const RobotDescription robot = TestRobot();
-  const World world = *BuiltinArena("cluttered");
+  const World world = *BuiltinWorld("cluttered");
   const std::vector<Vec2> corners = Corners(world);
   const ScenarioOutput out = RunScenario(world, robot, config);
   int in_range = 0, holes = 0, floors = 0, near = 0;
@@ -588,7 +829,7 @@ TEST(ScenarioTest, SensorNoiseFollowsTheRobotsSigma) {
   ScenarioConfig config = ShortRun(60.0, 6);
   config.corner_hole_probability = 0.0;
   const RobotDescription robot = TestRobot();
-  const World world = *BuiltinArena("box");
+  const World world = *BuiltinWorld("box");
   const ScenarioOutput out = RunScenario(world, robot, config);
   double sum_z2 = 0.0;
   int n = 0;
@@ -616,7 +857,7 @@ TEST(ScenarioTest, SensorNoiseFollowsTheRobotsSigma) {
 }
 
 TEST(ScenarioTest, GroundTruthIsTheTruePathWithTrackerNoise) {
-  const ScenarioOutput out = RunScenario(*BuiltinArena("box"), TestRobot(), ShortRun(10.0, 9));
+  const ScenarioOutput out = RunScenario(*BuiltinWorld("box"), TestRobot(), ShortRun(10.0, 9));
   double sum2 = 0.0;
   int n = 0;
   for (const TimedPose& g : out.ground_truth) {
@@ -635,7 +876,7 @@ TEST(ScenarioTest, GroundTruthIsTheTruePathWithTrackerNoise) {
 
 TEST(BuildScansTest, HalfTurnsOfFortySamplesWithOdometryPoses) {
   const RobotDescription robot = TestRobot();
-  const ScenarioOutput out = RunScenario(*BuiltinArena("rooms"), robot, ShortRun(20.0, 11));
+  const ScenarioOutput out = RunScenario(*BuiltinWorld("rooms"), robot, ShortRun(20.0, 11));
   const std::vector<Scan> scans = BuildScans(robot, out.odometry, out.scanner);
   // 1201 samples at 40 per half turn: 30 complete scans, the 31st has a single sample.
   ASSERT_EQ(scans.size(), 30u);

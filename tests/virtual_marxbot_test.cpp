@@ -78,7 +78,7 @@ class ExperimentTest : public ::testing::Test {
 
   std::filesystem::path dir_;
   RobotDescription robot_ = testing::ShippedRobot();
-  sim::World world_ = *sim::BuiltinArena("cluttered");
+  sim::World world_ = *sim::BuiltinWorld("cluttered");
   sim::ScenarioConfig config_;
 };
 

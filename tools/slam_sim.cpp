@@ -1,6 +1,7 @@
 // slam-sim: writes recorded experiments of the virtual marXbot (docs/design.md section 6).
 //   slam-sim --world NAME|FILE --duration S --seed N --out DIR    one experiment
-//   slam-sim dataset --out DIR                                     the reference set
+//   slam-sim dataset [--set NAME] --out DIR                        a set of experiments
+//   slam-sim dataset --set all --out DIR                           training, validation, reference
 // The same arguments always write the same files.
 
 #include <tbb/parallel_for.h>
@@ -18,17 +19,25 @@
 
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/robot_json.hpp"
+#include "sim/dataset.hpp"
 #include "sim/experiment_writer.hpp"
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
 
 namespace {
 
+std::string JoinNames(const std::vector<std::string>& names) {
+  std::string out;
+  for (const std::string& name : names) out += (out.empty() ? "" : ", ") + name;
+  return out;
+}
+
 struct Job {
   std::string world_name;  // built-in name or the file's stem
   slam::sim::World world;
   uint64_t seed = 1;
   std::string dir;
+  slam::sim::ScenarioConfig config;
 };
 
 /// The world of --world, and the name it goes by in meta.json.
@@ -40,7 +49,7 @@ bool ResolveWorld(const std::string& spec, slam::sim::World& world, std::string&
     return false;
   }
   world = loaded.value();
-  name = slam::sim::BuiltinArena(spec) ? spec : std::filesystem::path(spec).stem().string();
+  name = slam::sim::BuiltinWorld(spec) ? spec : std::filesystem::path(spec).stem().string();
   return true;
 }
 
@@ -55,9 +64,10 @@ int main(int argc, char** argv) {
   double duration_s = 300.0;
   uint64_t seed = 1;
   double scans_per_s = 1.5;
+  std::string odometry = "tracked";
   app.add_option(
       "--world", world_spec,
-      "built-in arena (" + std::string("box, rooms, cluttered") + ") or a world.json file");
+      "built-in world (" + JoinNames(slam::sim::BuiltinWorldNames()) + ") or a world.json file");
   app.add_option("--duration", duration_s, "simulated seconds")
       ->capture_default_str()
       ->check(CLI::Range(0.1, 86400.0));
@@ -67,19 +77,28 @@ int main(int argc, char** argv) {
   app.add_option("--scans-per-s", scans_per_s, "half turns of the scanner per second")
       ->capture_default_str()
       ->check(CLI::Range(0.1, 5.0));
+  app.add_option("--odometry", odometry,
+                 "how the odometry errs: tracked (a tracked robot with a MEMS gyro: dead "
+                 "reckoning drifts decimetres to metres in 300 s) or gentle (the original "
+                 "reference set's small zero-mean slip)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"tracked", "gentle"}));
 
   CLI::App* dataset = app.add_subcommand(
       "dataset",
-      "the reference set: every built-in arena x RUNS seeds (1..RUNS) x DURATION s, "
-      "in DIR/<arena>-<seed>/");
-  std::string dataset_out;
-  int runs = 5;
+      "a set of experiments, DIR/<world>-<seed>/ each, with DIR/index.json: training (tuning "
+      "only), validation (choosing between designs), reference (reporting only; the default), "
+      "arenas (the original reference set: 3 arenas x 5 seeds, gentle odometry), or all (the "
+      "first three in DIR/training, DIR/validation, DIR/reference)");
+  std::string dataset_out, set_name = "reference";
+  int runs = 0;
   dataset->add_option("--out", dataset_out, "output directory")->required();
-  dataset->add_option("--runs", runs, "runs (seeds) per arena")
+  dataset->add_option("--set", set_name, "which set")
       ->capture_default_str()
+      ->check(CLI::IsMember({"training", "validation", "reference", "arenas", "all"}));
+  dataset->add_option("--runs", runs, "runs (seeds) per world instead of the set's own")
       ->check(CLI::Range(1, 1000));
-  dataset->add_option("--duration", duration_s, "simulated seconds per run")
-      ->capture_default_str()
+  dataset->add_option("--duration", duration_s, "simulated seconds per run instead of 300")
       ->check(CLI::Range(0.1, 86400.0));
   CLI11_PARSE(app, argc, argv);
 
@@ -93,14 +112,35 @@ int main(int argc, char** argv) {
   base.scans_per_s = scans_per_s;
 
   std::vector<Job> jobs;
+  // Each set's directory and the jobs of its index.json.
+  std::vector<std::pair<std::string, std::vector<size_t>>> indexes;
   if (dataset->parsed()) {
-    out_dir = dataset_out;
-    for (const std::string& name : slam::sim::BuiltinArenaNames()) {
-      for (int r = 1; r <= runs; ++r) {
-        Job job{name, *slam::sim::BuiltinArena(name), static_cast<uint64_t>(r), ""};
-        job.dir = (std::filesystem::path(out_dir) / (name + "-" + std::to_string(r))).string();
+    std::vector<std::pair<slam::sim::DatasetKind, std::string>> sets;
+    if (set_name == "all") {
+      for (const auto kind :
+           {slam::sim::DatasetKind::kTraining, slam::sim::DatasetKind::kValidation,
+            slam::sim::DatasetKind::kReference}) {
+        sets.emplace_back(kind, (std::filesystem::path(dataset_out) /
+                                 std::string(slam::sim::DatasetKindName(kind)))
+                                    .string());
+      }
+    } else {
+      sets.emplace_back(*slam::sim::DatasetKindFromName(set_name), dataset_out);
+    }
+    for (const auto& [kind, dir] : sets) {
+      const slam::sim::DatasetPlan plan = slam::sim::PlanDataset(kind, runs);
+      std::vector<size_t> members;
+      for (const slam::sim::DatasetRun& run : plan.runs) {
+        Job job{run.world, *slam::sim::BuiltinWorld(run.world), run.seed, "", {}};
+        job.dir =
+            (std::filesystem::path(dir) / (run.world + "-" + std::to_string(run.seed))).string();
+        job.config = slam::sim::WithOdometryProfile(base, plan.odometry);
+        if (dataset->count("--duration") == 0) job.config.duration_s = plan.duration_s;
+        job.config.seed = run.seed;
+        members.push_back(jobs.size());
         jobs.push_back(std::move(job));
       }
+      indexes.emplace_back(dir, std::move(members));
     }
   } else {
     if (world_spec.empty() || out_dir.empty()) {
@@ -112,6 +152,9 @@ int main(int argc, char** argv) {
     if (!ResolveWorld(world_spec, job.world, job.world_name)) return 1;
     job.seed = seed;
     job.dir = out_dir;
+    job.config =
+        slam::sim::WithOdometryProfile(base, *slam::sim::OdometryProfileFromName(odometry));
+    job.config.seed = seed;
     jobs.push_back(std::move(job));
   }
 
@@ -122,10 +165,8 @@ int main(int argc, char** argv) {
   std::vector<slam::sim::ExperimentSummary> summaries(jobs.size());
   tbb::parallel_for(size_t{0}, jobs.size(), [&](size_t i) {
     const Job& job = jobs[i];
-    slam::sim::ScenarioConfig config = base;
-    config.seed = job.seed;
     const slam::Result<void> written = slam::sim::WriteSimulatedExperiment(
-        job.dir, job.world, job.world_name, robot.value(), config, &summaries[i]);
+        job.dir, job.world, job.world_name, robot.value(), job.config, &summaries[i]);
     const std::lock_guard lock(io_mutex);
     if (!written.ok()) {
       failed = true;
@@ -134,30 +175,41 @@ int main(int argc, char** argv) {
     }
     const double elapsed =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    std::fprintf(stderr, "[%zu/%zu] %s: %s seed %llu, %.0f s, %llu frames (%.1f s elapsed)\n",
+    std::fprintf(stderr,
+                 "[%zu/%zu] %s: %s seed %llu, %.0f s, %s odometry, %llu frames (%.1f s "
+                 "elapsed)\n",
                  ++done, jobs.size(), job.dir.c_str(), job.world_name.c_str(),
-                 static_cast<unsigned long long>(job.seed), config.duration_s,
+                 static_cast<unsigned long long>(job.seed), job.config.duration_s,
+                 job.config.odometry_profile.c_str(),
                  static_cast<unsigned long long>(summaries[i].frames), elapsed);
   });
   if (failed) return 1;
 
-  nlohmann::json index = nlohmann::json::array();
-  for (size_t i = 0; i < jobs.size(); ++i) {
-    index.push_back({{"dir", jobs[i].dir},
-                     {"world", jobs[i].world_name},
-                     {"seed", jobs[i].seed},
-                     {"duration_s", duration_s},
-                     {"frames", summaries[i].frames},
-                     {"events", summaries[i].events}});
+  const auto entry = [&](size_t i) {
+    return nlohmann::json{{"dir", jobs[i].dir},
+                          {"world", jobs[i].world_name},
+                          {"seed", jobs[i].seed},
+                          {"duration_s", jobs[i].config.duration_s},
+                          {"odometry", jobs[i].config.odometry_profile},
+                          {"frames", summaries[i].frames},
+                          {"events", summaries[i].events}};
+  };
+  if (!dataset->parsed()) {
+    std::cout << entry(0).dump(2) << "\n";
+    return 0;
   }
-  if (dataset->parsed()) {
+  nlohmann::json all = nlohmann::json::array();
+  for (const auto& [dir, members] : indexes) {
+    nlohmann::json index = nlohmann::json::array();
+    for (const size_t i : members) index.push_back(entry(i));
     const slam::Result<void> written = slam::io::WriteFileAtomic(
-        (std::filesystem::path(out_dir) / "index.json").string(), index.dump(2) + "\n");
+        (std::filesystem::path(dir) / "index.json").string(), index.dump(2) + "\n");
     if (!written.ok()) {
       std::cerr << "slam-sim: " << written.Message() << "\n";
       return 1;
     }
+    for (auto& item : index) all.push_back(std::move(item));
   }
-  std::cout << (dataset->parsed() ? index.dump(2) : index[0].dump(2)) << "\n";
+  std::cout << all.dump(2) << "\n";
   return 0;
 }
