@@ -25,6 +25,17 @@ namespace {
 constexpr uint64_t kStreamMotion = 0;
 constexpr uint64_t kStreamResampling = 1;
 constexpr uint64_t kStreamCandidate = 2;  // + candidate index
+
+// Phase B's search spread, widened by drift left uncorrected, stays within these: beyond, the
+// candidates a budget affords are too sparse to find the pose, and a wrong match costs more
+// than none.
+constexpr double kMaxSearchPosM = 0.25;
+constexpr double kMaxSearchAngleDeg = 20.0;
+// A scan matched on at least this many readings corrects the drift (a few readings along one
+// wall do not).
+constexpr size_t kInformativeMatches = 12;
+
+constexpr double Square(double x) { return x * x; }
 // The largest MatchWindow a particle gets (4 bytes a cell: 16 MiB), whatever its rays: more
 // means rays far longer than the scanner's, or very fine cells, cast through the map instead.
 // Below it a window holds at most 4 x 16 bytes per ray its particle casts.
@@ -226,6 +237,8 @@ Slam::Slam(const RobotDescription& robot, const SlamParams& params, const SlamCo
 }
 
 void Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
+  unmatched_var_pos_ = 0.0;
+  unmatched_var_angle_ = 0.0;
   for (Particle& p : particles_) {
     p.map = map;
     p.map.RefreshSummaries();
@@ -390,7 +403,14 @@ void Slam::Resample(size_t wanted, uint64_t step, uint64_t stream) {
 struct Slam::Prediction {
   std::vector<ScanPath> paths;   // per particle
   std::vector<Pose2> predicted;  // per particle: its end pose drawn from the motion model
+  double trans = 0.0;            // odometry's translation over the scan (m)
   double sigma_trans = 0.0, sigma_rot1 = 0.0, sigma_rot2 = 0.0;  // of the motion model
+  // Spread of phase B's search: the motion model's over this scan, plus the drift left
+  // uncorrected since the last informative match, within the parameters' bounds.
+  double search_pos = 0.0, search_angle = 0.0;
+  // Deviation of the motion prior in phase B's score: the same, but no less than a third of the
+  // least search spread (the candidates explore about three prior deviations around it).
+  double prior_pos = 0.0, prior_angle = 0.0;
 };
 
 struct Slam::MatchResult {
@@ -421,6 +441,17 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
     report.rays.matching = match.matching_rays;
     report.interrupted = match.interrupted;
     report.matching_measurements = static_cast<int>(matching.size());
+  }
+
+  // What the map did not correct accumulates until a scan matched on enough readings pins the
+  // pose down again: the heading's drift moves the position too.
+  if (match.matched && matching.size() >= kInformativeMatches) {
+    unmatched_var_pos_ = 0.0;
+    unmatched_var_angle_ = 0.0;
+  } else if (plan.refine) {
+    unmatched_var_pos_ +=
+        Square(prediction.sigma_trans) + Square(prediction.trans) * unmatched_var_angle_;
+    unmatched_var_angle_ += Square(prediction.sigma_rot1) + Square(prediction.sigma_rot2);
   }
 
   const size_t updates = UpdateParticles(scan, usable, prediction, match, plan);
@@ -464,6 +495,15 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   out.sigma_trans = params_.dist_error_ratio * std::abs(motion.trans) + params_.dist_error_const_m;
   out.sigma_rot1 = params_.angle_error_ratio * std::abs(motion.rot1) + angle_const;
   out.sigma_rot2 = params_.angle_error_ratio * std::abs(motion.rot2) + angle_const;
+  out.trans = std::abs(motion.trans);
+  const double drift_pos = std::sqrt(Square(out.sigma_trans) + unmatched_var_pos_);
+  const double drift_angle =
+      std::sqrt(Square(out.sigma_rot1) + Square(out.sigma_rot2) + unmatched_var_angle_);
+  const double min_angle = DegToRad(params_.min_angle_uncertainty_deg);
+  out.search_pos = std::clamp(drift_pos, params_.min_pos_uncertainty_m, kMaxSearchPosM);
+  out.search_angle = std::clamp(drift_angle, min_angle, DegToRad(kMaxSearchAngleDeg));
+  out.prior_pos = std::max(drift_pos, params_.min_pos_uncertainty_m / 3.0);
+  out.prior_angle = std::max(drift_angle, min_angle / 3.0);
   out.predicted.resize(n_particles);
   out.paths.reserve(n_particles);
   for (size_t p = 0; p < n_particles; ++p) {
@@ -496,9 +536,8 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
   const size_t n_candidates = static_cast<size_t>(std::max(1, plan.candidates));
   out.candidates = n_candidates;
 
-  const double sigma_pos = std::max(params_.min_pos_uncertainty_m, prediction.sigma_trans);
-  const double sigma_angle = std::max(DegToRad(params_.min_angle_uncertainty_deg),
-                                      std::hypot(prediction.sigma_rot1, prediction.sigma_rot2));
+  const double sigma_pos = prediction.search_pos;
+  const double sigma_angle = prediction.search_angle;
   // A particle whose candidates cast enough rays gets a MatchWindow over the cells they can
   // reach: every sample position under the predicted correction, moved by up to 4 sigma_pos,
   // plus the longest reach of a matching ray (candidates drawn farther cast through the map).
@@ -521,46 +560,87 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
       windows[p].emplace(particles_[p].map, occupied_above, lo, hi);
     }
   });
+  // The search: the first half of each particle's candidates are drawn around its prediction
+  // (candidate 0 is the prediction itself), wide enough to re-acquire a pose that drifted; the
+  // rest in up to kClimbRounds rounds around the best so far, the spread halving each round, to
+  // settle close to the likelihood's peak. Rounds run one after the other; the candidates of a
+  // round run in parallel, each from its own random stream, so serial equals parallel.
+  constexpr size_t kClimbRounds = 4;
+  const size_t explore = std::max<size_t>(1, (n_candidates + 1) / 2);
+  const size_t round_size =
+      std::max<size_t>(1, (n_candidates - explore + kClimbRounds - 1) / kClimbRounds);
   std::vector<Pose2> candidate_pose(n_particles * n_candidates);
   std::vector<double> candidate_ll(n_particles * n_candidates);
+  std::vector<size_t> best(n_particles);  // per particle: index of its best candidate so far
+  for (size_t p = 0; p < n_particles; ++p) best[p] = p * n_candidates;
   std::atomic<size_t> skipped{0};
-  ForEach(config_.parallel, candidate_pose.size(), [&](size_t index) {
-    const size_t p = index / n_candidates, c = index % n_candidates;
-    if (c > 0 && interrupt_ != nullptr && interrupt_->load(std::memory_order_relaxed)) {
-      candidate_pose[index] = predicted[p];
-      candidate_ll[index] = -std::numeric_limits<double>::infinity();  // never chosen
-      skipped.fetch_add(1, std::memory_order_relaxed);
-      return;
+  // Each candidate's score is its log-likelihood plus its log-prior under the motion model
+  // around the odometry's end pose: where the readings tell the candidates little apart, the
+  // odometry wins rather than the luckiest candidate (the maximum of many noisy likelihoods).
+  const double prior_pos = prediction.prior_pos, prior_angle = prediction.prior_angle;
+  const auto score = [&](size_t p, size_t i) {
+    const Pose2 nominal = paths[p].nominal_end();
+    const Pose2& c = candidate_pose[i];
+    return candidate_ll[i] -
+           0.5 * (Square(c.x - nominal.x) + Square(c.y - nominal.y)) / Square(prior_pos) -
+           0.5 * Square(NormalizeAngle(c.theta - nominal.theta)) / Square(prior_angle);
+  };
+  size_t first = 0;
+  for (int round = 0; first < n_candidates; ++round) {
+    const size_t last = std::min(n_candidates, round == 0 ? explore : first + round_size);
+    const size_t width = last - first;
+    const double scale = std::ldexp(1.0, -round);  // 1, 1/2, 1/4, ...
+    std::vector<Pose2> centre(n_particles);
+    for (size_t p = 0; p < n_particles; ++p) {
+      centre[p] = round == 0 ? predicted[p] : candidate_pose[best[p]];
     }
-    Pose2 end = predicted[p];
-    if (c > 0) {
-      Rng rng = Rng::ForStream(config_.seed, step, p, kStreamCandidate + c);
-      end.x += rng.Gaussian(sigma_pos);
-      end.y += rng.Gaussian(sigma_pos);
-      end.theta = NormalizeAngle(end.theta + rng.Gaussian(sigma_angle));
+    ForEach(config_.parallel, n_particles * width, [&](size_t k) {
+      const size_t p = k / width, c = first + k % width;
+      const size_t index = p * n_candidates + c;
+      if (c > 0 && interrupt_ != nullptr && interrupt_->load(std::memory_order_relaxed)) {
+        candidate_pose[index] = predicted[p];
+        candidate_ll[index] = -std::numeric_limits<double>::infinity();  // never chosen
+        skipped.fetch_add(1, std::memory_order_relaxed);
+        return;
+      }
+      Pose2 end = centre[p];
+      if (c > 0) {
+        Rng rng = Rng::ForStream(config_.seed, step, p, kStreamCandidate + c);
+        end.x += rng.Gaussian(scale * sigma_pos);
+        end.y += rng.Gaussian(scale * sigma_pos);
+        end.theta = NormalizeAngle(end.theta + rng.Gaussian(scale * sigma_angle));
+      }
+      const MatchWindow* window = windows[p] ? &*windows[p] : nullptr;
+      candidate_pose[index] = end;
+      candidate_ll[index] =
+          LogLikelihood(particles_[p].map, window, paths[p], paths[p].CorrectionTo(end), matching);
+    });
+    for (size_t p = 0; p < n_particles; ++p) {
+      for (size_t c = first; c < last; ++c) {
+        const size_t i = p * n_candidates + c;
+        if (score(p, i) > score(p, best[p])) best[p] = i;
+      }
     }
-    const MatchWindow* window = windows[p] ? &*windows[p] : nullptr;
-    const double ll =
-        LogLikelihood(particles_[p].map, window, paths[p], paths[p].CorrectionTo(end), matching);
-    candidate_pose[index] = end;
-    candidate_ll[index] = ll;
-  });
+    first = last;
+  }
   double ambiguity = 0.0;
   for (size_t p = 0; p < n_particles; ++p) {
-    size_t best = p * n_candidates;
-    for (size_t c = 1; c < n_candidates; ++c) {
-      if (candidate_ll[p * n_candidates + c] > candidate_ll[best]) best = p * n_candidates + c;
-    }
-    out.chosen[p] = candidate_pose[best];
-    out.chosen_ll[p] = candidate_ll[best];
-    if (n_candidates > 1) {
-      // The candidates' posterior (weights exp(ll - best ll)) around the winner.
+    out.chosen[p] = candidate_pose[best[p]];
+    out.chosen_ll[p] = candidate_ll[best[p]];
+    if (explore > 1) {
+      // The first round's posterior (weights exp(ll - its best ll)) around its winner: how
+      // little the measurements told the candidates drawn from the proposal apart.
+      size_t winner = p * n_candidates;
+      for (size_t c = 1; c < explore; ++c) {
+        if (candidate_ll[p * n_candidates + c] > candidate_ll[winner])
+          winner = p * n_candidates + c;
+      }
       double weight_sum = 0.0, spread_sq = 0.0;
-      for (size_t c = 0; c < n_candidates; ++c) {
+      for (size_t c = 0; c < explore; ++c) {
         const size_t i = p * n_candidates + c;
-        const double w = std::exp(candidate_ll[i] - candidate_ll[best]);
-        const double dx = candidate_pose[i].x - out.chosen[p].x,
-                     dy = candidate_pose[i].y - out.chosen[p].y;
+        const double w = std::exp(candidate_ll[i] - candidate_ll[winner]);
+        const double dx = candidate_pose[i].x - candidate_pose[winner].x,
+                     dy = candidate_pose[i].y - candidate_pose[winner].y;
         weight_sum += w;
         spread_sq += w * (dx * dx + dy * dy);
       }

@@ -182,6 +182,10 @@ class Slam {
   std::vector<Particle> particles_;
   int64_t scans_processed_ = 0;
   int64_t scans_since_resampling_ = 0;
+  // Variance of the drift the map has not corrected since the last informative match (position
+  // m^2, heading rad^2): the search spreads that much wider when readings return.
+  double unmatched_var_pos_ = 0.0;
+  double unmatched_var_angle_ = 0.0;
   const std::atomic<bool>* interrupt_ = nullptr;
 };
 

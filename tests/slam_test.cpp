@@ -107,11 +107,14 @@ TEST(Matching, RefinementRecoversAWrongPoseWithinOneCellAndHalfADegree) {
   const RobotDescription robot = testing::ShippedRobot();
   const sim::World room = TestRoom();
   SlamParams params = NoMotionNoise();
-  params.min_pos_uncertainty_m = 0.03;
-  params.min_angle_uncertainty_deg = 3.0;
+  // A search spread of 10 cm and 9 degrees: the motion prior's deviations are a third of it
+  // (3.3 cm, 3 degrees).
+  params.min_pos_uncertainty_m = 0.10;
+  params.min_angle_uncertainty_deg = 9.0;
   const Pose2 truth{0.02, -0.03, DegToRad(10.0)};
-  // The odometry claims a motion that did not happen: from the truth to a wrong pose.
-  const Pose2 wrong = Compose(truth, {0.03, -0.02, DegToRad(3.0)});
+  // The odometry claims a motion that did not happen: from the truth to a wrong pose, within
+  // one prior deviation.
+  const Pose2 wrong = Compose(truth, {0.025, -0.02, DegToRad(2.0)});
   ScanPlan plan;
   plan.candidates = 3000;
   for (const uint64_t seed : {1u, 2u, 3u}) {
@@ -135,6 +138,68 @@ TEST(Matching, RefinementRecoversAWrongPoseWithinOneCellAndHalfADegree) {
       blind.ProcessScan(ScanAt(robot, room, truth, 0, truth, wrong), plan);
   EXPECT_EQ(blind_report.rays.matching, 0);
   EXPECT_NEAR(blind.Best().pose.x, wrong.x, 1e-12);
+}
+
+TEST(Matching, WhereTheReadingsCannotTellPosesApartTheOdometryWins) {
+  // One long wall beside the robot fixes its distance to the wall and its heading, not where
+  // along the wall it is: the candidates there score alike, and the motion prior keeps the
+  // odometry's position instead of the luckiest of 2000 draws over 5 cm.
+  const RobotDescription robot = testing::ShippedRobot();
+  sim::World wall;
+  wall.name = "wall";
+  wall.bounds = {-5.0, -1.0, 5.0, 1.0};
+  wall.segments.push_back({{-5.0, 0.5043}, {5.0, 0.5043}});
+  SlamParams params = NoMotionNoise();
+  params.min_pos_uncertainty_m = 0.05;
+  params.min_angle_uncertainty_deg = 3.0;
+  const Pose2 truth{0.0, 0.0, 0.0};
+  ScanPlan plan;
+  plan.candidates = 2000;
+  for (const uint64_t seed : {1u, 2u, 3u}) {
+    SlamConfig config;
+    config.seed = seed;
+    Slam slam(robot, params, config);
+    slam.Restore(DrawMap(wall, config.resolution_m), truth);
+    const ScanReport report = slam.ProcessScan(ScanAt(robot, wall, truth, 0, truth, truth), plan);
+    EXPECT_GT(report.matching_measurements, 10);
+    const Pose2 found = slam.Best().pose;
+    EXPECT_LT(std::abs(found.x), 0.01) << "seed " << seed << ": " << found.x;
+    EXPECT_LT(std::abs(found.y), 0.003) << "seed " << seed << ": " << found.y;
+  }
+}
+
+TEST(Matching, AfterABlindStretchTheSearchWidensWithTheDriftLeftUncorrected) {
+  // Twelve scans see nothing while the odometry claims 1 cm of motion each that did not happen
+  // (a treel slipping). When the room is seen again the odometry is 13 cm off: the search has
+  // widened with the uncorrected drift (about 5 cm from 1.5 cm per scan) and finds the room
+  // again within a few centimetres; with the least spread of 2 cm it stayed 17 cm off.
+  const RobotDescription robot = testing::ShippedRobot();
+  const sim::World room = TestRoom();
+  const sim::World nothing;
+  SlamParams params = NoMotionNoise();
+  params.dist_error_const_m = 0.015;
+  params.min_pos_uncertainty_m = 0.02;
+  params.min_angle_uncertainty_deg = 2.0;
+  const Pose2 truth{0.02, -0.03, DegToRad(10.0)};
+  ScanPlan plan;
+  plan.candidates = 3000;
+  Slam slam(robot, params, SlamConfig{});
+  slam.Restore(DrawMap(room, SlamConfig{}.resolution_m), truth);
+  Pose2 odometry = truth;
+  int index = 0;
+  for (; index < 12; ++index) {
+    const Pose2 next = Compose(odometry, {0.01, 0.0, 0.0});
+    const ScanReport blind =
+        slam.ProcessScan(ScanAt(robot, nothing, truth, index, odometry, next), plan);
+    EXPECT_EQ(blind.matching_measurements, 0);
+    odometry = next;
+  }
+  const Pose2 next = Compose(odometry, {0.01, 0.0, 0.0});
+  const ScanReport seen = slam.ProcessScan(ScanAt(robot, room, truth, index, odometry, next), plan);
+  EXPECT_GT(seen.matching_measurements, 60);
+  const Pose2 found = slam.Best().pose;
+  EXPECT_LT(std::hypot(found.x - truth.x, found.y - truth.y), 0.04)
+      << found.x << ", " << found.y << " (odometry " << next.x << ", " << next.y << ")";
 }
 
 TEST(Matching, AnInterruptedScanEvaluatesEachParticlesFirstCandidateOnly) {
