@@ -17,7 +17,7 @@ enum class DatasetKind {
   kArenas,      // the original reference set: 3 arenas x 5 seeds (1..5), gentle odometry
   kTraining,    // tuning only: arenas and real-size rooms, seeds 1001..
   kValidation,  // choosing between designs: the training worlds and a held-out studio, 2001..
-  kReference,   // reporting only: every built-in world, seeds 3001..
+  kReference,   // reporting only: every built-in world (the lab only here), seeds 3001..
 };
 
 /// "arenas", "training", "validation", "reference"; nullopt for anything else.

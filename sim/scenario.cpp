@@ -7,6 +7,7 @@
 #include <limits>
 #include <memory>
 #include <optional>
+#include <utility>
 
 #include "engine/odometry.hpp"
 #include "engine/quality.hpp"
@@ -403,7 +404,9 @@ void Simulator::Step(ScenarioOutput& out) {
   const double t1 = static_cast<double>(st.step + 1) * kControlDt;
   const Pose2 pose = st.pose;
 
-  auto [v, w] = st.wanderer.Command(st.motion_world, pose);
+  const std::pair<double, double> command = st.wanderer.Command(st.motion_world, pose);
+  double v = command.first;
+  const double w = command.second;
   const FloorTraction floor = TractionOf(FloorAt(st.world, pose.translation()));
   // What the treels do not report: sideways skid in turns (outwards) and the wandering centre
   // of rotation.

@@ -98,7 +98,7 @@ Result<void> SaveWorld(const std::string& path, const World& world);
 std::vector<std::string> BuiltinArenaNames();
 
 /// Names of every built-in world: the arenas, then the real-size rooms of sim/worlds/ ("flat",
-/// "corridor", "office", "studio").
+/// "corridor", "office", "studio", "lab").
 std::vector<std::string> BuiltinWorldNames();
 
 /// A built-in world by name, nullopt for an unknown name.
