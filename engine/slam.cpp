@@ -577,13 +577,12 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
   // Each candidate's score is its log-likelihood plus its log-prior under the motion model
   // around the odometry's end pose: where the readings tell the candidates little apart, the
   // odometry wins rather than the luckiest candidate (the maximum of many noisy likelihoods).
-  const double prior_pos = prediction.prior_pos, prior_angle = prediction.prior_angle;
-  const auto score = [&](size_t p, size_t i) {
+  std::vector<double> candidate_score(n_particles * n_candidates);
+  const auto log_prior = [&](size_t p, const Pose2& c) {
     const Pose2 nominal = paths[p].nominal_end();
-    const Pose2& c = candidate_pose[i];
-    return candidate_ll[i] -
-           0.5 * (Square(c.x - nominal.x) + Square(c.y - nominal.y)) / Square(prior_pos) -
-           0.5 * Square(NormalizeAngle(c.theta - nominal.theta)) / Square(prior_angle);
+    return -0.5 * (Square(c.x - nominal.x) + Square(c.y - nominal.y)) /
+               Square(prediction.prior_pos) -
+           0.5 * Square(NormalizeAngle(c.theta - nominal.theta)) / Square(prediction.prior_angle);
   };
   size_t first = 0;
   for (int round = 0; first < n_candidates; ++round) {
@@ -600,6 +599,7 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
       if (c > 0 && interrupt_ != nullptr && interrupt_->load(std::memory_order_relaxed)) {
         candidate_pose[index] = predicted[p];
         candidate_ll[index] = -std::numeric_limits<double>::infinity();  // never chosen
+        candidate_score[index] = candidate_ll[index];
         skipped.fetch_add(1, std::memory_order_relaxed);
         return;
       }
@@ -614,11 +614,12 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
       candidate_pose[index] = end;
       candidate_ll[index] =
           LogLikelihood(particles_[p].map, window, paths[p], paths[p].CorrectionTo(end), matching);
+      candidate_score[index] = candidate_ll[index] + log_prior(p, end);
     });
     for (size_t p = 0; p < n_particles; ++p) {
       for (size_t c = first; c < last; ++c) {
         const size_t i = p * n_candidates + c;
-        if (score(p, i) > score(p, best[p])) best[p] = i;
+        if (candidate_score[i] > candidate_score[best[p]]) best[p] = i;
       }
     }
     first = last;

@@ -39,7 +39,7 @@ Result<void> WriteSimulatedExperiment(const std::string& dir, const World& world
   meta["duration_s"] = config.duration_s;
   meta["source"] = "sim";
   meta["seed"] = config.seed;
-  meta["odometry"] = config.odometry_profile;
+  meta["odometry"] = config.odometry.profile;
 
   const std::string base = (std::filesystem::path(dir) / "").string();
   for (const auto& [name, text] :

@@ -17,19 +17,16 @@
 
 namespace slam::sim {
 
-/// What to simulate and how noisy it is. Every draw comes from slam::Rng streams of `seed`, so a
-/// (world, robot, config) triple always gives the same output.
-struct ScenarioConfig {
-  double duration_s = 60.0;
-  double scans_per_s = 1.5;        // half turns of the scanner platform per second
-  double odometry_rate_hz = 50.0;  // base events; the scanner rate comes from the robot
-  double tracker_rate_hz = 30.0;
-  double speed_m_s = 0.12;        // cruising speed
-  double turn_rate_rad_s = 1.0;   // turning in place to avoid an obstacle
-  double robot_radius_m = 0.085;  // the base is 17 cm across
-  uint64_t seed = 1;
+/// How the simulated odometry errs: kGentle is the small zero-mean slip and gyro bias of the
+/// original reference set (dead reckoning ends a 300 s run about 10 cm off in a 2 m arena);
+/// kTracked adds what a tracked robot with a MEMS gyro shows: per-run scale errors of the
+/// encoders and the gyro, a larger drifting gyro bias, sideways skid in turns and a wandering
+/// centre of rotation, so that dead reckoning drifts tens of centimetres to metres in 300 s.
+enum class OdometryProfile { kGentle, kTracked };
 
-  // Motion and odometry noise. Slip ratios are the standard deviations of slowly varying
+/// How the simulated odometry errs. The defaults are the gentle profile's.
+struct OdometryErrors {
+  // Slip ratios are the standard deviations of slowly varying
   // (Gauss-Markov, `slip_correlation_s`) relative errors of what the encoders report.
   double translation_slip_ratio = 0.03;
   double rotation_slip_ratio = 0.15;  // encoder-derived rotation (the engine uses the gyro)
@@ -54,8 +51,24 @@ struct ScenarioConfig {
   // Turning, the centre of rotation wanders: the body drifts about this far per radian turned,
   // in a direction that changes slowly (Gauss-Markov, 1 s).
   double turn_drift_m_per_rad = 0.0;
-  // The OdometryProfile the odometry errors came from, written into meta.json.
-  std::string odometry_profile = "gentle";
+  // The OdometryProfile these values came from, written into meta.json.
+  std::string profile = "gentle";
+};
+
+/// What to simulate and how noisy it is. Every draw comes from slam::Rng streams of `seed`, so a
+/// (world, robot, config) triple always gives the same output.
+struct ScenarioConfig {
+  double duration_s = 60.0;
+  double scans_per_s = 1.5;        // half turns of the scanner platform per second
+  double odometry_rate_hz = 50.0;  // base events; the scanner rate comes from the robot
+  double tracker_rate_hz = 30.0;
+  double speed_m_s = 0.12;        // cruising speed
+  double turn_rate_rad_s = 1.0;   // turning in place to avoid an obstacle
+  double robot_radius_m = 0.085;  // the base is 17 cm across
+  uint64_t seed = 1;
+
+  // How the odometry errs (a profile's values: WithOdometryProfile).
+  OdometryErrors odometry;
 
   // Sensor artefacts.
   double sensor_noise_scale = 1.0;       // times the robot's sigma_m of each sensor type
@@ -72,13 +85,6 @@ struct ScenarioConfig {
   /// Problems with the configuration as "/key: detail" lines; empty when valid.
   std::vector<std::string> Validate() const;
 };
-
-/// How the simulated odometry errs: kGentle is the small zero-mean slip and gyro bias of the
-/// original reference set (dead reckoning ends a 300 s run about 10 cm off in a 2 m arena);
-/// kTracked adds what a tracked robot with a MEMS gyro shows: per-run scale errors of the
-/// encoders and the gyro, a larger drifting gyro bias, sideways skid in turns and a wandering
-/// centre of rotation, so that dead reckoning drifts tens of centimetres to metres in 300 s.
-enum class OdometryProfile { kGentle, kTracked };
 
 /// "gentle", "tracked"; nullopt for anything else.
 std::optional<OdometryProfile> OdometryProfileFromName(std::string_view name);

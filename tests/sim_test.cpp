@@ -489,7 +489,7 @@ TEST(ScenarioTest, ConfigValidation) {
   ScenarioConfig bad;
   bad.duration_s = 0.0;
   bad.corner_hole_probability = 1.5;
-  bad.gyro_noise_dps = -1.0;
+  bad.odometry.gyro_noise_dps = -1.0;
   const std::vector<std::string> errors = bad.Validate();
   ASSERT_EQ(errors.size(), 3u);
   EXPECT_EQ(errors[0], "/duration_s: must be > 0");
@@ -582,11 +582,11 @@ Pose2 At(const std::vector<TimedPose>& path, double t) {
 
 TEST(ScenarioTest, NoiseFreeOdometryIntegratesToTheTruePath) {
   ScenarioConfig config = ShortRun(30.0, 4);
-  config.translation_slip_ratio = 0.0;
-  config.rotation_slip_ratio = 0.0;
-  config.gyro_noise_dps = 0.0;
-  config.accel_slip_s = 0.0;
-  config.gyro_bias_dps = 0.0;
+  config.odometry.translation_slip_ratio = 0.0;
+  config.odometry.rotation_slip_ratio = 0.0;
+  config.odometry.gyro_noise_dps = 0.0;
+  config.odometry.accel_slip_s = 0.0;
+  config.odometry.gyro_bias_dps = 0.0;
   const RobotDescription robot = TestRobot();
   const ScenarioOutput out = RunScenario(*BuiltinWorld("rooms"), robot, config);
   const std::vector<TimedPose> odom = DeadReckoning(robot, out.odometry);
@@ -687,12 +687,12 @@ TEST(ScenarioTest, ProfilesSetOnlyTheOdometryErrorsAndGentleIsTheDefault) {
     EXPECT_TRUE(c.Validate().empty());
   }
   const ScenarioConfig defaults;
-  EXPECT_EQ(gentle.gyro_bias_dps, defaults.gyro_bias_dps);
-  EXPECT_EQ(gentle.skid_s, 0.0);
-  EXPECT_EQ(gentle.odometry_profile, "gentle");
-  EXPECT_GT(tracked.skid_s, 0.0);
-  EXPECT_GT(tracked.gyro_bias_dps, defaults.gyro_bias_dps);
-  EXPECT_EQ(tracked.odometry_profile, "tracked");
+  EXPECT_EQ(gentle.odometry.gyro_bias_dps, defaults.odometry.gyro_bias_dps);
+  EXPECT_EQ(gentle.odometry.skid_s, 0.0);
+  EXPECT_EQ(gentle.odometry.profile, "gentle");
+  EXPECT_GT(tracked.odometry.skid_s, 0.0);
+  EXPECT_GT(tracked.odometry.gyro_bias_dps, defaults.odometry.gyro_bias_dps);
+  EXPECT_EQ(tracked.odometry.profile, "tracked");
   EXPECT_EQ(OdometryProfileFromName("tracked"), OdometryProfile::kTracked);
   EXPECT_FALSE(OdometryProfileFromName("bumpy").has_value());
   // The same seed and profile give the same readings.
@@ -713,9 +713,9 @@ TEST(ScenarioTest, ProfilesSetOnlyTheOdometryErrorsAndGentleIsTheDefault) {
 TEST(ScenarioTest, ACarpetMakesTheEncodersReadLong) {
   // Noise-free but for the floor: on carpet the encoders report 2.5 % more than the true path.
   ScenarioConfig config = ShortRun(60.0, 6);
-  config.translation_slip_ratio = 0.0;
-  config.rotation_slip_ratio = 0.0;
-  config.accel_slip_s = 0.0;
+  config.odometry.translation_slip_ratio = 0.0;
+  config.odometry.rotation_slip_ratio = 0.0;
+  config.odometry.accel_slip_s = 0.0;
   World hard = *BuiltinWorld("box");
   World carpet = hard;
   carpet.floors.push_back({hard.bounds, FloorMaterial::kCarpet});

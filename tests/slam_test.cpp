@@ -323,7 +323,7 @@ SimRun Simulate(double duration_s, uint64_t seed, double gyro_bias_dps = 0.05) {
   sim::ScenarioConfig config;
   config.duration_s = duration_s;
   config.seed = seed;
-  config.gyro_bias_dps = gyro_bias_dps;
+  config.odometry.gyro_bias_dps = gyro_bias_dps;
   const sim::ScenarioOutput out = sim::RunScenario(TestArena(), run.robot, config);
   run.scans = sim::BuildScans(run.robot, out.odometry, out.scanner);
   run.truth = out.ground_truth;

@@ -180,7 +180,7 @@ int main(int argc, char** argv) {
                  "elapsed)\n",
                  ++done, jobs.size(), job.dir.c_str(), job.world_name.c_str(),
                  static_cast<unsigned long long>(job.seed), job.config.duration_s,
-                 job.config.odometry_profile.c_str(),
+                 job.config.odometry.profile.c_str(),
                  static_cast<unsigned long long>(summaries[i].frames), elapsed);
   });
   if (failed) return 1;
@@ -190,7 +190,7 @@ int main(int argc, char** argv) {
                           {"world", jobs[i].world_name},
                           {"seed", jobs[i].seed},
                           {"duration_s", jobs[i].config.duration_s},
-                          {"odometry", jobs[i].config.odometry_profile},
+                          {"odometry", jobs[i].config.odometry.profile},
                           {"frames", summaries[i].frames},
                           {"events", summaries[i].events}};
   };
