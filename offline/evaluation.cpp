@@ -256,6 +256,18 @@ std::string EvaluationMarkdown(const std::vector<offline::Experiment>& experimen
     }
   }
 
+  // The parameter set of each budget's SLAM runs (one set per budget: the plan gives it).
+  std::string sets;
+  for (int64_t budget : budgets) {
+    for (const EvaluationRun& r : runs) {
+      if (r.budget != budget || !r.refine || !r.summary.contains("params_set")) continue;
+      sets += (sets.empty() ? "" : ", ") + std::to_string(budget) + ": " +
+              r.summary["params_set"].get<std::string>();
+      break;
+    }
+  }
+  if (!sets.empty()) md += "\nParameter sets: " + sets + ".\n";
+
   // ATE per experiment: odometry only (the largest budget's run), then SLAM at each budget.
   md += "\nATE RMSE per experiment, cm:\n\n| experiment | odometry only |";
   for (int64_t budget : budgets) md += " " + std::to_string(budget) + " |";

@@ -13,6 +13,7 @@
 #include "engine/params.hpp"
 #include "engine/result.hpp"
 #include "offline/experiment_reader.hpp"
+#include "scheduler/params_catalog.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 
 namespace slam::offline {
@@ -24,10 +25,10 @@ Result<std::vector<std::string>> FindExperimentDirs(const std::vector<std::strin
 
 struct EvaluationPlan {
   std::vector<int64_t> budgets{8125, 16250, 32500, 65000};
-  bool slam = true;           // with phase B
-  bool odometry_only = true;  // phase B off (--no-refine)
-  SlamParams params;
-  std::map<int64_t, SlamParams> params_by_budget;  // tuned per budget; overrides `params`
+  bool slam = true;                                  // with phase B
+  bool odometry_only = true;                         // phase B off (--no-refine)
+  ParamsChoice params;                               // the shipped sets unless one is given
+  std::map<int64_t, ParamsChoice> params_by_budget;  // given per budget; overrides `params`
   BudgetPolicy policy = BudgetPolicy::kFixed;
   int max_particles = BudgetSettings{}.max_particles;
   uint64_t seed = 1;

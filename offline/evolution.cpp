@@ -26,7 +26,7 @@ const std::vector<ParameterSpec>& TunedParameters() {
       {"min_angle_uncertainty_deg", 1.0, 0.1, 30.0, false},
       {"resampling_period_scans", 0.5, 1.0, 50.0, true},
       {"angle_between_scans_deg", 2.5, 0.0, 45.0, false},
-      {"particles", 1.0, 1.0, 64.0, true},
+      {"particles", 1.0, 1.0, kMaxTunedParticles, true},
   };
   return specs;
 }
@@ -91,6 +91,12 @@ int EvolutionConfig::elites() const {
                     std::max(1, population));
 }
 
+int EvolutionConfig::MaxParticles(int64_t budget) const {
+  if (min_rays_per_particle <= 0) return kMaxTunedParticles;
+  return static_cast<int>(
+      std::clamp<int64_t>(budget / min_rays_per_particle, 1, kMaxTunedParticles));
+}
+
 ConfigErrors Validate(const EvolutionConfig& config) {
   ConfigErrors errors;
   if (config.population < 2 || config.population > 100000) {
@@ -105,10 +111,14 @@ ConfigErrors Validate(const EvolutionConfig& config) {
     errors.push_back(
         {"/elite_fraction", std::to_string(config.elite_fraction) + " is outside (0, 1)"});
   }
+  if (config.min_rays_per_particle < 0) {
+    errors.push_back(
+        {"/min_rays_per_particle", std::to_string(config.min_rays_per_particle) + " is negative"});
+  }
   return errors;
 }
 
-SlamParams Mutate(const SlamParams& params, Rng& rng) {
+SlamParams Mutate(const SlamParams& params, Rng& rng, int max_particles) {
   SlamParams out = params;
   const auto& specs = TunedParameters();
   for (size_t i = 0; i < specs.size(); ++i) {
@@ -116,16 +126,19 @@ SlamParams Mutate(const SlamParams& params, Rng& rng) {
     if (specs[i].integer) value = std::round(value);
     SetParameter(out, i, std::clamp(value, specs[i].lo, specs[i].hi));
   }
+  out.particles = std::clamp(out.particles, 1, std::max(1, max_particles));
   return out;
 }
 
 std::vector<Individual> InitialPopulation(const SlamParams& start, const EvolutionConfig& config,
-                                          uint64_t stream) {
+                                          uint64_t stream, int max_particles) {
   std::vector<Individual> population;
-  population.push_back({start, 0.0, false});
+  SlamParams first = start;
+  first.particles = std::clamp(first.particles, 1, std::max(1, max_particles));
+  population.push_back({first, 0.0, false});
   for (int i = 1; i < config.population; ++i) {
     Rng rng = Rng::ForStream(config.seed, kStreamEvolution + stream, 0, static_cast<uint64_t>(i));
-    population.push_back({Mutate(start, rng), 0.0, false});
+    population.push_back({Mutate(first, rng, max_particles), 0.0, false});
   }
   return population;
 }
@@ -138,7 +151,7 @@ std::vector<Individual> Ranked(std::vector<Individual> population) {
 
 std::vector<Individual> NextGeneration(const std::vector<Individual>& previous,
                                        const EvolutionConfig& config, uint64_t stream,
-                                       int generation) {
+                                       int generation, int max_particles) {
   const std::vector<Individual> ranked = Ranked(previous);
   const size_t elites = std::min(ranked.size(), static_cast<size_t>(config.elites()));
   std::vector<Individual> next(ranked.begin(),
@@ -148,7 +161,7 @@ std::vector<Individual> NextGeneration(const std::vector<Individual>& previous,
                              static_cast<uint64_t>(generation), static_cast<uint64_t>(i));
     const size_t parent =
         std::min(elites - 1, static_cast<size_t>(rng.Uniform() * static_cast<double>(elites)));
-    next.push_back({Mutate(ranked[parent].params, rng), 0.0, false});
+    next.push_back({Mutate(ranked[parent].params, rng, max_particles), 0.0, false});
   }
   return next;
 }

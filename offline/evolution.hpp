@@ -34,9 +34,16 @@ struct EvolutionConfig {
   int generations = 40;
   double elite_fraction = 0.25;
   uint64_t seed = 1;
+  /// Each particle's share of the budget is at least this many rays (0: no bound): the particle
+  /// count is tuned within [1, max(1, budget / min_rays_per_particle)]. At a fixed budget more
+  /// particles mean fewer rays each, below what pays for a particle's match window, so the CPU
+  /// per scan grows with the count (docs/accuracy.md): the bound keeps a budget's cost its own.
+  int64_t min_rays_per_particle = 0;
 
   /// Individuals kept unchanged from one generation to the next (at least 1).
   int elites() const;
+  /// The most particles an individual tuned for `budget` may have.
+  int MaxParticles(int64_t budget) const;
 };
 
 /// Empty when valid.
@@ -48,13 +55,17 @@ struct Individual {
   bool evaluated = false;
 };
 
-/// `params` with every tuned parameter moved by a Gaussian draw of its sigma, clamped to its
-/// bounds, integers rounded.
-SlamParams Mutate(const SlamParams& params, Rng& rng);
+/// The particle bound of the tuned parameters (TunedParameters()).
+inline constexpr int kMaxTunedParticles = 64;
 
-/// Generation 0: `start` itself, then mutations of it. `stream` tells budgets apart.
+/// `params` with every tuned parameter moved by a Gaussian draw of its sigma, clamped to its
+/// bounds (the particle count also to `max_particles`), integers rounded.
+SlamParams Mutate(const SlamParams& params, Rng& rng, int max_particles = kMaxTunedParticles);
+
+/// Generation 0: `start` itself (its particles clamped to `max_particles`), then mutations of it.
+/// `stream` tells budgets apart.
 std::vector<Individual> InitialPopulation(const SlamParams& start, const EvolutionConfig& config,
-                                          uint64_t stream);
+                                          uint64_t stream, int max_particles = kMaxTunedParticles);
 
 /// Ranks an evaluated population, best first (stable: ties keep their order).
 std::vector<Individual> Ranked(std::vector<Individual> population);
@@ -63,6 +74,6 @@ std::vector<Individual> Ranked(std::vector<Individual> population);
 /// their fitness, not evaluated again), then mutations of elites drawn uniformly.
 std::vector<Individual> NextGeneration(const std::vector<Individual>& previous,
                                        const EvolutionConfig& config, uint64_t stream,
-                                       int generation);
+                                       int generation, int max_particles = kMaxTunedParticles);
 
 }  // namespace slam::offline

@@ -42,10 +42,14 @@ std::vector<TimedPose> DeadReckoning(const std::vector<Scan>& scans) {
 
 ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scans,
                     const std::vector<TimedPose>& ground_truth, const ReplayOptions& options) {
-  Slam engine(robot, options.params, options.config);
-  engine.set_interrupt(options.cancel);  // a scan of a huge budget ends soon after a cancel
   RayBudgetScheduler scheduler(options.budget, options.scheduler);
-  int64_t rays_total = 0, rays_max = 0, resamplings = 0;
+  // The set of the first scan's quota builds the engine; later scans switch sets when their quota
+  // (a CPU share's) calls for another one.
+  const ParamsSet* in_use = &options.params.For(
+      scheduler.Quota(scans.empty() ? 0.0 : scans.front().t_end - scans.front().t_begin));
+  Slam engine(robot, in_use->params, options.config);
+  engine.set_interrupt(options.cancel);  // a scan of a huge budget ends soon after a cancel
+  int64_t rays_total = 0, rays_max = 0, resamplings = 0, switches = 0;
   std::vector<PlanRecord> plans;
   plans.reserve(scans.size());
   const auto wall_start = std::chrono::steady_clock::now();
@@ -59,6 +63,12 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
     }
     const Scan& scan = scans[k];
     const double scan_cpu_start = CpuSeconds(options.config.parallel);
+    const ParamsSet& set = options.params.For(scheduler.Quota(scan.t_end - scan.t_begin));
+    if (set.name != in_use->name) {
+      engine.SetParams(set.params);
+      in_use = &set;
+      ++switches;
+    }
     ScanSummary summary = engine.Summarize(scan);
     if (!options.refine) summary.matching_measurements = 0;  // phase B off: nothing to match
     ScanPlan plan = scheduler.Plan(summary, scan.t_end - scan.t_begin, engine.params());
@@ -83,6 +93,8 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   result.rays_total = rays_total;
   result.rays_per_scan_max = rays_max;
   result.resamplings = resamplings;
+  result.params_set = *in_use;
+  result.params_switches = switches;
   result.plans = std::move(plans);
   result.wall_s = wall_s;
   result.cpu_s = cpu_s;

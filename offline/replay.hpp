@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <functional>
 #include <optional>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -18,12 +19,15 @@
 #include "engine/robot.hpp"
 #include "engine/scan.hpp"
 #include "engine/slam.hpp"
+#include "scheduler/params_catalog.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 
 namespace slam::offline {
 
 struct ReplayOptions {
-  SlamParams params;
+  /// The parameters: one set (here the paper's untuned Table II defaults), or the shipped sets
+  /// chosen by each scan's quota (ParamsChoice{}: what the tools do without --params).
+  ParamsChoice params{"table-ii", SlamParams{}};
   SlamConfig config;      // seed and parallel among others
   BudgetSettings budget;  // rays per scan or CPU share, fixed or adaptive policy
   SchedulerConfig scheduler;
@@ -46,6 +50,8 @@ struct ReplayResult {
   int64_t rays_total = 0;
   int64_t rays_per_scan_max = 0;
   int64_t resamplings = 0;
+  ParamsSet params_set;           // the parameter set of the last scan
+  int64_t params_switches = 0;    // scans whose set differed from the previous scan's
   std::vector<PlanRecord> plans;  // one per scan: the scheduler's plan and what it used
   double wall_s = 0.0;
   double cpu_s =

@@ -89,6 +89,8 @@ nlohmann::json ReplaySummary(const offline::Experiment& experiment, const Replay
   j["policy"] = std::string(ToString(budget.policy));
   if (budget.policy == BudgetPolicy::kAdaptive) j["max_particles"] = budget.max_particles;
   j["refine"] = options.refine;
+  j["params_set"] = run.params_set.name;
+  if (options.params.follows_quota()) j["params_switches"] = run.params_switches;
   j["seed"] = options.config.seed;
   if (run.quality) {
     j["q"] = run.quality->q_cm2;
@@ -132,7 +134,7 @@ nlohmann::json ReplaySummary(const offline::Experiment& experiment, const Replay
   } else {
     j["map_quality"] = nullptr;
   }
-  j["params"] = io::ParamsToJson(options.params);
+  j["params"] = io::ParamsToJson(run.params_set.params);
   j["counters"] = CountersJson(experiment.counters);
   return j;
 }

@@ -47,7 +47,7 @@ double Fitness(const std::vector<TuningExperiment>& experiments, const SlamParam
   for (const TuningExperiment& e : experiments) {
     if (cancel != nullptr && cancel->load()) break;
     ReplayOptions options;
-    options.params = params;
+    options.params = ParamsChoice("candidate", params);
     options.config.seed = settings.evolution.seed;
     options.config.parallel = false;  // evaluations are the parallelism
     options.budget.rays_per_scan = budget;
@@ -85,8 +85,9 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
       const int generation = static_cast<int>(run.generations.size());
       const auto stream = static_cast<uint64_t>(run.budget);
       std::vector<Individual> population =
-          generation == 0 ? InitialPopulation(settings.start, es, stream)
-                          : NextGeneration(run.population, es, stream, generation);
+          generation == 0
+              ? InitialPopulation(settings.start, es, stream, es.MaxParticles(run.budget))
+              : NextGeneration(run.population, es, stream, generation, es.MaxParticles(run.budget));
 
       // Every (individual, experiment) pair not evaluated yet, in parallel; each writes its slot.
       std::vector<size_t> pending;

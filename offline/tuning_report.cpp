@@ -21,6 +21,7 @@ Json SettingsToJson(const TuningSettings& s) {
           {"population", s.evolution.population},
           {"generations", s.evolution.generations},
           {"elite_fraction", s.evolution.elite_fraction},
+          {"min_rays_per_particle", s.evolution.min_rays_per_particle},
           {"seed", s.evolution.seed},
           {"policy", std::string(ToString(s.policy))},
           {"max_particles", s.max_particles},
@@ -121,6 +122,8 @@ Result<TuningState> TuningStateFromJson(const Json& json) {
     state.settings.evolution.population = s.at("population").get<int>();
     state.settings.evolution.generations = s.at("generations").get<int>();
     state.settings.evolution.elite_fraction = s.at("elite_fraction").get<double>();
+    // Absent in results written before the bound existed: no bound.
+    state.settings.evolution.min_rays_per_particle = s.value("min_rays_per_particle", int64_t{0});
     state.settings.evolution.seed = s.at("seed").get<uint64_t>();
     const auto policy = ParseBudgetPolicy(s.at("policy").get<std::string>());
     if (!policy) throw ReadError{"/settings/policy", "unknown policy"};

@@ -100,6 +100,10 @@ int64_t RayBudgetScheduler::QuotaFor(const BudgetSettings& settings, double scan
                                          static_cast<double>(config_.max_quota)));
 }
 
+int64_t RayBudgetScheduler::Quota(double scan_period_s) const {
+  return QuotaFor(settings(), scan_period_s);
+}
+
 ScanPlan RayBudgetScheduler::Plan(const ScanSummary& summary, double scan_period_s,
                                   const SlamParams& params) {
   const BudgetSettings settings = this->settings();

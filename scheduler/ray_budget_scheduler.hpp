@@ -120,6 +120,11 @@ class RayBudgetScheduler {
   /// The smoothed cost per ray in nanoseconds. Thread-safe.
   double ns_per_ray() const;
 
+  /// The quota of a scan covering `scan_period_s` of robot time under the current settings: the
+  /// one Plan() gives it unless the settings change in between (the parameter set is chosen by
+  /// it before planning). Thread-safe.
+  int64_t Quota(double scan_period_s) const;
+
   /// The plan for the next scan (SLAM thread): its summary, the robot time it covers, and the
   /// engine's current parameters. The settings are read once here.
   ScanPlan Plan(const ScanSummary& summary, double scan_period_s, const SlamParams& params);

@@ -125,9 +125,13 @@ void HttpServer::Impl::HandleEvents(const httplib::Request& req, httplib::Respon
             }
             s.budget_revision = budget_revision;
           }
+          const uint64_t params_revision = service.ParamsRevision();
           if (s.params_revision != params_revision) {
             if (s.params_revision != 0) {
-              out += SseEvent("params", s.covered, io::ParamsToJson(service.Params()));
+              const ParamsSet set = service.Params();
+              json event = io::ParamsToJson(set.params);
+              event["set"] = set.name;
+              out += SseEvent("params", s.covered, event);
             }
             s.params_revision = params_revision;
           }

@@ -127,14 +127,24 @@ void HttpServer::Impl::HandleParamsPatch(const httplib::Request& req, httplib::R
                 {{"", "must be a JSON object", 0}});
     return;
   }
-  auto result = io::ApplyParamsPatch(service.Params(), body);
+  const ParamsSet current = service.Params();
+  const ParamsSet shipped = service.ShippedParamsNow();
+  auto result = io::ApplyParamsPatch(current.params, body, shipped.params);
   if (!result.ok()) {
     SendProblem(res, 422, "Invalid parameters", "the parameters were not changed", result.errors());
     return;
   }
-  if (!(result.value() == service.Params())) {
-    service.SetParams(result.value());
-    ++params_revision;
+  if (!(result.value() == current.params)) {
+    if (result.value() == shipped.params) {
+      // Every change undone (null resets to the shipped set): the sets follow the budget again.
+      service.UseShippedParams();
+    } else {
+      // Named after the set it was patched from; it stays in use whatever the budget.
+      constexpr std::string_view kPatched = ", patched";
+      const bool patched = current.name.ends_with(kPatched);
+      service.SetParams(patched ? current.name : current.name + std::string(kPatched),
+                        result.value());
+    }
   }
   res.set_header("ETag", ParamsEtag());
   SendJson(res, io::ParamsToJson(result.value()));
@@ -305,19 +315,21 @@ json HttpServer::Impl::StatusJson() {
                {"robot_time_s", c.robot_s},
                {"assembler", hw::AssemblerCountersToJson(c.assembler)}};
   const auto job = jobs.Latest();
-  return {{"version", SLAMD_VERSION},
-          {"uptime_s", Seconds(Clock::now() - started)},
-          {"source", SourceJson(link_status.source)},
-          {"link", hw::LinkStatusToJson(link_status)},
-          {"slam", slam},
-          {"pose", snapshot->has_pose ? PoseJson(snapshot->pose) : json(nullptr)},
-          {"budget", BudgetJson(service.Budget())},
-          {"job", job ? *job : json(nullptr)},
-          {"features",
-           {{"save", !options.state_dir.empty()},
-            {"tuning", jobs.configured()},
-            {"experiments", jobs.Experiments()},
-            {"ray_kernel", BestWindowKernelName()}}}};
+  return {
+      {"version", SLAMD_VERSION},
+      {"uptime_s", Seconds(Clock::now() - started)},
+      {"source", SourceJson(link_status.source)},
+      {"link", hw::LinkStatusToJson(link_status)},
+      {"slam", slam},
+      {"pose", snapshot->has_pose ? PoseJson(snapshot->pose) : json(nullptr)},
+      {"budget", BudgetJson(service.Budget())},
+      {"params", {{"set", service.Params().name}, {"follows_budget", service.ParamsFollowQuota()}}},
+      {"job", job ? *job : json(nullptr)},
+      {"features",
+       {{"save", !options.state_dir.empty()},
+        {"tuning", jobs.configured()},
+        {"experiments", jobs.Experiments()},
+        {"ray_kernel", BestWindowKernelName()}}}};
 }
 
 std::string HttpServer::Impl::MetricsText() {
@@ -473,12 +485,18 @@ void HttpServer::Impl::Setup() {
              [this](const Request& req, Response& res) { HandleBudgetChange(req, res, false); });
 
   server.Get("/api/v1/params", [this](const Request&, Response& res) {
-    MutexLock lock(revision_mutex);
     res.set_header("ETag", ParamsEtag());
-    SendJson(res, io::ParamsToJson(service.Params()));
+    SendJson(res, io::ParamsToJson(service.Params().params));
   });
   server.Patch("/api/v1/params",
                [this](const Request& req, Response& res) { HandleParamsPatch(req, res); });
+  // Back to the shipped set of each scan's budget (after a PATCH or --params).
+  server.Delete("/api/v1/params", [this](const Request&, Response& res) {
+    MutexLock lock(revision_mutex);
+    service.UseShippedParams();
+    res.set_header("ETag", ParamsEtag());
+    SendJson(res, io::ParamsToJson(service.Params().params));
+  });
 
   server.Get("/api/v1/map", [this](const Request&, Response& res) {
     const auto s = service.Snapshot();
@@ -638,7 +656,7 @@ void HttpServer::Impl::Setup() {
            R"(/api/v1/(health|status|map|map\.pgm|map\.yaml|map\.png|trajectory|events|jobs))"),
        "GET"},
       {std::regex(R"(/api/v1/budget)"), "GET, PUT, PATCH"},
-      {std::regex(R"(/api/v1/params)"), "GET, PATCH"},
+      {std::regex(R"(/api/v1/params)"), "GET, PATCH, DELETE"},
       {std::regex(R"(/api/v1/map/tiles/-?\d{1,9}/-?\d{1,9}\.png)"), "GET"},
       {std::regex(R"(/api/v1/(map/save|reset|jobs/tune))"), "POST"},
       {std::regex(R"(/api/v1/jobs/[^/]+)"), "GET, DELETE"},

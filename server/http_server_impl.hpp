@@ -51,10 +51,10 @@ struct HttpServer::Impl {
   std::atomic<int> streams{0};
   std::atomic<uint64_t> streams_rejected{0};
 
-  // Revisions of the budget and the parameters (the ETags), bumped by every change.
+  // Revision of the budget (its ETag), bumped by every change; the parameters' is the service's
+  // (the set in use also changes with the quota).
   Mutex revision_mutex;  // also serialises read-modify-write of budget and params
   uint64_t budget_revision SLAM_GUARDED_BY(revision_mutex) = 1;
-  uint64_t params_revision SLAM_GUARDED_BY(revision_mutex) = 1;
 
   Mutex save_mutex;  // one save at a time
   // The last save that succeeded (guarded by save_mutex): when it was started and its answer.
@@ -98,9 +98,7 @@ struct HttpServer::Impl {
   std::string BudgetEtag() const SLAM_REQUIRES(revision_mutex) {
     return "\"b" + std::to_string(budget_revision) + "\"";
   }
-  std::string ParamsEtag() const SLAM_REQUIRES(revision_mutex) {
-    return "\"p" + std::to_string(params_revision) + "\"";
-  }
+  std::string ParamsEtag() const { return "\"p" + std::to_string(service.ParamsRevision()) + "\""; }
 
   void Setup();
   httplib::Server::HandlerResponse Guard(httplib::Request& req, httplib::Response& res);

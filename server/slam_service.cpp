@@ -126,13 +126,16 @@ int SlamService::encoded_logodds_limit() const {
 }
 
 void SlamService::BuildEngine() {
-  SlamParams params;
+  double period = 0.0;
   {
     MutexLock lock(mutex_);
-    params = params_;
+    engine_choice_ = params_;
     params_changed_ = false;
+    period = last_period_s_;
   }
-  engine_ = std::make_unique<Slam>(options_.robot, params, options_.config);
+  const ParamsSet& set = engine_choice_.For(scheduler_.Quota(period));
+  engine_set_ = set.name;
+  engine_ = std::make_unique<Slam>(options_.robot, set.params, options_.config);
   engine_->set_interrupt(&stop_);  // a scan of a huge budget ends soon after Stop()
   if (options_.resume) {
     const SavedState& saved = *options_.resume;
@@ -148,15 +151,50 @@ void SlamService::BuildEngine() {
   }
 }
 
-SlamParams SlamService::Params() const {
+ParamsSet SlamService::Params() const {
   MutexLock lock(mutex_);
-  return params_;
+  return params_.For(scheduler_.Quota(last_period_s_));
 }
 
-void SlamService::SetParams(const SlamParams& params) {
+ParamsSet SlamService::ShippedParamsNow() const {
   MutexLock lock(mutex_);
-  params_ = params;
+  return ShippedParamsFor(scheduler_.Quota(last_period_s_));
+}
+
+bool SlamService::ParamsFollowQuota() const {
+  MutexLock lock(mutex_);
+  return params_.follows_quota();
+}
+
+uint64_t SlamService::ParamsRevision() const {
+  MutexLock lock(mutex_);
+  return params_revision_;
+}
+
+void SlamService::SetParams(const std::string& name, const SlamParams& params) {
+  MutexLock lock(mutex_);
+  params_ = ParamsChoice(name, params);
   params_changed_ = true;
+  ++params_revision_;
+}
+
+void SlamService::UseShippedParams() {
+  MutexLock lock(mutex_);
+  params_ = ParamsChoice{};
+  params_changed_ = true;
+  ++params_revision_;
+}
+
+void SlamService::FollowParams(double scan_period_s) {
+  const ParamsSet& set = engine_choice_.For(scheduler_.Quota(scan_period_s));
+  const bool switched = set.name != engine_set_;
+  if (switched) {
+    engine_->SetParams(set.params);
+    engine_set_ = set.name;
+  }
+  MutexLock lock(mutex_);
+  last_period_s_ = scan_period_s;
+  if (switched) ++params_revision_;
 }
 
 void SlamService::RequestReset() {
@@ -191,7 +229,7 @@ std::vector<TimedPose> SlamService::GroundTruth() const {
 
 void SlamService::ApplyCommands() {
   bool reset = false;
-  std::optional<SlamParams> params;
+  std::optional<ParamsChoice> params;
   {
     MutexLock lock(mutex_);
     std::swap(reset, reset_requested_);
@@ -211,7 +249,8 @@ void SlamService::ApplyCommands() {
     BuildEngine();
     Publish(std::nullopt);
   } else if (params) {
-    engine_->SetParams(*params);
+    engine_choice_ = *params;
+    engine_set_.clear();  // the next scan takes the set of its quota
   }
 }
 
@@ -261,6 +300,7 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
   const int64_t wall_start = SteadyNs();
   const double cpu_start = ThreadCpuSeconds();
   const double period = scan.t_end - scan.t_begin;
+  FollowParams(period);
   const ScanSummary summary = engine_->Summarize(scan);
   const ScanPlan plan = scheduler_.Plan(summary, period, engine_->params());
   const ScanReport report = engine_->ProcessScan(scan, plan);

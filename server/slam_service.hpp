@@ -25,6 +25,7 @@
 #include "engine/slam.hpp"
 #include "engine/thread_safety.hpp"
 #include "hw_link/link.hpp"
+#include "scheduler/params_catalog.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 #include "server/state_store.hpp"
 #include "sim/virtual_marxbot.hpp"
@@ -105,8 +106,8 @@ const std::vector<double>& LatencyBuckets();
 
 struct ServiceOptions {
   RobotDescription robot;
-  SlamParams params;
-  SlamConfig config;  // config.parallel is forced off: the CPU share is the SLAM thread's
+  ParamsChoice params;  // the shipped sets by quota unless one is given (--params)
+  SlamConfig config;    // config.parallel is forced off: the CPU share is the SLAM thread's
   BudgetSettings budget;
   SchedulerConfig scheduler;
   ScanAssemblerConfig assembler;
@@ -141,9 +142,19 @@ class SlamService {
   /// Budget settings (applied from the next scan). Precondition of Set: valid.
   BudgetSettings Budget() const { return scheduler_.settings(); }
   void SetBudget(const BudgetSettings& settings) { scheduler_.SetSettings(settings); }
-  /// Tuned parameters (applied from the next scan). Precondition of Set: valid.
-  SlamParams Params() const;
-  void SetParams(const SlamParams& params);
+  /// The parameter set the next scan runs with: the one given, or the shipped set of the
+  /// current quota.
+  ParamsSet Params() const;
+  /// The shipped set of the current quota (what a null member of a PATCH resets to).
+  ParamsSet ShippedParamsNow() const;
+  /// Whether the parameters follow the quota (the shipped sets) or are one given set.
+  bool ParamsFollowQuota() const;
+  /// Bumped whenever the set in use changes (given, or switched with the quota). Thread-safe.
+  uint64_t ParamsRevision() const;
+  /// Runs `params` (named `name`) from the next scan, whatever the quota. Precondition: valid.
+  void SetParams(const std::string& name, const SlamParams& params);
+  /// Goes back to the shipped set of each scan's quota from the next scan.
+  void UseShippedParams();
   /// Clears the map and trajectory; takes effect before the next scan.
   void RequestReset();
 
@@ -158,6 +169,8 @@ class SlamService {
 
  private:
   void Run();
+  /// Before a scan: switches the engine to the set of the scan's quota when it changed.
+  void FollowParams(double scan_period_s);
   void ProcessScan(const Scan& scan, int64_t receive_ns);
   void ApplyCommands();
   void BuildEngine();
@@ -187,8 +200,13 @@ class SlamService {
   std::shared_ptr<const SlamSnapshot> snapshot_ SLAM_GUARDED_BY(mutex_);
   ServiceCounters counters_ SLAM_GUARDED_BY(mutex_);
   std::vector<TimedPose> truth_map_ SLAM_GUARDED_BY(mutex_);  // map frame
-  SlamParams params_ SLAM_GUARDED_BY(mutex_);
+  ParamsChoice params_ SLAM_GUARDED_BY(mutex_);
   bool params_changed_ SLAM_GUARDED_BY(mutex_) = false;
+  uint64_t params_revision_ SLAM_GUARDED_BY(mutex_) = 1;
+  double last_period_s_ SLAM_GUARDED_BY(mutex_) = 0.0;  // of the last scan: a CPU share's quota
+  // SLAM thread only: the choice and the set the engine runs.
+  ParamsChoice engine_choice_;
+  std::string engine_set_;
   bool reset_requested_ SLAM_GUARDED_BY(mutex_) = false;
 
   std::atomic<bool> stop_{false};

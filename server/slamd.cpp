@@ -78,7 +78,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--robot", robot_path, "robot description (robot.json)")->capture_default_str();
   app.add_option("--params", params_path,
-                 "SLAM parameters (JSON, e.g. a slam-tune params/<budget>.json)");
+                 "SLAM parameters (JSON, e.g. a slam-tune params/<budget>.json), whatever the "
+                 "budget [the shipped set of the budget, config/params/]");
   app.add_option("--bind", bind, "address to listen on; beyond loopback a --token-file is required")
       ->capture_default_str();
   app.add_option("--port", port, "TCP port (0: any free port, printed at start)")
@@ -115,11 +116,11 @@ int main(int argc, char** argv) {
 
   const auto robot = slam::io::LoadRobot(robot_path);
   if (!robot.ok()) return Fail(robot.Message());
-  slam::SlamParams params;
+  slam::ParamsChoice params;  // the shipped set of each scan's quota
   if (!params_path.empty()) {
     const auto loaded = slam::io::LoadParams(params_path);
     if (!loaded.ok()) return Fail(loaded.Message());
-    params = loaded.value();
+    params = slam::ParamsChoice(params_path, loaded.value());
   }
   slam::BudgetSettings budget;
   if (*share_opt) {

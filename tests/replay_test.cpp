@@ -19,6 +19,7 @@
 #include <thread>
 
 #include "engine/io/map_image.hpp"
+#include "engine/io/params_json.hpp"
 #include "engine/io/tum.hpp"
 #include "engine/match_window.hpp"
 #include "offline/evaluation.hpp"
@@ -63,7 +64,9 @@ class ReplayTest : public ::testing::Test {
     options.refine = refine;
     options.config.seed = seed;
     options.config.parallel = parallel;
-    options.params.particles = particles;
+    SlamParams params;
+    params.particles = particles;
+    options.params = ParamsChoice("table-ii", params);
     return offline::Replay(e.robot, e.scans, e.ground_truth, options);
   }
 
@@ -277,6 +280,43 @@ TEST_F(ReplayTest, CpuShareSettlesWithinAFifthOfItsTarget) {
   EXPECT_NE(run.plans.back().quota, run.plans.front().quota);
 }
 
+TEST_F(ReplayTest, TheShippedSetOfTheQuotaRunsUnlessOneIsGiven) {
+  offline::ReplayOptions options;
+  options.params = ParamsChoice{};  // the tools' default
+  options.budget.rays_per_scan = 20000;
+  const offline::ReplayResult run =
+      offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
+  EXPECT_EQ(run.params_set, ShippedParamsFor(16250));
+  EXPECT_EQ(run.params_switches, 0);
+  const Json summary = offline::ReplaySummary(Box(), run, options);
+  EXPECT_EQ(summary["params_set"], "tuned-16250");
+  EXPECT_EQ(summary["params"], io::ParamsToJson(ShippedParamsFor(16250).params));
+  // The same run as with that set given outright.
+  options.params = ParamsChoice("given", ShippedParamsFor(16250).params);
+  const offline::ReplayResult given =
+      offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
+  EXPECT_EQ(given.params_set.name, "given");
+  ASSERT_EQ(given.trajectory.size(), run.trajectory.size());
+  EXPECT_EQ(given.trajectory.back().pose.x, run.trajectory.back().pose.x);
+  EXPECT_EQ(offline::ReplaySummary(Box(), given, options).count("params_switches"), 0u);
+
+  // Under a CPU share the quota moves with the measured cost per ray; the set follows it. The
+  // prior of 1 ns per ray makes the first quotas large (the largest budget's set); the measured
+  // cost (tens of ns) brings them down to some thousand rays (the smallest budget's).
+  options.params = ParamsChoice{};
+  options.budget.mode = QuotaMode::kCpuShare;
+  options.budget.cpu_share = 0.0005;
+  options.scheduler.initial_ns_per_ray = 1.0;
+  options.config.parallel = false;
+  const offline::ReplayResult share =
+      offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
+  ASSERT_GE(share.plans.size(), 2u);
+  EXPECT_EQ(ShippedParamsFor(share.plans.front().quota).budget, 65000);
+  EXPECT_EQ(share.params_set, ShippedParamsFor(share.plans.back().quota));
+  EXPECT_LT(share.plans.back().quota, 65000);
+  EXPECT_GE(share.params_switches, 1);
+}
+
 TEST_F(ReplayTest, AdaptivePolicyStaysWithinTheQuotaAndRecordsItsPlans) {
   for (const offline::Experiment& e : *experiments_) {
     offline::ReplayOptions options;
@@ -437,6 +477,9 @@ TEST_F(ReplayTest, EvaluationIsTheSameWithOneJobOrTwo) {
   const std::string md = offline::EvaluationMarkdown(*experiments_, serial);
   EXPECT_NE(md.find("| 8125 | SLAM |"), std::string::npos) << md;
   EXPECT_NE(md.find("| box-seed1 |"), std::string::npos) << md;
+  // The plan's default: each budget's shipped set (2000 is below every paper budget).
+  EXPECT_NE(md.find("Parameter sets: 2000: tuned-8125, 8125: tuned-8125."), std::string::npos)
+      << md;
   const offline::EvaluationChecks checks = offline::CheckEvaluation(serial);
   EXPECT_EQ(checks.largest_budget, 8125);
   EXPECT_EQ(checks.smallest_budget, 2000);
@@ -539,6 +582,23 @@ TEST_F(ReplayTest, CommandLineReplaysAndReportsBadExperiments) {
       scratch);
   EXPECT_EQ(params.status, 1);
   EXPECT_NE(params.err.find("none.json"), std::string::npos) << params.err;
+
+  // Without --params the shipped set of the budget runs; --params names the file it read.
+  const CommandResult shipped =
+      RunCommand(tool + " " + (root_ / "rooms").string() + " --budget 32500 --quiet --out " +
+                     (scratch / "shipped").string(),
+                 scratch);
+  ASSERT_EQ(shipped.status, 0) << shipped.err;
+  EXPECT_EQ(Json::parse(shipped.out)["params_set"], "tuned-32500");
+  const std::string mine = (scratch / "mine.json").string();
+  std::ofstream(mine) << R"({"particles": 2})";
+  const CommandResult given =
+      RunCommand(tool + " " + (root_ / "rooms").string() + " --budget 32500 --quiet --params " +
+                     mine + " --out " + (scratch / "given").string(),
+                 scratch);
+  ASSERT_EQ(given.status, 0) << given.err;
+  EXPECT_EQ(Json::parse(given.out)["params_set"], mine);
+  EXPECT_EQ(Json::parse(given.out)["params"]["particles"], 2);
 
   const CommandResult usage =
       RunCommand(tool + " " + (root_ / "rooms").string() + " --budget 0", scratch);

@@ -355,12 +355,46 @@ TEST_F(SharedSlamd, ParamsGetHasTheTableIIKeysAndAnETag) {
   for (const auto& key : kParamKeys) {
     EXPECT_TRUE(params.contains(key) && params[key].is_number()) << key;
   }
-  // slamd was started without --params: the shipped defaults.
+  // slamd was started without --params, at 65000 rays/scan: the shipped set of that budget,
+  // named in the status.
   const json shipped =
-      json::parse(ReadFile(fs::path(SLAM_SOURCE_DIR) / "config" / "params.default.json"));
+      json::parse(ReadFile(fs::path(SLAM_SOURCE_DIR) / "config" / "params" / "65000.json"));
   for (const auto& [key, value] : shipped.items()) {
     EXPECT_DOUBLE_EQ(params.value(key, -1.0), value.get<double>()) << key;
   }
+  const json status = GetJson(http(), "/api/v1/status");
+  EXPECT_EQ(status["params"], json({{"set", "tuned-65000"}, {"follows_budget", true}}));
+}
+
+TEST_F(SharedSlamd, TheShippedSetFollowsTheBudgetUntilParamsArePatched) {
+  const json budget = GetJson(http(), kBudgetPath);
+  const auto shipped = [](const char* file) {
+    return json::parse(ReadFile(fs::path(SLAM_SOURCE_DIR) / "config" / "params" / file));
+  };
+  // 20000 rays/scan: the set of the largest paper budget not above it.
+  ASSERT_EQ(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 20000})").status, 200);
+  EXPECT_EQ(GetJson(http(), kParamsPath), shipped("16250.json"));
+  EXPECT_EQ(GetJson(http(), "/api/v1/status")["params"]["set"], "tuned-16250");
+
+  // A patch makes a set of its own that holds whatever the budget.
+  const Reply patched = http().MergePatch(kParamsPath, R"({"particles": 3})");
+  ASSERT_EQ(patched.status, 200) << patched;
+  json expected = shipped("16250.json");
+  expected["particles"] = 3;
+  EXPECT_EQ(patched.Json(), expected);
+  ASSERT_EQ(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 65000})").status, 200);
+  EXPECT_EQ(GetJson(http(), kParamsPath), expected);
+  EXPECT_EQ(GetJson(http(), "/api/v1/status")["params"],
+            json({{"set", "tuned-16250, patched"}, {"follows_budget", false}}));
+
+  // DELETE goes back to the shipped set of the budget.
+  const Reply back = http().Send("DELETE", kParamsPath, "", "");
+  ASSERT_EQ(back.status, 200) << back;
+  EXPECT_EQ(back.Json(), shipped("65000.json"));
+  EXPECT_NE(back.Header("ETag"), patched.Header("ETag"));
+  EXPECT_EQ(GetJson(http(), "/api/v1/status")["params"],
+            json({{"set", "tuned-65000"}, {"follows_budget", true}}));
+  EXPECT_EQ(http().PutJson(kBudgetPath, budget.dump()).status, 200);
 }
 
 TEST_F(SharedSlamd, ParamsMergePatchAppliesAndNullResetsToTheDefault) {
@@ -862,6 +896,23 @@ TEST(SlamdProcessTest, SigtermStopsCleanlyWithExitCode0) {
   EXPECT_LT(SecondsSince(start), 3.0);
 }
 
+TEST(SlamdProcessTest, ParamsFlagHoldsOneSetWhateverTheBudget) {
+  ScratchDir dir("params-flag");
+  const std::string path = (dir.path() / "mine.json").string();
+  WriteFile(path, R"({"particles": 2, "min_pos_uncertainty_m": 0.03})");
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--budget", "8125", "--params", path}, &error)) << error;
+  Http http(slamd.host(), slamd.port());
+  EXPECT_EQ(GetJson(http, "/api/v1/status")["params"],
+            json({{"set", path}, {"follows_budget", false}}));
+  ASSERT_EQ(http.MergePatch(kBudgetPath, R"({"rays_per_scan": 65000})").status, 200);
+  const json params = GetJson(http, kParamsPath);
+  EXPECT_EQ(params.value("particles", 0), 2);
+  EXPECT_DOUBLE_EQ(params.value("min_pos_uncertainty_m", 0.0), 0.03);
+  EXPECT_EQ(GetJson(http, "/api/v1/status")["params"]["set"], path);
+}
+
 TEST(SlamdProcessTest, BudgetFlagSetsTheInitialBudget) {
   SlamdProcess slamd;
   std::string error;
@@ -1138,7 +1189,11 @@ TEST_F(EventStreamSlamd, BudgetAndParamsChangesAreAnnounced) {
   ASSERT_EQ(params.status, 200) << params;
   const auto params_event = stream.WaitFor("params", 3.0);
   ASSERT_TRUE(params_event.has_value());
-  EXPECT_EQ(params_event->Json(), params.Json());
+  // The parameters and the name of their set: the shipped set of 7000 rays/scan (the smallest
+  // budget's) with the patch.
+  json expected = params.Json();
+  expected["set"] = "tuned-8125, patched";
+  EXPECT_EQ(params_event->Json(), expected);
 
   EXPECT_EQ(http().PutJson(kBudgetPath, budget.dump()).status, 200);
   EXPECT_EQ(http().MergePatch(kParamsPath, R"({"particles": null})").status, 200);

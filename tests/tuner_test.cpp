@@ -83,6 +83,38 @@ TEST(Evolution, MutationStaysInBoundsRoundsIntegersAndUsesTheSigmas) {
   }
 }
 
+TEST(Evolution, TheParticleBoundFollowsTheBudget) {
+  offline::EvolutionConfig config;
+  EXPECT_EQ(config.MaxParticles(8125), offline::kMaxTunedParticles);  // no bound by default
+  config.min_rays_per_particle = 8125;
+  EXPECT_EQ(config.MaxParticles(8125), 1);
+  EXPECT_EQ(config.MaxParticles(16250), 2);
+  EXPECT_EQ(config.MaxParticles(65000), 8);
+  EXPECT_EQ(config.MaxParticles(1000), 1);  // a budget below the bound still has one particle
+  EXPECT_EQ(config.MaxParticles(int64_t{1} << 40), offline::kMaxTunedParticles);
+  config.min_rays_per_particle = -1;
+  EXPECT_FALSE(offline::Validate(config).empty());
+
+  // Every individual of every generation stays within the bound, the start included, although
+  // the fitness rewards more particles.
+  config = offline::EvolutionConfig{};
+  config.min_rays_per_particle = 8125;
+  SlamParams start;
+  start.particles = 10;
+  const int most = config.MaxParticles(16250);
+  std::vector<offline::Individual> population =
+      offline::InitialPopulation(start, config, 16250, most);
+  for (int g = 1; g < 6; ++g) {
+    int largest = 0;
+    for (offline::Individual& i : population) {
+      largest = std::max(largest, i.params.particles);
+      i = {i.params, -static_cast<double>(i.params.particles), true};
+    }
+    EXPECT_EQ(largest, most) << "generation " << g;
+    population = offline::NextGeneration(population, config, 16250, g, most);
+  }
+}
+
 TEST(Evolution, ConvergesOnAToyFunctionAndElitismKeepsTheBest) {
   SlamParams target;
   target.dist_error_ratio = 0.12;

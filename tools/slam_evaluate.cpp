@@ -52,9 +52,11 @@ int main(int argc, char** argv) {
       ->delimiter(',')
       ->capture_default_str()
       ->check(CLI::IsMember({"slam", "odometry"}));
-  app.add_option("--params", params_path,
-                 "SLAM parameters (JSON, Table II keys), or a directory of them per budget "
-                 "(<budget>.json, as slam-tune writes in OUT/params) [defaults]");
+  app.add_option(
+      "--params", params_path,
+      "SLAM parameters (JSON, Table II keys), or a directory of them per budget "
+      "(<budget>.json, as slam-tune writes in OUT/params) [the shipped set of each budget: "
+      "config/params/]");
   app.add_option("--policy", policy_name, "fixed (the paper's) or adaptive particle count")
       ->capture_default_str()
       ->check(CLI::IsMember({"fixed", "adaptive"}));
@@ -88,12 +90,12 @@ int main(int argc, char** argv) {
           (fs::path(params_path) / (std::to_string(budget) + ".json")).string();
       const auto loaded = slam::io::LoadParams(path);
       if (!loaded.ok()) return Fail(loaded.Message());
-      plan.params_by_budget[budget] = loaded.value();
+      plan.params_by_budget[budget] = slam::ParamsChoice(path, loaded.value());
     }
   } else if (!params_path.empty()) {
     const auto loaded = slam::io::LoadParams(params_path);
     if (!loaded.ok()) return Fail(loaded.Message());
-    plan.params = loaded.value();
+    plan.params = slam::ParamsChoice(params_path, loaded.value());
   }
   const slam::Result<std::vector<std::string>> found = slam::offline::FindExperimentDirs(inputs);
   if (!found.ok()) return Fail(found.Message());

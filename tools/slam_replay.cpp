@@ -82,7 +82,9 @@ int main(int argc, char** argv) {
   int threads = 0;
   bool quiet = false;
   app.add_option("EXP_DIR", experiment_dir, "recorded experiment directory")->required();
-  app.add_option("--params", params_path, "SLAM parameters (JSON, Table II keys) [defaults]");
+  app.add_option("--params", params_path,
+                 "SLAM parameters (JSON, Table II keys) [the shipped set of the budget, "
+                 "config/params/]");
   app.add_option("--budget", budget, "rays per scan (paper: 8125, 16250, 32500, 65000)")
       ->capture_default_str()
       ->check(CLI::Range(int64_t{1}, int64_t{1'000'000'000}));
@@ -108,11 +110,11 @@ int main(int argc, char** argv) {
   app.add_flag("--quiet", quiet, "no progress line on stderr");
   CLI11_PARSE(app, argc, argv);
 
-  slam::SlamParams params;
+  slam::ParamsChoice params;  // the shipped set of the quota
   if (!params_path.empty()) {
     const auto loaded = slam::io::LoadParams(params_path);
     if (!loaded.ok()) return Fail(loaded.Message());
-    params = loaded.value();
+    params = slam::ParamsChoice(params_path, loaded.value());
   }
   std::unique_ptr<tbb::global_control> thread_limit;
   if (threads > 0) {

@@ -124,6 +124,11 @@ int main(int argc, char** argv) {
   app.add_option("--policy", policy_name, "budget policy of the replays: fixed or adaptive")
       ->capture_default_str()
       ->check(CLI::IsMember({"fixed", "adaptive"}));
+  app.add_option("--min-rays-per-particle", settings.evolution.min_rays_per_particle,
+                 "tune the particle count within [1, budget / N] (0: up to 64); the shipped sets "
+                 "use 8125")
+      ->capture_default_str()
+      ->check(CLI::Range(int64_t{0}, int64_t{100'000'000}));
   app.add_option("--max-particles", settings.max_particles, "adaptive policy: most particles")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));

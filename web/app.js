@@ -130,6 +130,15 @@ function setSlamState(state) {
   setBadge($('st-slam'), state, ['running'], []);
 }
 
+/** The parameter set in use: a shipped one follows the budget, a given one holds. */
+function showParams(params) {
+  const element = $('st-params');
+  element.textContent = params?.set ?? '–';
+  element.title = params == null ? ''
+    : params.follows_budget ? 'the shipped set of the budget (config/params/)'
+      : 'a given set (--params or PATCH /api/v1/params), whatever the budget';
+}
+
 function showStatus(status) {
   const { source = {}, link = {}, slam = {} } = status;
   $('st-source').textContent = `${source.spec ?? '–'}${source.simulated ? ' (simulated)' : ''}`;
@@ -147,6 +156,7 @@ function showStatus(status) {
   $('st-scans').textContent = number(slam.scans);
   $('st-late').textContent = number(slam.late_scans);
   $('st-particles').textContent = number(slam.particles);
+  showParams(status.params);
   $('st-tiles').textContent = number(slam.tiles);
   $('st-latency').textContent = fixed(slam.last_latency_ms, 1, ' ms');
   $('st-realtime').textContent = fixed(slam.realtime_ratio, 1);
@@ -242,6 +252,11 @@ function connect() {
   events.addEventListener('pose', parse(onPose));
   events.addEventListener('metrics', parse((metrics) => plots?.push(metrics)));
   events.addEventListener('budget', parse((data) => budget.applyRemote(data)));
+  // The set in use changed (a budget change, a patch): its name is in the event.
+  events.addEventListener('params', parse((data) => {
+    $('st-params').textContent = data.set ?? '–';
+    loadStatus().catch(() => {});
+  }));
   events.addEventListener('job', parse((job) => tuning.show(job)));
   events.addEventListener('status', parse((states) => {
     setLinkState(states.link);

@@ -56,10 +56,14 @@ Result<void> SaveParams(const std::string& path, const SlamParams& params) {
   return WriteFileAtomic(path, ParamsToJson(params).dump(2) + "\n");
 }
 
-Result<SlamParams> ApplyParamsPatch(const SlamParams& base, const nlohmann::json& merge_patch) {
+Result<SlamParams> ApplyParamsPatch(const SlamParams& base, const nlohmann::json& merge_patch,
+                                    const SlamParams& defaults) {
   Json document = ParamsToJson(base);
   document.merge_patch(merge_patch);
-  return ParamsFromJson(document);
+  // A member the patch nulled takes its default.
+  Json full = ParamsToJson(defaults);
+  full.merge_patch(document);
+  return ParamsFromJson(full);
 }
 
 }  // namespace slam::io

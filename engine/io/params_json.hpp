@@ -27,7 +27,8 @@ nlohmann::json ParamsToJson(const SlamParams& params);
 Result<void> SaveParams(const std::string& path, const SlamParams& params);
 
 /// Applies an RFC 7396 merge patch to `base` and validates the result; a null member resets
-/// that parameter to its default.
-Result<SlamParams> ApplyParamsPatch(const SlamParams& base, const nlohmann::json& merge_patch);
+/// that parameter to its value in `defaults`.
+Result<SlamParams> ApplyParamsPatch(const SlamParams& base, const nlohmann::json& merge_patch,
+                                    const SlamParams& defaults = SlamParams{});
 
 }  // namespace slam::io

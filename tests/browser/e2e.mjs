@@ -5,7 +5,8 @@
 // Checks, against a running slamd at URL: the page loads with no console errors or warnings and
 // no failed requests; the map fills in (tiles drawn, canvas pixels not blank); the trajectory is
 // drawn; the plots get metrics; zoom and fit work; a budget change made in the page's form
-// reaches slamd (GET /api/v1/budget, then /metrics slamd_ray_quota); an out-of-range value shows
+// reaches slamd (GET /api/v1/budget, then /metrics slamd_ray_quota) and the status names the
+// shipped parameter set of the new budget; an out-of-range value shows
 // slamd's validation error next to the field. Writes ARTIFACT_DIR/slamd-page.png. Exit 1 with a
 // message on the first failure.
 
@@ -191,6 +192,12 @@ async function run(browser) {
     return seen.value === 20000;
   });
   log('budget 20000 applied: GET /api/v1/budget and /metrics slamd_ray_quota agree');
+  // The shipped parameter set follows: 16250's is the largest paper budget not above 20000.
+  await waitFor('the status panel names the parameter set tuned-16250', 8000, async (seen) => {
+    seen.value = await page.textContent('#st-params');
+    return seen.value.trim() === 'tuned-16250';
+  });
+  log('the page names the parameter set in use: tuned-16250');
 
   // An out-of-range value: slamd's 422 shows next to the field, nothing changes.
   expected.statuses.add(422);
