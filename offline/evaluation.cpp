@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <numeric>
@@ -72,10 +73,12 @@ std::vector<int64_t> Budgets(const std::vector<EvaluationRun>& runs) {
 
 /// The values of `key` over the runs of one budget and mode, by experiment.
 std::vector<double> Column(const std::vector<EvaluationRun>& runs, int64_t budget, bool refine,
-                           double (*get)(const Json&, const char*), const char* key) {
+                           double (*get)(const Json&, const char*), const char* key,
+                           const std::function<bool(const EvaluationRun&)>& keep = {}) {
   std::vector<double> values;
   for (const EvaluationRun& r : runs) {
-    if (r.budget == budget && r.refine == refine) values.push_back(get(r.summary, key));
+    if (r.budget == budget && r.refine == refine && (!keep || keep(r)))
+      values.push_back(get(r.summary, key));
   }
   return values;
 }
@@ -253,6 +256,41 @@ std::string EvaluationMarkdown(const std::vector<offline::Experiment>& experimen
             Format("%.3f", Mean(Column(runs, budget, refine, MapNumber, "recall"))) + " | " +
             Format("%.0f", Mean(Column(runs, budget, refine, Number, "realtime_factor"))) + " | " +
             Format("%.2f", Mean(Column(runs, budget, refine, Number, "cpu_ms_per_scan"))) + " |\n";
+    }
+  }
+
+  // Per world, when there are several: SLAM at each budget, odometry only once.
+  std::vector<std::string> worlds;
+  for (const offline::Experiment& e : experiments) {
+    if (std::find(worlds.begin(), worlds.end(), e.meta.world) == worlds.end())
+      worlds.push_back(e.meta.world);
+  }
+  if (worlds.size() > 1) {
+    md += "\nPer world (ATE RMSE in cm, mean and worst of its experiments):\n\n";
+    md +=
+        "| world | runs | odometry only | rays/scan | ATE mean | worst | map precision | "
+        "map recall | CPU ms/scan |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+    for (const std::string& world : worlds) {
+      const auto in_world = [&](const EvaluationRun& r) {
+        return experiments[r.experiment].meta.world == world;
+      };
+      const std::vector<double> odometry =
+          Column(runs, budgets.back(), false, Number, "ate_rmse_m", in_world);
+      for (int64_t budget : budgets) {
+        const std::vector<double> ate = Column(runs, budget, true, Number, "ate_rmse_m", in_world);
+        if (ate.empty()) continue;
+        md +=
+            "| " + world + " | " + std::to_string(ate.size()) + " | " +
+            (odometry.empty() ? "–" : Format("%.1f", 100.0 * Mean(odometry))) + " | " +
+            std::to_string(budget) + " | " + Format("%.1f", 100.0 * Mean(ate)) + " | " +
+            Format("%.1f", 100.0 * Max(ate)) + " | " +
+            Format("%.2f", Mean(Column(runs, budget, true, MapNumber, "precision", in_world))) +
+            " | " +
+            Format("%.2f", Mean(Column(runs, budget, true, MapNumber, "recall", in_world))) +
+            " | " +
+            Format("%.2f", Mean(Column(runs, budget, true, Number, "cpu_ms_per_scan", in_world))) +
+            " |\n";
+      }
     }
   }
 

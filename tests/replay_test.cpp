@@ -477,6 +477,9 @@ TEST_F(ReplayTest, EvaluationIsTheSameWithOneJobOrTwo) {
   const std::string md = offline::EvaluationMarkdown(*experiments_, serial);
   EXPECT_NE(md.find("| 8125 | SLAM |"), std::string::npos) << md;
   EXPECT_NE(md.find("| box-seed1 |"), std::string::npos) << md;
+  // Two worlds: a row per world and budget, with its one experiment.
+  EXPECT_NE(md.find("| box | 1 | "), std::string::npos) << md;
+  EXPECT_NE(md.find("| rooms | 1 | "), std::string::npos) << md;
   // The plan's default: each budget's shipped set (2000 is below every paper budget).
   EXPECT_NE(md.find("Parameter sets: 2000: tuned-8125, 8125: tuned-8125."), std::string::npos)
       << md;
