@@ -35,6 +35,13 @@ constexpr double kMaxSearchAngleDeg = 20.0;
 // wall do not).
 constexpr size_t kInformativeMatches = 12;
 
+// The heading drift estimate follows the heading corrections of informative matches averaged
+// over this time (s): long enough to average out their jitter (some 0.5 degree a scan), short
+// enough to follow a MEMS gyro's bias as it wanders (over minutes).
+constexpr double kHeadingDriftTimeS = 30.0;
+// The estimate's bound: more than any gyro's bias after its start-up calibration.
+constexpr double kMaxHeadingDriftDegS = 2.0;
+
 constexpr double Square(double x) { return x * x; }
 // The largest MatchWindow a particle gets (4 bytes a cell: 16 MiB), whatever its rays: more
 // means rays far longer than the scanner's, or very fine cells, cast through the map instead.
@@ -245,6 +252,7 @@ void Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
     p.pose = pose;
     p.log_weight = 0.0;
     p.history = nullptr;
+    p.heading_drift_rad_s = 0.0;
   }
 }
 
@@ -402,6 +410,7 @@ void Slam::Resample(size_t wanted, uint64_t step, uint64_t stream) {
 
 struct Slam::Prediction {
   std::vector<ScanPath> paths;   // per particle
+  std::vector<Pose2> nominal;    // per particle: odometry's end pose without its heading drift
   std::vector<Pose2> predicted;  // per particle: its end pose drawn from the motion model
   double trans = 0.0;            // odometry's translation over the scan (m)
   double sigma_trans = 0.0, sigma_rot1 = 0.0, sigma_rot2 = 0.0;  // of the motion model
@@ -448,6 +457,13 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   if (match.matched && matching.size() >= kInformativeMatches) {
     unmatched_var_pos_ = 0.0;
     unmatched_var_angle_ = 0.0;
+    // The heading the match corrected beyond the drift already taken out is drift still there.
+    const double most = DegToRad(kMaxHeadingDriftDegS);
+    for (size_t p = 0; p < particles_.size(); ++p) {
+      const double turn = NormalizeAngle(match.chosen[p].theta - prediction.nominal[p].theta);
+      double& drift = particles_[p].heading_drift_rad_s;
+      drift = std::clamp(drift - turn / kHeadingDriftTimeS, -most, most);
+    }
   } else if (plan.refine) {
     unmatched_var_pos_ +=
         Square(prediction.sigma_trans) + Square(prediction.trans) * unmatched_var_angle_;
@@ -505,19 +521,27 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   out.prior_pos = std::max(drift_pos, params_.min_pos_uncertainty_m / 3.0);
   out.prior_angle = std::max(drift_angle, min_angle / 3.0);
   out.predicted.resize(n_particles);
+  out.nominal.resize(n_particles);
   out.paths.reserve(n_particles);
+  const double span = std::max(0.0, scan.t_end - scan.t_begin);
   for (size_t p = 0; p < n_particles; ++p) {
     out.paths.emplace_back(scan, particles_[p].pose);
+    out.nominal[p] = out.paths[p].nominal_end();
     if (!refine) {
-      out.predicted[p] = out.paths[p].nominal_end();
+      out.predicted[p] = out.nominal[p];
       continue;
     }
+    // The drift over the scan is taken out of the end's heading; the samples in between
+    // follow through the correction's interpolation in time, as a constant rate does.
+    const double drift = particles_[p].heading_drift_rad_s * span;
+    out.nominal[p].theta = NormalizeAngle(out.nominal[p].theta - drift);
     Rng rng = Rng::ForStream(config_.seed, step, p, kStreamMotion);
     MotionDelta noisy = motion;
     noisy.rot1 += rng.Gaussian(out.sigma_rot1);
     noisy.trans += rng.Gaussian(out.sigma_trans);
     noisy.rot2 += rng.Gaussian(out.sigma_rot2);
     out.predicted[p] = Compose(particles_[p].pose, Recompose(noisy));
+    out.predicted[p].theta = NormalizeAngle(out.predicted[p].theta - drift);
   }
   return out;
 }
@@ -579,7 +603,7 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
   // odometry wins rather than the luckiest candidate (the maximum of many noisy likelihoods).
   std::vector<double> candidate_score(n_particles * n_candidates);
   const auto log_prior = [&](size_t p, const Pose2& c) {
-    const Pose2 nominal = paths[p].nominal_end();
+    const Pose2& nominal = prediction.nominal[p];
     return -0.5 * (Square(c.x - nominal.x) + Square(c.y - nominal.y)) /
                Square(prediction.prior_pos) -
            0.5 * Square(NormalizeAngle(c.theta - nominal.theta)) / Square(prediction.prior_angle);

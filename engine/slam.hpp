@@ -95,6 +95,9 @@ struct Particle {
   double log_weight = 0.0;
   OccupancyGrid map;
   std::shared_ptr<const TrajectoryChunk> history;
+  // The heading drift of the odometry (rad/s, counter-clockwise positive: a gyro's bias) as
+  // this particle's matches have measured it; its prediction takes it out.
+  double heading_drift_rad_s = 0.0;
 };
 
 class Slam {

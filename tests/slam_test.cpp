@@ -202,6 +202,44 @@ TEST(Matching, AfterABlindStretchTheSearchWidensWithTheDriftLeftUncorrected) {
       << found.x << ", " << found.y << " (odometry " << next.x << ", " << next.y << ")";
 }
 
+TEST(Matching, TheGyrosBiasIsLearntFromTheMatchesAndTakenOutInABlindStretch) {
+  // The robot stands still in the room while its gyro reads 1 deg/s: every scan the odometry
+  // turns 0.67 degree that did not happen. The matches turn it back; after 60 s the particle's
+  // drift estimate has most of the bias, so that over 8 s of seeing nothing the heading drifts
+  // far less than the 8 degrees the odometry alone turns.
+  const RobotDescription robot = testing::ShippedRobot();
+  const sim::World room = TestRoom();
+  const sim::World nothing;
+  SlamParams params = NoMotionNoise();
+  params.min_angle_uncertainty_deg = 2.0;
+  const Pose2 truth{0.02, -0.03, DegToRad(10.0)};
+  const double bias = DegToRad(1.0);
+  ScanPlan plan;
+  plan.candidates = 200;
+  Slam slam(robot, params, SlamConfig{});
+  slam.Restore(DrawMap(room, SlamConfig{}.resolution_m), truth);
+  Pose2 odometry = truth;
+  int index = 0;
+  const auto step = [&](const sim::World& world) {
+    Scan probe = ScanAt(robot, world, truth, index, odometry, odometry);
+    const Pose2 next = Compose(odometry, {0.0, 0.0, bias * (probe.t_end - probe.t_begin)});
+    const ScanReport report =
+        slam.ProcessScan(ScanAt(robot, world, truth, index, odometry, next), plan);
+    odometry = next;
+    ++index;
+    return report;
+  };
+  for (int k = 0; k < 90; ++k) EXPECT_GT(step(room).matching_measurements, 30);
+  const double learnt = slam.Best().heading_drift_rad_s;
+  EXPECT_NEAR(learnt, bias, 0.25 * bias) << RadToDeg(learnt) << " deg/s";
+  const double before = slam.Best().pose.theta;
+  EXPECT_NEAR(NormalizeAngle(before - truth.theta), 0.0, DegToRad(1.0));
+  for (int k = 0; k < 12; ++k) EXPECT_EQ(step(nothing).matching_measurements, 0);
+  const double drifted = NormalizeAngle(slam.Best().pose.theta - before);
+  // Odometry alone: 12 x 0.67 = 8 degrees; what is left is the estimate's error over 8 s.
+  EXPECT_LT(std::abs(drifted), DegToRad(2.0)) << RadToDeg(drifted) << " degrees";
+}
+
 TEST(Matching, AnInterruptedScanEvaluatesEachParticlesFirstCandidateOnly) {
   // A scan of 1e8 rays takes seconds; slamd's stop and a tuning job's cancel waited for it.
   const RobotDescription robot = testing::ShippedRobot();
