@@ -68,6 +68,7 @@ int main(int argc, char** argv) {
   std::string state_dir, experiments_dir, token_file, web_root = DefaultWebRoot();
   double speed = 1.0;
   uint64_t seed = 1;
+  std::string odometry = "tracked";
   int max_streams = 16;
   bool quiet = false;
   app.add_option(
@@ -108,6 +109,11 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
   app.add_option("--seed", seed, "sim source: the simulation's seed")->capture_default_str();
+  app.add_option("--odometry", odometry,
+                 "sim source: how the odometry errs: tracked (a tracked robot with a MEMS gyro, "
+                 "as slam-sim) or gentle (the original arenas' small drift)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"tracked", "gentle"}));
   app.add_option("--max-streams", max_streams, "concurrent event streams (503 beyond)")
       ->check(CLI::Range(1, 256))
       ->capture_default_str();
@@ -195,6 +201,7 @@ int main(int argc, char** argv) {
   source_options.paced = true;
   source_options.speed = speed;
   source_options.seed = seed;
+  source_options.odometry = *slam::sim::OdometryProfileFromName(odometry);
   auto opened = slam::server::OpenSourceSpec(source, robot.value(), source_options);
   if (!opened.ok()) return Fail(opened.Message(), 1);
   auto frame_source = std::move(opened).value();

@@ -40,7 +40,7 @@ hw::OpenResult OpenSourceSpec(const std::string& spec, const RobotDescription& r
     }
     const std::string name =
         sim::BuiltinWorld(value) ? value : std::filesystem::path(value).stem().string();
-    sim::ScenarioConfig config;
+    sim::ScenarioConfig config = sim::WithOdometryProfile({}, options.odometry);
     config.seed = options.seed;
     config.duration_s = options.duration_s > 0.0 ? options.duration_s : 1.0;
     sim::VirtualMarxbotOptions vm;

@@ -12,6 +12,7 @@
 
 #include "engine/robot.hpp"
 #include "hw_link/transports.hpp"
+#include "sim/scenario.hpp"
 
 namespace slam::server {
 
@@ -20,6 +21,8 @@ struct SourceSpecOptions {
   double speed = 1.0;
   uint64_t seed = 1;        // sim: the simulation's seed
   double duration_s = 0.0;  // sim: 0 = endless
+  // sim: how the virtual marXbot's odometry errs (slam-sim's default: a tracked robot's)
+  sim::OdometryProfile odometry = sim::OdometryProfile::kTracked;
 };
 
 /// The source `spec` names, or a one-line error (unknown kind, bad port, missing file, ...).

@@ -86,6 +86,7 @@ VirtualMarxbotSource::VirtualMarxbotSource(const World& world, std::string world
                                            const ScenarioConfig& config,
                                            const VirtualMarxbotOptions& options)
     : world_name_(std::move(world_name)),
+      odometry_profile_(config.odometry.profile),
       robot_(robot),
       options_(options),
       simulator_(world, robot, config) {}

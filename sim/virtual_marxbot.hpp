@@ -73,6 +73,8 @@ class VirtualMarxbotSource : public hw::FrameSource {
                        std::chrono::milliseconds timeout) override;
   std::string Describe() const override;
   hw::SourceCounters Counters() const override;
+  /// How its odometry errs: the ScenarioConfig's profile ("tracked", "gentle" or "custom").
+  const std::string& odometry_profile() const { return odometry_profile_; }
 
   /// Ground-truth poses kept, the newest: the reader (slamd's service, once a scan) keeps its own
   /// copy. Keeping them all grew slamd by 55 KB a minute (30 poses a second) for nothing.
@@ -89,6 +91,7 @@ class VirtualMarxbotSource : public hw::FrameSource {
   void Advance(double until_s);
 
   std::string world_name_;
+  std::string odometry_profile_;
   RobotDescription robot_;
   VirtualMarxbotOptions options_;
   Simulator simulator_;

@@ -6,6 +6,7 @@
 #include <string>
 #include <variant>
 
+#include "sim/virtual_marxbot.hpp"
 #include "test_support.hpp"
 
 namespace slam::server {
@@ -18,6 +19,16 @@ TEST(SourceSpecTest, OpensTheVirtualMarxbotAndUdp) {
   const hw::OpenResult sim = OpenSourceSpec("sim:rooms", robot);
   ASSERT_TRUE(sim.ok()) << ErrorOf(sim);
   EXPECT_EQ(sim.value()->Describe(), "sim:rooms");
+  // A tracked robot's odometry unless told otherwise, as slam-sim's.
+  const auto* virtual_marxbot = dynamic_cast<const sim::VirtualMarxbotSource*>(sim.value().get());
+  ASSERT_NE(virtual_marxbot, nullptr);
+  EXPECT_EQ(virtual_marxbot->odometry_profile(), "tracked");
+  SourceSpecOptions gentle;
+  gentle.odometry = sim::OdometryProfile::kGentle;
+  const hw::OpenResult original = OpenSourceSpec("sim:rooms", robot, gentle);
+  ASSERT_TRUE(original.ok()) << ErrorOf(original);
+  EXPECT_EQ(dynamic_cast<const sim::VirtualMarxbotSource&>(*original.value()).odometry_profile(),
+            "gentle");
 
   const hw::OpenResult udp = OpenSourceSpec("udp:127.0.0.1:0", robot);
   ASSERT_TRUE(udp.ok()) << ErrorOf(udp);
