@@ -18,7 +18,7 @@ const std::vector<ParamsSet>& ShippedParams() {
   static const std::vector<ParamsSet> sets = [] {
     std::vector<ParamsSet> out;
     for (const auto& [budget, text] : detail::ShippedParamsTexts()) {
-      const std::string name = "tuned-" + std::to_string(budget);
+      const std::string name = "shipped-" + std::to_string(budget);
       const auto json = nlohmann::json::parse(text, nullptr, false);
       const Result<SlamParams> params = io::ParamsFromJson(json);
       if (json.is_discarded() || !params.ok()) {

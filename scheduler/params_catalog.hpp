@@ -1,7 +1,8 @@
 #pragma once
-// Which SLAM parameters a scan runs with: the sets shipped in config/params/<budget>.json (tuned by
-// slam-tune for the paper's budgets, compiled in), chosen by the scan's quota, or one set given by
-// the user (--params, PATCH /api/v1/params) that holds whatever the quota.
+// Which SLAM parameters a scan runs with: the sets shipped in config/params/<budget>.json (one per
+// paper budget, chosen on the validation worlds among slam-tune's best and the Table II defaults:
+// docs/accuracy.md; compiled in), picked by the scan's quota, or one set given by the user
+// (--params, PATCH /api/v1/params) that holds whatever the quota.
 
 #include <cstdint>
 #include <string>
@@ -14,8 +15,8 @@ namespace slam {
 
 /// One named set of parameters.
 struct ParamsSet {
-  std::string name;    // "tuned-8125" for a shipped set, else what the user gave (a path)
-  int64_t budget = 0;  // the rays per scan it was tuned for; 0 for a user's set
+  std::string name;    // "shipped-8125" for a shipped set, else what the user gave (a path)
+  int64_t budget = 0;  // the rays per scan it was chosen for; 0 for a user's set
   SlamParams params;
 
   friend bool operator==(const ParamsSet&, const ParamsSet&) = default;
@@ -26,7 +27,7 @@ const std::vector<ParamsSet>& ShippedParams();
 
 /// The set for a scan whose quota is `quota` rays: the shipped set of the largest budget not
 /// above the quota, the smallest budget's set below them all. In rays-per-scan mode the quota is
-/// the budget, so `--budget 8125` runs tuned-8125 and `--budget 20000` runs tuned-16250.
+/// the budget, so `--budget 8125` runs shipped-8125 and `--budget 20000` runs shipped-16250.
 const ParamsSet& ShippedParamsFor(int64_t quota);
 
 /// How a run picks its parameters: the shipped sets by quota, or one fixed set.

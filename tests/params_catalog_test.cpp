@@ -29,7 +29,7 @@ TEST(ParamsCatalogTest, EveryShippedFileIsCompiledInAndValid) {
       if (set.budget != budget) continue;
       found = true;
       EXPECT_EQ(set.params, loaded.value()) << "rebuild: the compiled-in copy is stale";
-      EXPECT_EQ(set.name, "tuned-" + std::to_string(budget));
+      EXPECT_EQ(set.name, "shipped-" + std::to_string(budget));
       EXPECT_TRUE(Validate(set.params).empty());
     }
     EXPECT_TRUE(found);
@@ -58,7 +58,7 @@ TEST(ParamsCatalogTest, AGivenSetHoldsWhateverTheQuota) {
   const ParamsChoice shipped;
   EXPECT_TRUE(shipped.follows_quota());
   EXPECT_EQ(&shipped.For(16250), &ShippedParamsFor(16250));
-  EXPECT_EQ(shipped.For(70000).name, "tuned-65000");
+  EXPECT_EQ(shipped.For(70000).name, "shipped-65000");
 
   SlamParams mine;
   mine.particles = 7;

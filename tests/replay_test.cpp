@@ -289,7 +289,7 @@ TEST_F(ReplayTest, TheShippedSetOfTheQuotaRunsUnlessOneIsGiven) {
   EXPECT_EQ(run.params_set, ShippedParamsFor(16250));
   EXPECT_EQ(run.params_switches, 0);
   const Json summary = offline::ReplaySummary(Box(), run, options);
-  EXPECT_EQ(summary["params_set"], "tuned-16250");
+  EXPECT_EQ(summary["params_set"], "shipped-16250");
   EXPECT_EQ(summary["params"], io::ParamsToJson(ShippedParamsFor(16250).params));
   // The same run as with that set given outright.
   options.params = ParamsChoice("given", ShippedParamsFor(16250).params);
@@ -481,7 +481,7 @@ TEST_F(ReplayTest, EvaluationIsTheSameWithOneJobOrTwo) {
   EXPECT_NE(md.find("| box | 1 | "), std::string::npos) << md;
   EXPECT_NE(md.find("| rooms | 1 | "), std::string::npos) << md;
   // The plan's default: each budget's shipped set (2000 is below every paper budget).
-  EXPECT_NE(md.find("Parameter sets: 2000: tuned-8125, 8125: tuned-8125."), std::string::npos)
+  EXPECT_NE(md.find("Parameter sets: 2000: shipped-8125, 8125: shipped-8125."), std::string::npos)
       << md;
   const offline::EvaluationChecks checks = offline::CheckEvaluation(serial);
   EXPECT_EQ(checks.largest_budget, 8125);
@@ -592,7 +592,7 @@ TEST_F(ReplayTest, CommandLineReplaysAndReportsBadExperiments) {
                      (scratch / "shipped").string(),
                  scratch);
   ASSERT_EQ(shipped.status, 0) << shipped.err;
-  EXPECT_EQ(Json::parse(shipped.out)["params_set"], "tuned-32500");
+  EXPECT_EQ(Json::parse(shipped.out)["params_set"], "shipped-32500");
   const std::string mine = (scratch / "mine.json").string();
   std::ofstream(mine) << R"({"particles": 2})";
   const CommandResult given =

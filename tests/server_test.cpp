@@ -529,6 +529,7 @@ TEST_F(SlamServiceTest, MapsTheLogAndPublishesSnapshots) {
   // The live path (log -> link -> assembler -> scheduler -> engine) builds exactly the map that
   // Replay builds from the experiment read from disk, at the same budget and seed.
   offline::ReplayOptions replay;
+  replay.params = ParamsChoice{};  // the shipped set of the budget, as slamd without --params
   replay.budget = Options().budget;
   replay.config.parallel = false;
   const offline::ReplayResult expected =

@@ -363,7 +363,7 @@ TEST_F(SharedSlamd, ParamsGetHasTheTableIIKeysAndAnETag) {
     EXPECT_DOUBLE_EQ(params.value(key, -1.0), value.get<double>()) << key;
   }
   const json status = GetJson(http(), "/api/v1/status");
-  EXPECT_EQ(status["params"], json({{"set", "tuned-65000"}, {"follows_budget", true}}));
+  EXPECT_EQ(status["params"], json({{"set", "shipped-65000"}, {"follows_budget", true}}));
 }
 
 TEST_F(SharedSlamd, TheShippedSetFollowsTheBudgetUntilParamsArePatched) {
@@ -374,7 +374,7 @@ TEST_F(SharedSlamd, TheShippedSetFollowsTheBudgetUntilParamsArePatched) {
   // 20000 rays/scan: the set of the largest paper budget not above it.
   ASSERT_EQ(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 20000})").status, 200);
   EXPECT_EQ(GetJson(http(), kParamsPath), shipped("16250.json"));
-  EXPECT_EQ(GetJson(http(), "/api/v1/status")["params"]["set"], "tuned-16250");
+  EXPECT_EQ(GetJson(http(), "/api/v1/status")["params"]["set"], "shipped-16250");
 
   // A patch makes a set of its own that holds whatever the budget.
   const Reply patched = http().MergePatch(kParamsPath, R"({"particles": 3})");
@@ -385,7 +385,7 @@ TEST_F(SharedSlamd, TheShippedSetFollowsTheBudgetUntilParamsArePatched) {
   ASSERT_EQ(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 65000})").status, 200);
   EXPECT_EQ(GetJson(http(), kParamsPath), expected);
   EXPECT_EQ(GetJson(http(), "/api/v1/status")["params"],
-            json({{"set", "tuned-16250, patched"}, {"follows_budget", false}}));
+            json({{"set", "shipped-16250, patched"}, {"follows_budget", false}}));
 
   // DELETE goes back to the shipped set of the budget.
   const Reply back = http().Send("DELETE", kParamsPath, "", "");
@@ -393,7 +393,7 @@ TEST_F(SharedSlamd, TheShippedSetFollowsTheBudgetUntilParamsArePatched) {
   EXPECT_EQ(back.Json(), shipped("65000.json"));
   EXPECT_NE(back.Header("ETag"), patched.Header("ETag"));
   EXPECT_EQ(GetJson(http(), "/api/v1/status")["params"],
-            json({{"set", "tuned-65000"}, {"follows_budget", true}}));
+            json({{"set", "shipped-65000"}, {"follows_budget", true}}));
   EXPECT_EQ(http().PutJson(kBudgetPath, budget.dump()).status, 200);
 }
 
@@ -1197,7 +1197,7 @@ TEST_F(EventStreamSlamd, BudgetAndParamsChangesAreAnnounced) {
   // The parameters and the name of their set: the shipped set of 7000 rays/scan (the smallest
   // budget's) with the patch.
   json expected = params.Json();
-  expected["set"] = "tuned-8125, patched";
+  expected["set"] = "shipped-8125, patched";
   EXPECT_EQ(params_event->Json(), expected);
 
   EXPECT_EQ(http().PutJson(kBudgetPath, budget.dump()).status, 200);

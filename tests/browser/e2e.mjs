@@ -193,11 +193,11 @@ async function run(browser) {
   });
   log('budget 20000 applied: GET /api/v1/budget and /metrics slamd_ray_quota agree');
   // The shipped parameter set follows: 16250's is the largest paper budget not above 20000.
-  await waitFor('the status panel names the parameter set tuned-16250', 8000, async (seen) => {
+  await waitFor('the status panel names the parameter set shipped-16250', 8000, async (seen) => {
     seen.value = await page.textContent('#st-params');
-    return seen.value.trim() === 'tuned-16250';
+    return seen.value.trim() === 'shipped-16250';
   });
-  log('the page names the parameter set in use: tuned-16250');
+  log('the page names the parameter set in use: shipped-16250');
 
   // An out-of-range value: slamd's 422 shows next to the field, nothing changes.
   expected.statuses.add(422);
