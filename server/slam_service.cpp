@@ -94,6 +94,10 @@ SlamService::SlamService(hw::Link& link, const sim::VirtualMarxbotSource* truth_
       assembler_(options.robot, options.assembler),
       params_(options.params) {
   options_.config.parallel = false;
+  {
+    MutexLock lock(mutex_);
+    revised_params_ = params_.For(scheduler_.Quota(last_period_s_));
+  }
   counters_.latency_counts.assign(LatencyBuckets().size() + 1, 0);
   if (options_.resume) {
     version_base_ = options_.resume->version;
@@ -175,13 +179,26 @@ void SlamService::SetParams(const std::string& name, const SlamParams& params) {
   MutexLock lock(mutex_);
   params_ = ParamsChoice(name, params);
   params_changed_ = true;
-  ++params_revision_;
+  ReviseParams();
 }
 
 void SlamService::UseShippedParams() {
   MutexLock lock(mutex_);
   params_ = ParamsChoice{};
   params_changed_ = true;
+  ReviseParams();
+}
+
+void SlamService::SetBudget(const BudgetSettings& settings) {
+  scheduler_.SetSettings(settings);
+  MutexLock lock(mutex_);
+  ReviseParams();
+}
+
+void SlamService::ReviseParams() {
+  ParamsSet now = params_.For(scheduler_.Quota(last_period_s_));
+  if (now == revised_params_) return;
+  revised_params_ = std::move(now);
   ++params_revision_;
 }
 
@@ -194,7 +211,7 @@ void SlamService::FollowParams(double scan_period_s) {
   }
   MutexLock lock(mutex_);
   last_period_s_ = scan_period_s;
-  if (switched) ++params_revision_;
+  ReviseParams();  // a CPU share's quota moves with the measured cost per ray
 }
 
 void SlamService::RequestReset() {

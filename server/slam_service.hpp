@@ -141,7 +141,7 @@ class SlamService {
 
   /// Budget settings (applied from the next scan). Precondition of Set: valid.
   BudgetSettings Budget() const { return scheduler_.settings(); }
-  void SetBudget(const BudgetSettings& settings) { scheduler_.SetSettings(settings); }
+  void SetBudget(const BudgetSettings& settings);
   /// The parameter set the next scan runs with: the one given, or the shipped set of the
   /// current quota.
   ParamsSet Params() const;
@@ -149,7 +149,8 @@ class SlamService {
   ParamsSet ShippedParamsNow() const;
   /// Whether the parameters follow the quota (the shipped sets) or are one given set.
   bool ParamsFollowQuota() const;
-  /// Bumped whenever the set in use changes (given, or switched with the quota). Thread-safe.
+  /// Bumped whenever Params() changes (a set given, or another shipped set for a new quota),
+  /// and only then: the parameters' ETag. Thread-safe.
   uint64_t ParamsRevision() const;
   /// Runs `params` (named `name`) from the next scan, whatever the quota. Precondition: valid.
   void SetParams(const std::string& name, const SlamParams& params);
@@ -171,6 +172,8 @@ class SlamService {
   void Run();
   /// Before a scan: switches the engine to the set of the scan's quota when it changed.
   void FollowParams(double scan_period_s);
+  /// Bumps params_revision_ if Params() is no longer what it was at the last revision.
+  void ReviseParams() SLAM_REQUIRES(mutex_);
   void ProcessScan(const Scan& scan, int64_t receive_ns);
   void ApplyCommands();
   void BuildEngine();
@@ -203,6 +206,7 @@ class SlamService {
   ParamsChoice params_ SLAM_GUARDED_BY(mutex_);
   bool params_changed_ SLAM_GUARDED_BY(mutex_) = false;
   uint64_t params_revision_ SLAM_GUARDED_BY(mutex_) = 1;
+  ParamsSet revised_params_ SLAM_GUARDED_BY(mutex_);    // Params() at the last revision
   double last_period_s_ SLAM_GUARDED_BY(mutex_) = 0.0;  // of the last scan: a CPU share's quota
   // SLAM thread only: the choice and the set the engine runs.
   ParamsChoice engine_choice_;

@@ -371,9 +371,12 @@ TEST_F(SharedSlamd, TheShippedSetFollowsTheBudgetUntilParamsArePatched) {
   const auto shipped = [](const char* file) {
     return json::parse(ReadFile(fs::path(SLAM_SOURCE_DIR) / "config" / "params" / file));
   };
-  // 20000 rays/scan: the set of the largest paper budget not above it.
+  // 20000 rays/scan: the set of the largest paper budget not above it, with a new ETag at once.
+  const std::string etag_before = http().Get(kParamsPath).Header("ETag");
   ASSERT_EQ(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 20000})").status, 200);
-  EXPECT_EQ(GetJson(http(), kParamsPath), shipped("16250.json"));
+  const Reply switched = http().Get(kParamsPath);
+  EXPECT_EQ(switched.Json(), shipped("16250.json"));
+  EXPECT_NE(switched.Header("ETag"), etag_before);
   EXPECT_EQ(GetJson(http(), "/api/v1/status")["params"]["set"], "shipped-16250");
 
   // A patch makes a set of its own that holds whatever the budget.
@@ -382,7 +385,16 @@ TEST_F(SharedSlamd, TheShippedSetFollowsTheBudgetUntilParamsArePatched) {
   json expected = shipped("16250.json");
   expected["particles"] = 3;
   EXPECT_EQ(patched.Json(), expected);
+  // The ETag changes with the parameters only: scans that follow (the engine taking the set up)
+  // and a budget change leave it, so that an If-Match made from it still applies.
+  const int64_t scans = GetJson(http(), "/api/v1/status")["slam"]["scans"].get<int64_t>();
+  const auto deadline = After(10.0);
+  while (GetJson(http(), "/api/v1/status")["slam"]["scans"].get<int64_t>() < scans + 2 &&
+         Clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
   ASSERT_EQ(http().MergePatch(kBudgetPath, R"({"rays_per_scan": 65000})").status, 200);
+  EXPECT_EQ(http().Get(kParamsPath).Header("ETag"), patched.Header("ETag"));
   EXPECT_EQ(GetJson(http(), kParamsPath), expected);
   EXPECT_EQ(GetJson(http(), "/api/v1/status")["params"],
             json({{"set", "shipped-16250, patched"}, {"follows_budget", false}}));
