@@ -1607,10 +1607,12 @@ TEST_F(JobsSlamd, JobIdsGoOnFromAnEarlierRunsResults) {
 
 TEST_F(JobsSlamd, OnlyTheSixteenNewestJobsAreKept) {
   // A client starting job after job (each cancelled at once) must not grow slamd without bound:
-  // slamd keeps the 16 newest, oldest listed first.
+  // slamd keeps the 16 newest, oldest listed first. A job that finished before its DELETE
+  // arrived is deleted by it (200 instead of 202: it happens on a loaded machine), so the jobs
+  // left to keep are those whose DELETE cancelled them.
   constexpr int kStarted = 21;
   constexpr size_t kKept = 16;
-  std::vector<std::string> ids;
+  std::vector<std::string> ids, cancelled;
   for (int i = 0; i < kStarted; ++i) {
     const Reply started = http().PostJson(
         "/api/v1/jobs/tune",
@@ -1618,24 +1620,34 @@ TEST_F(JobsSlamd, OnlyTheSixteenNewestJobsAreKept) {
     ASSERT_EQ(started.status, 202) << "job " << i << ": " << started;
     ids.push_back(started.Json().value("id", ""));
     ASSERT_FALSE(ids.back().empty());
-    http().Send("DELETE", "/api/v1/jobs/" + ids.back(), "", "");
-    const json job =
-        PollJob(ids.back(), 15.0, [](const json& j) { return j.value("state", "") != "running"; });
-    ASSERT_NE(job.value("state", ""), "running") << job.dump();
+    const Reply deleted = http().Send("DELETE", "/api/v1/jobs/" + ids.back(), "", "");
+    ASSERT_TRUE(deleted.status == 202 || deleted.status == 200) << deleted;
+    if (deleted.status == 202) {
+      cancelled.push_back(ids.back());
+      const json job = PollJob(ids.back(), 15.0,
+                               [](const json& j) { return j.value("state", "") != "running"; });
+      ASSERT_NE(job.value("state", ""), "running") << job.dump();
+    }
   }
+  ASSERT_GT(cancelled.size(), kKept) << "too few jobs were still running when cancelled";
   const json listed = GetJson(http(), "/api/v1/jobs");
   ASSERT_TRUE(listed["jobs"].is_array()) << listed.dump();
   std::vector<std::string> kept;
   for (const auto& job : listed["jobs"]) kept.push_back(job.value("id", ""));
-  EXPECT_EQ(kept, std::vector<std::string>(ids.end() - kKept, ids.end()));
-  for (size_t i = 0; i + kKept < ids.size(); ++i) {
-    ExpectProblem(http().Get("/api/v1/jobs/" + ids[i]), 404);
+  const std::vector<std::string> newest(cancelled.end() - kKept, cancelled.end());
+  EXPECT_EQ(kept, newest);
+  for (const std::string& id : ids) {
+    if (std::find(newest.begin(), newest.end(), id) == newest.end()) {
+      ExpectProblem(http().Get("/api/v1/jobs/" + id), 404);
+    }
   }
-  EXPECT_EQ(GetJson(http(), "/api/v1/jobs/" + ids.back()).value("id", ""), ids.back());
-  // The latest job is still the status's job.
+  EXPECT_EQ(GetJson(http(), "/api/v1/jobs/" + newest.back()).value("id", ""), newest.back());
+  // The latest job still kept is the status's job, unless the very last was deleted.
   const json status = GetJson(http(), "/api/v1/status");
-  ASSERT_TRUE(status["job"].is_object()) << status.dump();
-  EXPECT_EQ(status["job"].value("id", ""), ids.back());
+  if (newest.back() == ids.back()) {
+    ASSERT_TRUE(status["job"].is_object()) << status.dump();
+    EXPECT_EQ(status["job"].value("id", ""), ids.back());
+  }
 }
 
 }  // namespace
