@@ -138,7 +138,7 @@ void SlamService::BuildEngine() {
     period = last_period_s_;
   }
   const ParamsSet& set = engine_choice_.For(scheduler_.Quota(period));
-  engine_set_ = set.name;
+  engine_set_ = set;
   engine_ = std::make_unique<Slam>(options_.robot, set.params, options_.config);
   engine_->set_interrupt(&stop_);  // a scan of a huge budget ends soon after Stop()
   if (options_.resume) {
@@ -204,10 +204,9 @@ void SlamService::ReviseParams() {
 
 void SlamService::FollowParams(double scan_period_s) {
   const ParamsSet& set = engine_choice_.For(scheduler_.Quota(scan_period_s));
-  const bool switched = set.name != engine_set_;
-  if (switched) {
+  if (set != engine_set_) {
     engine_->SetParams(set.params);
-    engine_set_ = set.name;
+    engine_set_ = set;
   }
   MutexLock lock(mutex_);
   last_period_s_ = scan_period_s;
@@ -266,8 +265,7 @@ void SlamService::ApplyCommands() {
     BuildEngine();
     Publish(std::nullopt);
   } else if (params) {
-    engine_choice_ = *params;
-    engine_set_.clear();  // the next scan takes the set of its quota
+    engine_choice_ = *params;  // the next scan takes the set of its quota
   }
 }
 

@@ -210,7 +210,7 @@ class SlamService {
   double last_period_s_ SLAM_GUARDED_BY(mutex_) = 0.0;  // of the last scan: a CPU share's quota
   // SLAM thread only: the choice and the set the engine runs.
   ParamsChoice engine_choice_;
-  std::string engine_set_;
+  ParamsSet engine_set_;
   bool reset_requested_ SLAM_GUARDED_BY(mutex_) = false;
 
   std::atomic<bool> stop_{false};
