@@ -114,7 +114,13 @@ Pose2 Recompose(const MotionDelta& m) {
 }  // namespace
 
 // The robot's path through one scan for one particle: the odometry path anchored at the particle's
-// start pose, plus a correction growing linearly in time to move the end onto a chosen pose.
+// start pose, plus a correction that moves the end onto a chosen pose. The correction is shared
+// between the start and the drift over the scan: kStartShare of it applies from the first
+// sample on, the rest grows linearly in time. The start is the previous scan's match, off by
+// about as much as the odometry drifts over a scan (a match on a perfect map, from the true start:
+// 1.2 cm and 0.5 degree at the end; the odometry: 0.3 to 0.9 cm and 0.2 to 0.6 degree). A
+// correction that grows from zero (the paper's) holds the start where the previous match put it,
+// and leaves the end to absorb both errors.
 class Slam::ScanPath {
  public:
   ScanPath(const Scan& scan, const Pose2& start) {
@@ -123,7 +129,8 @@ class Slam::ScanPath {
     fraction_.reserve(scan.samples.size());
     for (const ScanSample& s : scan.samples) {
       nominal_.push_back(Compose(start, Between(scan.odom_begin, s.odom)));
-      fraction_.push_back(span > 0 ? std::clamp((s.t - scan.t_begin) / span, 0.0, 1.0) : 1.0);
+      const double f = span > 0 ? std::clamp((s.t - scan.t_begin) / span, 0.0, 1.0) : 1.0;
+      fraction_.push_back(kStartShare + (1.0 - kStartShare) * f);
     }
     nominal_end_ = Compose(start, Between(scan.odom_begin, scan.odom_end));
   }

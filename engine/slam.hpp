@@ -102,6 +102,12 @@ struct Particle {
 
 class Slam {
  public:
+  /// Share of a match's correction that moves the whole scan, from its first sample on; the
+  /// rest grows linearly over the scan (docs/design.md, phase B). Chosen on the validation
+  /// worlds among 0 (the paper's: the start stays where the previous match put it), 0.3, 0.5,
+  /// 0.7 and 1.
+  static constexpr double kStartShare = 0.7;
+
   /// Preconditions: Validate(robot), Validate(params) and config.Validate() are empty.
   Slam(const RobotDescription& robot, const SlamParams& params, const SlamConfig& config);
 

@@ -112,23 +112,46 @@ TEST(Matching, RefinementRecoversAWrongPoseWithinOneCellAndHalfADegree) {
   params.min_pos_uncertainty_m = 0.10;
   params.min_angle_uncertainty_deg = 9.0;
   const Pose2 truth{0.02, -0.03, DegToRad(10.0)};
-  // The odometry claims a motion that did not happen: from the truth to a wrong pose, within
-  // one prior deviation.
-  const Pose2 wrong = Compose(truth, {0.025, -0.02, DegToRad(2.0)});
+  // The robot stands still. The filter believes it is off by `error` at the scan's end, within
+  // one prior deviation: Slam::kStartShare of it already at the start (the previous match was
+  // off), the rest drifting in over the scan (the odometry claims a motion that did not
+  // happen), as phase B models a correction.
+  const Pose2 error{0.025, -0.02, DegToRad(2.0)};
+  const auto off = [&](double share) {
+    return Pose2{truth.x + share * error.x, truth.y + share * error.y,
+                 truth.theta + share * error.theta};
+  };
+  const Pose2 start = off(Slam::kStartShare), wrong = off(1.0);
   ScanPlan plan;
   plan.candidates = 3000;
   for (const uint64_t seed : {1u, 2u, 3u}) {
     SlamConfig config;
     config.seed = seed;
     Slam slam(robot, params, config);
-    slam.Restore(DrawMap(room, config.resolution_m), truth);
-    const ScanReport report = slam.ProcessScan(ScanAt(robot, room, truth, 0, truth, wrong), plan);
+    slam.Restore(DrawMap(room, config.resolution_m), start);
+    const ScanReport report = slam.ProcessScan(ScanAt(robot, room, truth, 0, start, wrong), plan);
     EXPECT_GT(report.matching_measurements, 60);
     EXPECT_EQ(report.rays.matching, int64_t{3000} * report.matching_measurements);
     const Pose2 found = slam.Best().pose;
     EXPECT_LT(std::hypot(found.x - truth.x, found.y - truth.y), 0.01)
         << found.x << ", " << found.y << ", " << RadToDeg(found.theta);
     EXPECT_LT(std::abs(RadToDeg(NormalizeAngle(found.theta - truth.theta))), 0.5);
+    // The scan's first pose moved with it.
+    const std::vector<TimedPose> path = slam.Trajectory();
+    ASSERT_GE(path.size(), 2u);
+    const Pose2& first = path[path.size() - 40].pose;
+    EXPECT_LT(std::hypot(first.x - truth.x, first.y - truth.y), 0.01);
+  }
+  // All of the error drifting in over one scan from a start that is right (a treel slipping):
+  // phase B takes out most of it, not all, since it moves the start too.
+  {
+    Slam slam(robot, params, SlamConfig{});
+    slam.Restore(DrawMap(room, 0.01), truth);
+    slam.ProcessScan(ScanAt(robot, room, truth, 0, truth, wrong), plan);
+    const Pose2 found = slam.Best().pose;
+    EXPECT_LT(std::hypot(found.x - truth.x, found.y - truth.y), 0.02)
+        << found.x << ", " << found.y << ", " << RadToDeg(found.theta);
+    EXPECT_LT(std::abs(RadToDeg(NormalizeAngle(found.theta - truth.theta))), 1.0);
   }
   // Without phase B the wrong odometry is kept.
   Slam blind(robot, params, SlamConfig{});
