@@ -539,7 +539,8 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
       continue;
     }
     // The drift over the scan is taken out of the end's heading; the samples in between
-    // follow through the correction's interpolation in time, as a constant rate does.
+    // follow through the correction (its share from the start included: a fraction of a
+    // degree over a scan, where a constant rate would grow linearly).
     const double drift = particles_[p].heading_drift_rad_s * span;
     out.nominal[p].theta = NormalizeAngle(out.nominal[p].theta - drift);
     Rng rng = Rng::ForStream(config_.seed, step, p, kStreamMotion);
