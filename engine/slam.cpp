@@ -36,8 +36,9 @@ constexpr double kMaxSearchAngleDeg = 20.0;
 constexpr size_t kInformativeMatches = 12;
 
 // The heading drift estimate follows the heading corrections of informative matches averaged
-// over this time (s): long enough to average out their jitter (some 0.5 degree a scan), short
-// enough to follow a MEMS gyro's bias as it wanders (over minutes).
+// over this time (s): long enough to average out their jitter (0.4 to 0.7 degree a scan on a
+// perfect map, docs/accuracy.md), short enough to follow a MEMS gyro's bias as it wanders (over
+// minutes).
 constexpr double kHeadingDriftTimeS = 30.0;
 // The estimate's bound: more than any gyro's bias after its start-up calibration.
 constexpr double kMaxHeadingDriftDegS = 2.0;
@@ -118,7 +119,7 @@ Pose2 Recompose(const MotionDelta& m) {
 // between the start and the drift over the scan: kStartShare of it applies from the first
 // sample on, the rest grows linearly in time. The start is the previous scan's match, off by
 // about as much as the odometry drifts over a scan (a match on a perfect map, from the true start:
-// 1.2 cm and 0.5 degree at the end; the odometry: 0.3 to 0.9 cm and 0.2 to 0.6 degree). A
+// 1.2 cm and 0.5 to 0.7 degree at the end; the odometry: 0.3 to 0.9 cm and 0.2 to 0.6 degree). A
 // correction that grows from zero (the paper's) holds the start where the previous match put it,
 // and leaves the end to absorb both errors.
 class Slam::ScanPath {

@@ -196,9 +196,9 @@ void SlamService::SetBudget(const BudgetSettings& settings) {
 }
 
 void SlamService::ReviseParams() {
-  ParamsSet now = params_.For(scheduler_.Quota(last_period_s_));
-  if (now == revised_params_) return;
-  revised_params_ = std::move(now);
+  const ParamsSet& now = params_.For(scheduler_.Quota(last_period_s_));
+  if (now == revised_params_) return;  // every scan: compared in place, copied on change only
+  revised_params_ = now;
   ++params_revision_;
 }
 
