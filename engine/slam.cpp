@@ -3,6 +3,8 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -10,6 +12,7 @@
 #include <limits>
 #include <numeric>
 #include <optional>
+#include <span>
 
 #include "engine/cell_encoding.hpp"
 #include "engine/match_window.hpp"
@@ -110,6 +113,72 @@ MotionDelta Decompose(const Pose2& delta) {
 
 Pose2 Recompose(const MotionDelta& m) {
   return {m.trans * std::cos(m.rot1), m.trans * std::sin(m.rot1), NormalizeAngle(m.rot1 + m.rot2)};
+}
+
+// Phase B's fit of the log-likelihood's peak (FittedPeak): it needs this many candidates, and
+// its peak may lie at most this many search spreads from the best candidate (farther, the
+// quadratic is extrapolated: the best candidate stays).
+constexpr size_t kPeakFitMinCandidates = 20;
+constexpr double kPeakFitMaxStep = 2.0;
+// Candidates whose log-likelihood lies more than this many units per matched reading below the
+// best one's are left out of the fit: they sit on the likelihood's floor, and where the peak is
+// sharp (a map that fits the readings well) a quadratic through them misplaces it (by up to a
+// degree on a drawn map; chosen among 1, 1.5, 2 and none on the validation worlds).
+constexpr double kPeakFitWindowPerReading = 1.5;
+
+// A search or prior spread: position (m) and heading (rad) standard deviations.
+struct Spread {
+  double pos, angle;
+};
+
+// The pose maximising a quadratic fitted to the candidates' log-likelihoods plus the motion
+// prior (a Gaussian of spread `prior` around `nominal`). The quadratic is fitted by least
+// squares in units of the search spread, weighted by a Gaussian of that spread around `best`.
+// Its curvature is clamped to at most zero: a direction in which the likelihood does not fall
+// off (along a corridor's walls) tells nothing, and there the prior decides. One candidate's
+// luck (the likelihood on a grid is rough at the scale of a cell, and a few readings fit many
+// poses) moves the fit little, where it decides the best candidate (docs/accuracy.md, "The
+// likelihood's peak"). Empty when the fit is ill-posed or its peak lies farther than
+// kPeakFitMaxStep spreads from `best`.
+std::optional<Pose2> FittedPeak(std::span<const Pose2> poses, std::span<const double> ll,
+                                size_t readings, const Pose2& best, const Pose2& nominal,
+                                Spread search, Spread prior) {
+  const double top = *std::max_element(ll.begin(), ll.end());
+  const double lowest = top - kPeakFitWindowPerReading * static_cast<double>(readings);
+  using Vector10 = Eigen::Matrix<double, 10, 1>;
+  Eigen::Matrix<double, 10, 10> normal = Eigen::Matrix<double, 10, 10>::Zero();
+  Vector10 rhs = Vector10::Zero();
+  size_t used = 0;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    if (!std::isfinite(ll[i]) || ll[i] < lowest) continue;  // interrupted, or on the floor
+    const double u = (poses[i].x - best.x) / search.pos, v = (poses[i].y - best.y) / search.pos,
+                 t = NormalizeAngle(poses[i].theta - best.theta) / search.angle;
+    const double w = std::exp(-0.5 * (u * u + v * v + t * t));
+    Vector10 f;
+    f << 1, u, v, t, u * u, v * v, t * t, u * v, u * t, v * t;
+    normal.selfadjointView<Eigen::Lower>().rankUpdate(f, w);
+    rhs += w * ll[i] * f;
+    ++used;
+  }
+  if (used < kPeakFitMinCandidates) return std::nullopt;
+  const Vector10 a = normal.selfadjointView<Eigen::Lower>().ldlt().solve(rhs);
+  if (!a.allFinite()) return std::nullopt;
+  Eigen::Matrix3d curvature;
+  curvature << 2 * a[4], a[7], a[8], a[7], 2 * a[5], a[9], a[8], a[9], 2 * a[6];
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(curvature);
+  const Eigen::Matrix3d falling = eigen.eigenvectors() *
+                                  eigen.eigenvalues().cwiseMin(0.0).asDiagonal() *
+                                  eigen.eigenvectors().transpose();
+  // Maximise a + g.x + x'Hx/2 - (x - n)'P(x - n)/2: (P - H) x = g + P n.
+  const Eigen::Vector3d precision(Square(search.pos / prior.pos), Square(search.pos / prior.pos),
+                                  Square(search.angle / prior.angle));
+  const Eigen::Vector3d centre((nominal.x - best.x) / search.pos, (nominal.y - best.y) / search.pos,
+                               NormalizeAngle(nominal.theta - best.theta) / search.angle);
+  const Eigen::Matrix3d lhs = Eigen::Matrix3d(precision.asDiagonal()) - falling;
+  const Eigen::Vector3d step = lhs.ldlt().solve(a.segment<3>(1) + precision.cwiseProduct(centre));
+  if (!step.allFinite() || step.norm() > kPeakFitMaxStep) return std::nullopt;
+  return Pose2{best.x + step[0] * search.pos, best.y + step[1] * search.pos,
+               NormalizeAngle(best.theta + step[2] * search.angle)};
 }
 
 }  // namespace
@@ -660,7 +729,17 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
   double ambiguity = 0.0;
   for (size_t p = 0; p < n_particles; ++p) {
     out.chosen[p] = candidate_pose[best[p]];
+    // The particle's weight takes the best candidate's log-likelihood, wherever the fit moves it.
     out.chosen_ll[p] = candidate_ll[best[p]];
+    if (config_.fit_peak && n_candidates >= kPeakFitMinCandidates) {
+      const size_t begin = p * n_candidates;
+      const std::optional<Pose2> peak =
+          FittedPeak(std::span(candidate_pose).subspan(begin, n_candidates),
+                     std::span(candidate_ll).subspan(begin, n_candidates), matching.size(),
+                     candidate_pose[best[p]], prediction.nominal[p], {sigma_pos, sigma_angle},
+                     {prediction.prior_pos, prediction.prior_angle});
+      if (peak) out.chosen[p] = *peak;
+    }
     if (explore > 1) {
       // The first round's posterior (weights exp(ll - its best ll)) around its winner: how
       // little the measurements told the candidates drawn from the proposal apart.

@@ -30,6 +30,10 @@ struct SlamConfig {
   double match_floor = 0.05;
   /// Matching rays stop this many sigmas beyond the measured distance.
   double match_range_sigmas = 3.0;
+  /// Phase B's estimate: the peak of the log-likelihood fitted over the candidates, with the
+  /// motion prior (true), or the best candidate alone (false, the paper's). docs/design.md,
+  /// phase B.
+  bool fit_peak = true;
   uint64_t seed = 1;
   bool parallel = true;  // oneTBB across particles and candidates; results equal the serial path
 
