@@ -134,10 +134,11 @@ struct Spread {
 // The pose maximising a quadratic fitted to the candidates' log-likelihoods plus the motion
 // prior (a Gaussian of spread `prior` around `nominal`). The quadratic is fitted by least
 // squares in units of the search spread, weighted by a Gaussian of that spread around `best`.
-// Its curvature is clamped to at most zero: a direction in which the likelihood does not fall
-// off (along a corridor's walls) tells nothing, and there the prior decides. One candidate's
-// luck (the likelihood on a grid is rough at the scale of a cell, and a few readings fit many
-// poses) moves the fit little, where it decides the best candidate (docs/accuracy.md, "The
+// Its curvature is clamped to at most zero, and its slope along each principal direction
+// shrunk by that direction's share of the information: a direction in which the likelihood
+// does not fall off (along a corridor's walls) tells nothing, and there the prior decides. One
+// candidate's luck (the likelihood on a grid is rough at the scale of a cell, and a few readings
+// fit many poses) moves the fit little, where it decides the best candidate (docs/accuracy.md, "The
 // likelihood's peak"). Empty when the fit is ill-posed or its peak lies farther than
 // kPeakFitMaxStep spreads from `best`.
 std::optional<Pose2> FittedPeak(std::span<const Pose2> poses, std::span<const double> ll,
@@ -175,7 +176,17 @@ std::optional<Pose2> FittedPeak(std::span<const Pose2> poses, std::span<const do
   const Eigen::Vector3d centre((nominal.x - best.x) / search.pos, (nominal.y - best.y) / search.pos,
                                NormalizeAngle(nominal.theta - best.theta) / search.angle);
   const Eigen::Matrix3d lhs = Eigen::Matrix3d(precision.asDiagonal()) - falling;
-  const Eigen::Vector3d step = lhs.ldlt().solve(a.segment<3>(1) + precision.cwiseProduct(centre));
+  // The fitted slope along each principal direction counts in proportion to that direction's
+  // share of the information (its curvature against the prior's precision there): along a
+  // direction the readings hardly tell apart, the slope is the fit's noise.
+  Eigen::Vector3d along = eigen.eigenvectors().transpose() * a.segment<3>(1);
+  for (int k = 0; k < 3; ++k) {
+    const Eigen::Vector3d v = eigen.eigenvectors().col(k);
+    const double information = std::max(0.0, -eigen.eigenvalues()[k]);
+    along[k] *= information / (information + v.cwiseProduct(v).dot(precision));
+  }
+  const Eigen::Vector3d gradient = eigen.eigenvectors() * along;
+  const Eigen::Vector3d step = lhs.ldlt().solve(gradient + precision.cwiseProduct(centre));
   if (!step.allFinite() || step.norm() > kPeakFitMaxStep) return std::nullopt;
   return Pose2{best.x + step[0] * search.pos, best.y + step[1] * search.pos,
                NormalizeAngle(best.theta + step[2] * search.angle)};
