@@ -88,6 +88,14 @@ Scan ScanAt(const RobotDescription& robot, const sim::World& world, const Pose2&
   return scan;
 }
 
+// The engine settings of the matching tests: filter seed and phase B's estimator.
+SlamConfig EstimatorConfig(uint64_t seed, bool fit_peak) {
+  SlamConfig config;
+  config.seed = seed;
+  config.fit_peak = fit_peak;
+  return config;
+}
+
 SlamParams NoMotionNoise() {
   SlamParams p;
   p.dist_error_ratio = p.dist_error_const_m = p.angle_error_ratio = p.angle_error_const_deg = 0;
@@ -136,9 +144,7 @@ TEST(Matching, RefinementRecoversAWrongPoseWithinOneCellAndHalfADegree) {
   for (const bool fit_peak : {false, true}) {
     SCOPED_TRACE(fit_peak ? "fitted peak" : "best candidate");
     for (const uint64_t seed : {1u, 2u, 3u}) {
-      SlamConfig config;
-      config.seed = seed;
-      config.fit_peak = fit_peak;
+      const SlamConfig config = EstimatorConfig(seed, fit_peak);
       Slam slam(robot, params, config);
       slam.Restore(DrawMap(room, config.resolution_m), start);
       const ScanReport report = slam.ProcessScan(ScanAt(robot, room, truth, 0, start, wrong), plan);
@@ -161,9 +167,7 @@ TEST(Matching, RefinementRecoversAWrongPoseWithinOneCellAndHalfADegree) {
     // All of the error drifting in over one scan from a start that is right (a treel slipping):
     // phase B takes out most of it, not all, since it moves the start too.
     {
-      SlamConfig config;
-      config.fit_peak = fit_peak;
-      Slam slam(robot, params, config);
+      Slam slam(robot, params, EstimatorConfig(1, fit_peak));
       slam.Restore(DrawMap(room, 0.01), truth);
       slam.ProcessScan(ScanAt(robot, room, truth, 0, truth, wrong), plan);
       const Pose2 found = slam.Best().pose;
@@ -205,9 +209,7 @@ TEST(Matching, WhereTheReadingsCannotTellPosesApartTheOdometryWins) {
   for (const bool fit_peak : {false, true}) {
     SCOPED_TRACE(fit_peak ? "fitted peak" : "best candidate");
     for (const uint64_t seed : {1u, 2u, 3u}) {
-      SlamConfig config;
-      config.seed = seed;
-      config.fit_peak = fit_peak;
+      const SlamConfig config = EstimatorConfig(seed, fit_peak);
       Slam slam(robot, params, config);
       slam.Restore(DrawMap(wall, config.resolution_m), truth);
       const ScanReport report = slam.ProcessScan(ScanAt(robot, wall, truth, 0, truth, truth), plan);

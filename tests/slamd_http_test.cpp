@@ -1139,10 +1139,8 @@ TEST_F(EventStreamSlamd, LastEventIdResendsOnlyNewerTiles) {
     if (lo < hi) resume_id = lo;
   } while (resume_id == 0 && Clock::now() < deadline);
   ASSERT_GT(resume_id, 0) << "precondition: tiles of different versions";
-  ASSERT_GE(resume_id, first_id);
-  size_t older = 0;
+  size_t older = 0;  // at least the tile whose version is resume_id
   for (const auto& tile : map["tiles"]) older += tile["version"].get<int64_t>() <= resume_id;
-  ASSERT_GT(older, 0u);
 
   EventStream resumed;
   ASSERT_EQ(resumed.Open(port(), std::to_string(resume_id)), 200);
