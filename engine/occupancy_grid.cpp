@@ -76,6 +76,7 @@ Tile& OccupancyGrid::MutableTile(TileIndex t) {
     AcquireSoleOwnership(slot);
   }
   slot->version = write_version_;
+  slot->clearance_known_stale = false;
   slot->occupied_blocks.store(kUnknownSummary,
                               std::memory_order_relaxed);  // being written (held alone)
   return *slot;
@@ -217,16 +218,27 @@ void ComputeClearance(const std::array<uint64_t, kTileSize>& rows,
   ChessboardDistance(clearance.data(), kTileSize, kTileSize);
 }
 
-void OccupancyGrid::RefreshSummaries() {
+void OccupancyGrid::RefreshSummaries(bool clearance) {
   for (auto& slot : slots_) {
     if (!slot || slot->occupied_blocks.load(std::memory_order_acquire) != kUnknownSummary) continue;
+    if (!clearance && slot->clearance_known_stale) continue;
+    const std::array<uint64_t, kTileSize> rows = ComputeOccupiedRows(*slot);
+    const uint64_t mask = OccupiedBlocks(rows);
+    const bool stale_clearance =
+        mask != 0 && !(slot->has_clearance && rows == slot->clearance_rows);
     // Only this grid may change a tile it holds alone (a count of 1 cannot grow meanwhile:
     // only this grid could copy the reference).
-    if (slot.use_count() > 1) slot = std::make_shared<Tile>(*slot);
+    const bool alone = slot.use_count() == 1;
+    if (stale_clearance && !clearance) {
+      if (alone) {
+        AcquireSoleOwnership(slot);
+        slot->clearance_known_stale = true;
+      }
+      continue;
+    }
+    if (!alone) slot = std::make_shared<Tile>(*slot);
     Tile& tile = *slot;
-    const std::array<uint64_t, kTileSize> rows = ComputeOccupiedRows(tile);
-    const uint64_t mask = OccupiedBlocks(rows);
-    if (mask != 0 && !(tile.has_clearance && rows == tile.clearance_rows)) {
+    if (stale_clearance) {
       ComputeClearance(rows, tile.clearance);
       tile.clearance_rows = rows;
       tile.has_clearance = true;

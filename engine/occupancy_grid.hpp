@@ -45,6 +45,9 @@ struct Tile {
   /// free cells freer and occupied ones more occupied).
   std::array<uint64_t, kTileSize> clearance_rows;
   bool has_clearance = false;
+  /// Set by a refresh without clearance that found `clearance` stale, cleared by every write
+  /// (OccupancyGrid::MutableTile): the next such refresh skips the tile unless it was written.
+  bool clearance_known_stale = false;
 
   Tile() = default;
   /// A copy of the cells and of the clearance with what it was computed from; its summary
@@ -145,8 +148,11 @@ class OccupancyGrid {
 
   /// Recomputes the empty-space summary and clearance of every tile written since its last
   /// refresh (the engine calls it after each update phase). A stale tile shared with another
-  /// holder (a grid, a reader) is first copied, so that no reader ever sees it change.
-  void RefreshSummaries();
+  /// holder (a grid, a reader) is first copied, so that no reader ever sees it change. With
+  /// `clearance` false, a tile whose cells above kSummaryThreshold changed since its clearance
+  /// was computed stays stale (the clearance costs more than the rest of the refresh, and only
+  /// rays cast through the tiles use it); the others get their summary.
+  void RefreshSummaries(bool clearance = true);
 
   /// Every tile written so far, as shared immutable references (row-major tile order).
   std::vector<TileRef> Tiles() const;

@@ -13,6 +13,7 @@
 #include <numeric>
 #include <optional>
 #include <span>
+#include <utility>
 
 #include "engine/cell_encoding.hpp"
 #include "engine/match_window.hpp"
@@ -207,9 +208,13 @@ class Slam::ScanPath {
   ScanPath(const Scan& scan, const Pose2& start) {
     const double span = scan.t_end - scan.t_begin;
     nominal_.reserve(scan.samples.size());
+    cos_.reserve(scan.samples.size());
+    sin_.reserve(scan.samples.size());
     fraction_.reserve(scan.samples.size());
     for (const ScanSample& s : scan.samples) {
       nominal_.push_back(Compose(start, Between(scan.odom_begin, s.odom)));
+      cos_.push_back(std::cos(nominal_.back().theta));
+      sin_.push_back(std::sin(nominal_.back().theta));
       const double f = span > 0 ? std::clamp((s.t - scan.t_begin) / span, 0.0, 1.0) : 1.0;
       fraction_.push_back(kStartShare + (1.0 - kStartShare) * f);
     }
@@ -260,12 +265,44 @@ class Slam::ScanPath {
   Frame SampleFrame(size_t i, const Pose2& correction) const {
     const double s = fraction_[i];
     const Pose2& n = nominal_[i];
-    const double theta = n.theta + s * correction.theta;
-    return {n.x + s * correction.x, n.y + s * correction.y, std::cos(theta), std::sin(theta)};
+    const double turn = s * correction.theta;
+    if (std::abs(turn) > kSmallTurnRad) {
+      const double theta = n.theta + turn;
+      return {n.x + s * correction.x, n.y + s * correction.y, std::cos(theta), std::sin(theta)};
+    }
+    // The nominal heading's cosine and sine, turned by the correction's share: a candidate's
+    // frames without a libm call each (they cost as much as casting the ray).
+    const auto [c, sn] = SmallTurn(turn);
+    return {n.x + s * correction.x, n.y + s * correction.y, cos_[i] * c - sin_[i] * sn,
+            sin_[i] * c + cos_[i] * sn};
   }
 
  private:
+  /// Turns up to this size (radians) take SmallTurn's series.
+  static constexpr double kSmallTurnRad = 0.5;
+  /// cos(a) and sin(a) for |a| <= kSmallTurnRad by their Taylor series, whose first omitted
+  /// terms are below 1e-16 there.
+  static std::pair<double, double> SmallTurn(double a) {
+    const double a2 = a * a;
+    // Horner over a^2: the reciprocal factorials 1/14!, 1/12!, ..., 1/0! and 1/13!, ..., 1/1!.
+    constexpr std::array<double, 8> kCos{
+        1.0 / 87178291200.0, 1.0 / 479001600.0, 1.0 / 3628800.0, 1.0 / 40320.0,
+        1.0 / 720.0,         1.0 / 24.0,        1.0 / 2.0,       1.0};
+    constexpr std::array<double, 7> kSin{1.0 / 6227020800.0,
+                                         1.0 / 39916800.0,
+                                         1.0 / 362880.0,
+                                         1.0 / 5040.0,
+                                         1.0 / 120.0,
+                                         1.0 / 6.0,
+                                         1.0};
+    double c = kCos[0], s = kSin[0];
+    for (size_t k = 1; k < kCos.size(); ++k) c = kCos[k] - c * a2;
+    for (size_t k = 1; k < kSin.size(); ++k) s = kSin[k] - s * a2;
+    return {c, s * a};
+  }
+
   std::vector<Pose2> nominal_;
+  std::vector<double> cos_, sin_;  // of the nominal headings
   std::vector<double> fraction_;
   Pose2 nominal_end_;
 };
@@ -531,7 +568,15 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   const std::vector<const Measurement*> matching = SelectMatching(scan, usable, plan);
 
   const Prediction prediction = PredictMotion(scan, plan.refine, step);
-  const MatchResult match = MatchScan(prediction, matching, plan, step);
+  const WindowPlan windows = PlanWindows(prediction, matching, plan);
+  if (!windows.empty()) {
+    // The particles that cast through their tiles need the tiles' clearance, which the last
+    // update left stale where a window served instead.
+    ForEach(config_.parallel, particles_.size(), [&](size_t p) {
+      if (!windows[p]) particles_[p].map.RefreshSummaries();
+    });
+  }
+  const MatchResult match = MatchScan(prediction, matching, plan, windows, step);
   report.candidates = static_cast<int>(match.candidates);
   if (match.matched) {
     report.refinement_ambiguity = match.ambiguity;
@@ -558,7 +603,7 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
     unmatched_var_angle_ += Square(prediction.sigma_rot1) + Square(prediction.sigma_rot2);
   }
 
-  const size_t updates = UpdateParticles(scan, usable, prediction, match, plan);
+  const size_t updates = UpdateParticles(scan, usable, prediction, match, plan, windows);
   report.update_rays = static_cast<int>(updates);
   report.rays.update = static_cast<int64_t>(updates * particles_.size());
 
@@ -635,22 +680,12 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   return out;
 }
 
-Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
-                                  const std::vector<const Measurement*>& matching,
-                                  const ScanPlan& plan, uint64_t step) const {
+Slam::WindowPlan Slam::PlanWindows(const Prediction& prediction,
+                                   const std::vector<const Measurement*>& matching,
+                                   const ScanPlan& plan) const {
   const size_t n_particles = particles_.size();
-  const std::vector<ScanPath>& paths = prediction.paths;
-  const std::vector<Pose2>& predicted = prediction.predicted;
-  MatchResult out;
-  out.chosen = predicted;
-  out.chosen_ll.assign(n_particles, 0.0);
-  out.matched = plan.refine && !matching.empty() && (plan.candidates > 1 || n_particles > 1);
-  if (!out.matched) return out;
-  const size_t n_candidates = static_cast<size_t>(std::max(1, plan.candidates));
-  out.candidates = n_candidates;
-
-  const double sigma_pos = prediction.search_pos;
-  const double sigma_angle = prediction.search_angle;
+  if (!(plan.refine && !matching.empty() && (plan.candidates > 1 || n_particles > 1))) return {};
+  const auto n_candidates = static_cast<size_t>(std::max(1, plan.candidates));
   // A particle whose candidates cast enough rays gets a MatchWindow over the cells they can
   // reach: every sample position under the predicted correction, moved by up to 4 sigma_pos,
   // plus the longest reach of a matching ray (candidates drawn farther cast through the map).
@@ -660,18 +695,42 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
   double reach = 0.0;
   for (const Measurement* m : matching)
     reach = std::max(reach, m->local_origin.norm() + m->match_range_m);
-  const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
-  std::vector<std::optional<MatchWindow>> windows(n_particles);
-  ForEach(config_.parallel, n_particles, [&](size_t p) {
-    const std::array<double, 4> box = paths[p].Extent(paths[p].CorrectionTo(predicted[p]));
-    const double pad = reach + 4.0 * sigma_pos + 3.0 * config_.resolution_m;
+  WindowPlan windows(n_particles);
+  for (size_t p = 0; p < n_particles; ++p) {
+    const ScanPath& path = prediction.paths[p];
+    const std::array<double, 4> box = path.Extent(path.CorrectionTo(prediction.predicted[p]));
+    const double pad = reach + 4.0 * prediction.search_pos + 3.0 * config_.resolution_m;
     const CellIndex lo = geometry_.CellOf({box[0] - pad, box[1] - pad});
     const CellIndex hi = geometry_.CellOf({box[2] + pad, box[3] + pad});
     const int64_t cells = (int64_t{hi.x} - lo.x + 1) * (int64_t{hi.y} - lo.y + 1);
     const auto rays = static_cast<int64_t>(n_candidates * matching.size());
-    if (cells <= kMaxMatchWindowCells && rays * kCellsPerRayPaid >= cells) {
-      windows[p].emplace(particles_[p].map, occupied_above, lo, hi);
-    }
+    if (cells <= kMaxMatchWindowCells && rays * kCellsPerRayPaid >= cells) windows[p] = {lo, hi};
+  }
+  return windows;
+}
+
+Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
+                                  const std::vector<const Measurement*>& matching,
+                                  const ScanPlan& plan, const WindowPlan& window_plan,
+                                  uint64_t step) const {
+  const size_t n_particles = particles_.size();
+  const std::vector<ScanPath>& paths = prediction.paths;
+  const std::vector<Pose2>& predicted = prediction.predicted;
+  MatchResult out;
+  out.chosen = predicted;
+  out.chosen_ll.assign(n_particles, 0.0);
+  out.matched = !window_plan.empty();  // PlanWindows: whether phase B runs
+  if (!out.matched) return out;
+  const size_t n_candidates = static_cast<size_t>(std::max(1, plan.candidates));
+  out.candidates = n_candidates;
+
+  const double sigma_pos = prediction.search_pos;
+  const double sigma_angle = prediction.search_angle;
+  const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
+  std::vector<std::optional<MatchWindow>> windows(n_particles);
+  ForEach(config_.parallel, n_particles, [&](size_t p) {
+    if (window_plan[p])
+      windows[p].emplace(particles_[p].map, occupied_above, window_plan[p]->lo, window_plan[p]->hi);
   });
   // The search: the first half of each particle's candidates are drawn around its prediction
   // (candidate 0 is the prediction itself), wide enough to re-acquire a pose that drifted; the
@@ -780,7 +839,7 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
 
 size_t Slam::UpdateParticles(const Scan& scan, const std::vector<Measurement>& usable,
                              const Prediction& prediction, const MatchResult& match,
-                             const ScanPlan& plan) {
+                             const ScanPlan& plan, const WindowPlan& windows) {
   const std::vector<size_t> updates =
       SpreadEvenly(usable.size(), static_cast<size_t>(std::max(0, plan.update_rays)));
   for (Particle& p : particles_) p.map.BeginWrite();  // in order: versions do not depend on threads
@@ -797,8 +856,10 @@ size_t Slam::UpdateParticles(const Scan& scan, const std::vector<Measurement>& u
     }
     // Lets the next scan's matching rays skip empty space (while the tiles just written are
     // this particle's alone). Without refinement nothing is matched: tiles stay stale, and
-    // the first refresh after refinement resumes catches them all up.
-    if (plan.refine) particle.map.RefreshSummaries();
+    // the first refresh after refinement resumes catches them all up. A particle matched
+    // through a window (likely again next scan) leaves the tiles' clearance stale: ProcessScan
+    // refreshes it when a scan casts through them.
+    if (plan.refine) particle.map.RefreshSummaries(/*clearance=*/windows.empty() || !windows[p]);
     auto chunk = std::make_shared<TrajectoryChunk>();
     chunk->poses.reserve(scan.samples.size() + 1);
     for (size_t i = 0; i < scan.samples.size(); ++i) {

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include "engine/occupancy_grid.hpp"
@@ -156,6 +157,10 @@ class Slam {
                        const std::vector<const Measurement*>& matching) const;
   struct Prediction;
   struct MatchResult;
+  struct WindowBounds {
+    CellIndex lo, hi;  // inclusive
+  };
+  using WindowPlan = std::vector<std::optional<WindowBounds>>;
 
   // ProcessScan's steps, in order.
   /// Gives every particle a history and applies the plan's particle count (drawn from the
@@ -171,16 +176,23 @@ class Slam {
   /// Phase A: each particle's path through the scan and its end pose sampled from the motion
   /// model (noise-free without refinement: odometry-only mapping).
   Prediction PredictMotion(const Scan& scan, bool refine, uint64_t step) const;
+  /// Which particles' phase B pays for a MatchWindow, and over which cells (per particle;
+  /// empty when nothing is matched). The others cast their rays through their grid's tiles.
+  WindowPlan PlanWindows(const Prediction& prediction,
+                         const std::vector<const Measurement*>& matching,
+                         const ScanPlan& plan) const;
   /// Phase B: eq. (2) for each candidate pose around each prediction; the best one wins.
   MatchResult MatchScan(const Prediction& prediction,
                         const std::vector<const Measurement*>& matching, const ScanPlan& plan,
-                        uint64_t step) const;
+                        const WindowPlan& windows, uint64_t step) const;
   /// Phase C: the plan's share of the usable readings updates each particle's map along its
   /// ray from its sample's refined pose; extends the histories, moves the particles and adds
   /// the chosen candidates' log-likelihoods to their weights. The number of update rays each.
+  /// Tiles' clearance is refreshed only for the particles that cast through their tiles this
+  /// scan (`windows`); the others' stays stale until a scan casts through them.
   size_t UpdateParticles(const Scan& scan, const std::vector<Measurement>& usable,
                          const Prediction& prediction, const MatchResult& match,
-                         const ScanPlan& plan);
+                         const ScanPlan& plan, const WindowPlan& windows);
   /// Phase D: the effective sample size, then resampling every resampling_period_scans.
   void FinishScan(const MatchResult& match, uint64_t step, ScanReport& report);
   /// Draws `wanted` particles in proportion to their weights (random stream `stream` of scan

@@ -303,6 +303,38 @@ TEST(OccupancyGrid, SummariesMarkBlocksAboveTheThreshold) {
   EXPECT_EQ(grid.FindTile({-1, -1})->occupied_blocks.load(), uint64_t{1} << 63);
 }
 
+TEST(OccupancyGrid, ARefreshWithoutClearanceLeavesOnlyChangedObstaclesStale) {
+  OccupancyGrid grid = RandomMap(30, 0.01);
+  grid.RefreshSummaries();
+  const Tile* changed = grid.FindTile({0, 0});
+  const Tile* freer = grid.FindTile({1, 1});
+  ASSERT_NE(changed->occupied_blocks.load(), kUnknownSummary);
+  ASSERT_NE(changed->clearance[5 * kTileSize + 5], 0);  // (5, 5) is not occupied yet
+  ASSERT_NE(freer->occupied_blocks.load(), kUnknownSummary);
+  const std::array<uint8_t, kTileCells> freer_clearance = freer->clearance;
+
+  grid.BeginWrite();
+  grid.Add({5, 5}, 900);     // a new obstacle in tile (0, 0)
+  grid.Add({70, 70}, -300);  // tile (1, 1): a free cell freer, the obstacles unchanged
+  grid.RefreshSummaries(/*clearance=*/false);
+  // Changed obstacles: stale (rays examine the tile cell by cell, never a stale clearance).
+  EXPECT_EQ(changed->occupied_blocks.load(), kUnknownSummary);
+  EXPECT_TRUE(changed->clearance_known_stale);
+  // Unchanged obstacles get their summary back, with the clearance they had.
+  EXPECT_NE(freer->occupied_blocks.load(), kUnknownSummary);
+  EXPECT_EQ(freer->clearance, freer_clearance);
+  ExpectSameHits(grid, 31, 20000, 0);
+
+  // Written again: the mark goes; a full refresh computes the clearance of what is there now.
+  grid.Add({5, 6}, 900);
+  EXPECT_FALSE(changed->clearance_known_stale);
+  grid.RefreshSummaries();
+  EXPECT_NE(changed->occupied_blocks.load(), kUnknownSummary);
+  EXPECT_EQ(changed->clearance[5 * kTileSize + 5], 0);
+  EXPECT_EQ(changed->clearance[6 * kTileSize + 5], 0);
+  ExpectSameHits(grid, 32, 20000, 0);
+}
+
 TEST(OccupancyGrid, ClearanceIsTheChessboardDistanceToTheNearestCellAboveTheThreshold) {
   Rng rng(21);
   for (const double density : {0.0005, 0.01, 0.2}) {
