@@ -9,8 +9,49 @@
 
 #include "engine/fast_ray.hpp"
 #include "engine/ray_cast_wide.hpp"
+#include "engine/target_clones.hpp"
 
 namespace slam {
+
+namespace {
+
+/// MatchWindow's free squares of the four quadrants (see its constructor) from `free` (0 on
+/// occupied cells), w x h cells, into `squares` (4 w h bytes).
+SLAM_TARGET_CLONES void BuildFreeSquares(const uint8_t* free, uint8_t* squares, size_t w,
+                                         size_t h) {
+  std::vector<uint8_t> scratch;
+  for (size_t quadrant = 0; quadrant < 4; ++quadrant) {
+    const bool back_x = (quadrant & 1) != 0, back_y = (quadrant & 2) != 0;
+    uint8_t* q = squares + quadrant * w * h;
+    for (size_t i = 0; i < h; ++i) {
+      const size_t y = back_y ? i : h - 1 - i;
+      uint8_t* row = q + y * w;
+      const uint8_t* occupancy = free + y * w;
+      if (i == 0) {
+        for (size_t x = 0; x < w; ++x) row[x] = occupancy[x] == 0 ? uint8_t{0} : kClearanceFar;
+      } else {
+        const uint8_t* next = q + (back_y ? y - 1 : y + 1) * w;
+        // a = min(next[x], next[x +- 1], 126) + 1 on free cells (the edge's beyond is free).
+        if (back_x) {
+          row[0] = std::min(next[0], static_cast<uint8_t>(kClearanceFar - 1));
+          for (size_t x = 1; x < w; ++x)
+            row[x] =
+                std::min(std::min(next[x], next[x - 1]), static_cast<uint8_t>(kClearanceFar - 1));
+        } else {
+          for (size_t x = 0; x + 1 < w; ++x)
+            row[x] =
+                std::min(std::min(next[x], next[x + 1]), static_cast<uint8_t>(kClearanceFar - 1));
+          row[w - 1] = std::min(next[w - 1], static_cast<uint8_t>(kClearanceFar - 1));
+        }
+        for (size_t x = 0; x < w; ++x)
+          row[x] = occupancy[x] == 0 ? uint8_t{0} : static_cast<uint8_t>(row[x] + 1);
+      }
+      RelaxRow(row, w, back_x, !back_x, scratch);  // from the far side only
+    }
+  }
+}
+
+}  // namespace
 
 MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, CellIndex lo,
                          CellIndex hi)
@@ -61,36 +102,7 @@ MatchWindow::MatchWindow(const OccupancyGrid& grid, LogOdds occupied_above, Cell
   // there). Along the row, as the minimum of a + j over the cells j further (a the value
   // from the next row alone, 0 where occupied).
   squares_.assign(4 * w * h + kFreeSquaresPadding, kClearanceFar);
-  std::vector<uint8_t> scratch;
-  for (size_t quadrant = 0; quadrant < 4; ++quadrant) {
-    const bool back_x = (quadrant & 1) != 0, back_y = (quadrant & 2) != 0;
-    uint8_t* q = squares_.data() + quadrant * w * h;
-    for (size_t i = 0; i < h; ++i) {
-      const size_t y = back_y ? i : h - 1 - i;
-      uint8_t* row = q + y * w;
-      const uint8_t* occupancy = free.data() + y * w;
-      if (i == 0) {
-        for (size_t x = 0; x < w; ++x) row[x] = occupancy[x] == 0 ? uint8_t{0} : kClearanceFar;
-      } else {
-        const uint8_t* next = q + (back_y ? y - 1 : y + 1) * w;
-        // a = min(next[x], next[x +- 1], 126) + 1 on free cells (the edge's beyond is free).
-        if (back_x) {
-          row[0] = std::min(next[0], static_cast<uint8_t>(kClearanceFar - 1));
-          for (size_t x = 1; x < w; ++x)
-            row[x] =
-                std::min(std::min(next[x], next[x - 1]), static_cast<uint8_t>(kClearanceFar - 1));
-        } else {
-          for (size_t x = 0; x + 1 < w; ++x)
-            row[x] =
-                std::min(std::min(next[x], next[x + 1]), static_cast<uint8_t>(kClearanceFar - 1));
-          row[w - 1] = std::min(next[w - 1], static_cast<uint8_t>(kClearanceFar - 1));
-        }
-        for (size_t x = 0; x < w; ++x)
-          row[x] = occupancy[x] == 0 ? uint8_t{0} : static_cast<uint8_t>(row[x] + 1);
-      }
-      RelaxRow(row, w, back_x, !back_x, scratch);  // from the far side only
-    }
-  }
+  BuildFreeSquares(free.data(), squares_.data(), w, h);
 }
 
 bool MatchWindow::Covers(const RayQuery& q) const {

@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include "engine/target_clones.hpp"
+
 #if defined(__SANITIZE_THREAD__)  // GCC
 #define SLAM_THREAD_SANITIZER 1
 #elif defined(__has_feature)  // Clang
@@ -136,8 +138,8 @@ uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows) {
   return mask;
 }
 
-void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above,
-              std::vector<uint8_t>& scratch) {
+SLAM_TARGET_CLONES void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above,
+                                 std::vector<uint8_t>& scratch) {
   // Doubling the offset (1, 2, ..., 64) instead of one sequential scan each way: the same
   // minimum, in loops without a carried dependency. Each pass reads one copy of the row and
   // writes the other; the copies are padded with far cells on both sides, which never lower a
