@@ -7,9 +7,9 @@
 #include <cstdlib>
 #include <string>
 
+#include "engine/avx2_dispatch.hpp"
 #include "engine/fast_ray.hpp"
 #include "engine/ray_cast_wide.hpp"
-#include "engine/target_clones.hpp"
 
 namespace slam {
 
@@ -17,7 +17,7 @@ namespace {
 
 /// MatchWindow's free squares of the four quadrants (see its constructor) from `free` (0 on
 /// occupied cells), w x h cells, into `squares` (4 w h bytes).
-SLAM_TARGET_CLONES void BuildFreeSquares(const uint8_t* free, uint8_t* squares, size_t w,
+SLAM_AVX2_BODY void BuildFreeSquaresBody(const uint8_t* free, uint8_t* squares, size_t w,
                                          size_t h) {
   std::vector<uint8_t> scratch;
   for (size_t quadrant = 0; quadrant < 4; ++quadrant) {
@@ -49,6 +49,16 @@ SLAM_TARGET_CLONES void BuildFreeSquares(const uint8_t* free, uint8_t* squares, 
       RelaxRow(row, w, back_x, !back_x, scratch);  // from the far side only
     }
   }
+}
+
+SLAM_AVX2_COPY void BuildFreeSquaresAvx2(const uint8_t* free, uint8_t* squares, size_t w,
+                                         size_t h) {
+  BuildFreeSquaresBody(free, squares, w, h);
+}
+
+void BuildFreeSquares(const uint8_t* free, uint8_t* squares, size_t w, size_t h) {
+  if (SLAM_AVX2_AVAILABLE()) return BuildFreeSquaresAvx2(free, squares, w, h);
+  BuildFreeSquaresBody(free, squares, w, h);
 }
 
 }  // namespace

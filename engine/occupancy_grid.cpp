@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/target_clones.hpp"
+#include "engine/avx2_dispatch.hpp"
 
 #if defined(__SANITIZE_THREAD__)  // GCC
 #define SLAM_THREAD_SANITIZER 1
@@ -138,7 +138,9 @@ uint64_t OccupiedBlocks(const std::array<uint64_t, kTileSize>& rows) {
   return mask;
 }
 
-SLAM_TARGET_CLONES void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above,
+namespace {
+
+SLAM_AVX2_BODY void RelaxRowBody(uint8_t* row, size_t width, bool from_below, bool from_above,
                                  std::vector<uint8_t>& scratch) {
   // Doubling the offset (1, 2, ..., 64) instead of one sequential scan each way: the same
   // minimum, in loops without a carried dependency. Each pass reads one copy of the row and
@@ -173,6 +175,19 @@ SLAM_TARGET_CLONES void RelaxRow(uint8_t* row, size_t width, bool from_below, bo
     std::swap(src, dst);
   }
   std::copy(src, src + width, row);
+}
+
+SLAM_AVX2_COPY void RelaxRowAvx2(uint8_t* row, size_t width, bool from_below, bool from_above,
+                                 std::vector<uint8_t>& scratch) {
+  RelaxRowBody(row, width, from_below, from_above, scratch);
+}
+
+}  // namespace
+
+void RelaxRow(uint8_t* row, size_t width, bool from_below, bool from_above,
+              std::vector<uint8_t>& scratch) {
+  if (SLAM_AVX2_AVAILABLE()) return RelaxRowAvx2(row, width, from_below, from_above, scratch);
+  RelaxRowBody(row, width, from_below, from_above, scratch);
 }
 
 namespace {
