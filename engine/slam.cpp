@@ -16,6 +16,7 @@
 #include <utility>
 
 #include "engine/cell_encoding.hpp"
+#include "engine/fast_math.hpp"
 #include "engine/match_window.hpp"
 #include "engine/matching_rays.hpp"
 #include "engine/random.hpp"
@@ -278,29 +279,6 @@ class Slam::ScanPath {
   }
 
  private:
-  /// Turns up to this size (radians) take SmallTurn's series.
-  static constexpr double kSmallTurnRad = 0.5;
-  /// cos(a) and sin(a) for |a| <= kSmallTurnRad by their Taylor series, whose first omitted
-  /// terms are below 1e-16 there.
-  static std::pair<double, double> SmallTurn(double a) {
-    const double a2 = a * a;
-    // Horner over a^2: the reciprocal factorials 1/14!, 1/12!, ..., 1/0! and 1/13!, ..., 1/1!.
-    constexpr std::array<double, 8> kCos{
-        1.0 / 87178291200.0, 1.0 / 479001600.0, 1.0 / 3628800.0, 1.0 / 40320.0,
-        1.0 / 720.0,         1.0 / 24.0,        1.0 / 2.0,       1.0};
-    constexpr std::array<double, 7> kSin{1.0 / 6227020800.0,
-                                         1.0 / 39916800.0,
-                                         1.0 / 362880.0,
-                                         1.0 / 5040.0,
-                                         1.0 / 120.0,
-                                         1.0 / 6.0,
-                                         1.0};
-    double c = kCos[0], s = kSin[0];
-    for (size_t k = 1; k < kCos.size(); ++k) c = kCos[k] - c * a2;
-    for (size_t k = 1; k < kSin.size(); ++k) s = kSin[k] - s * a2;
-    return {c, s * a};
-  }
-
   std::vector<Pose2> nominal_;
   std::vector<double> cos_, sin_;  // of the nominal headings
   std::vector<double> fraction_;

@@ -2,7 +2,9 @@
 
 #include <cmath>
 #include <limits>
+#include <utility>
 
+#include "engine/fast_math.hpp"
 #include "engine/odometry.hpp"
 #include "engine/slam.hpp"
 #include "test_support.hpp"
@@ -139,6 +141,27 @@ TEST(MotionModel, ReversingIsANegativeTranslationNotAHalfTurn) {
   // Angle noise is proportional to the rotations, which are zero when backing up straight.
   EXPECT_NEAR(slam.Best().pose.x, -0.1, 1e-12);
   EXPECT_NEAR(slam.Best().pose.theta, 0.0, 1e-12);
+}
+
+}  // namespace
+}  // namespace slam
+
+namespace slam {
+namespace {
+
+TEST(SmallTurn, AgreesWithLibmToTheLastBitsOverItsDomain) {
+  // Every turn a candidate's correction gives a sample, up to kSmallTurnRad either way.
+  int exact = 0, n = 0;
+  for (double a = -kSmallTurnRad; a <= kSmallTurnRad; a += 1e-4, ++n) {
+    const auto [c, s] = SmallTurn(a);
+    EXPECT_NEAR(c, std::cos(a), 2.3e-16) << a;
+    EXPECT_NEAR(s, std::sin(a), 2.3e-16) << a;
+    exact += (c == std::cos(a) && s == std::sin(a)) ? 1 : 0;
+  }
+  EXPECT_GT(exact, n / 4);  // mostly bit for bit
+  EXPECT_EQ(SmallTurn(0.0), (std::pair<double, double>{1.0, 0.0}));
+  EXPECT_EQ(SmallTurn(-0.3).second, -SmallTurn(0.3).second);  // odd and even as they should be
+  EXPECT_EQ(SmallTurn(-0.3).first, SmallTurn(0.3).first);
 }
 
 }  // namespace
