@@ -74,7 +74,11 @@ struct MappedWorld {
 const MappedWorld& Mapped() {
   static const MappedWorld world = [] {
     const Slam engine = MappedEngine(RoomsRun(120.0), 1'000'000, 16250, 1);
-    return MappedWorld{engine.Best().map, engine.Trajectory()};
+    MappedWorld mapped{engine.Best().map, engine.Trajectory()};
+    // The engine leaves the clearance of tiles it matched through a window stale until a scan
+    // casts through them; refreshed here, as a particle without a window sees its tiles.
+    mapped.map.RefreshSummaries();
+    return mapped;
   }();
   return world;
 }
