@@ -665,19 +665,32 @@ Slam::WindowPlan Slam::PlanWindows(const Prediction& prediction,
   if (!(plan.refine && !matching.empty() && (plan.candidates > 1 || n_particles > 1))) return {};
   const auto n_candidates = static_cast<size_t>(std::max(1, plan.candidates));
   // A particle whose candidates cast enough rays gets a MatchWindow over the cells they can
-  // reach: every sample position under the predicted correction, moved by up to 4 sigma_pos,
-  // plus the longest reach of a matching ray (candidates drawn farther cast through the map).
-  // Same answers either way; what pays is measured by BM_MatchWindowBuild (about 3 ns per
+  // reach: each matching ray from its sample's pose under the predicted correction, its end
+  // widened by kWindowTurnSigmas of the candidates' heading spread over the ray's reach, and
+  // all of it by 4 sigma_pos (candidates drawn farther cast through the map). The rays' own
+  // ends rather than the longest ray all around: near a wall, the window stops a little
+  // beyond it instead of a ray's length beyond (about 40 % fewer cells in the arenas).
+  // Same answers either way; what pays is measured by BM_MatchWindowBuild (about 1.5 ns per
   // cell) and BM_MatchingRayWindow (some 30 to 60 ns saved per ray) on this machine.
   constexpr int64_t kCellsPerRayPaid = 16;
-  double reach = 0.0;
-  for (const Measurement* m : matching)
-    reach = std::max(reach, m->local_origin.norm() + m->match_range_m);
+  constexpr double kWindowTurnSigmas = 2.0;
   WindowPlan windows(n_particles);
   for (size_t p = 0; p < n_particles; ++p) {
     const ScanPath& path = prediction.paths[p];
-    const std::array<double, 4> box = path.Extent(path.CorrectionTo(prediction.predicted[p]));
-    const double pad = reach + 4.0 * prediction.search_pos + 3.0 * config_.resolution_m;
+    const Pose2 correction = path.CorrectionTo(prediction.predicted[p]);
+    std::array<double, 4> box = path.Extent(correction);
+    for (const Measurement* m : matching) {
+      const ScanPath::Frame frame = path.SampleFrame(m->sample, correction);
+      const Vec2 origin = frame.Point(m->local_origin);
+      const Vec2 end = frame.Point(m->local_origin + m->local_direction * m->match_range_m);
+      const double turn =
+          kWindowTurnSigmas * prediction.search_angle * (m->local_origin.norm() + m->match_range_m);
+      box = {std::min({box[0], origin.x(), end.x() - turn}),
+             std::min({box[1], origin.y(), end.y() - turn}),
+             std::max({box[2], origin.x(), end.x() + turn}),
+             std::max({box[3], origin.y(), end.y() + turn})};
+    }
+    const double pad = 4.0 * prediction.search_pos + 3.0 * config_.resolution_m;
     const CellIndex lo = geometry_.CellOf({box[0] - pad, box[1] - pad});
     const CellIndex hi = geometry_.CellOf({box[2] + pad, box[3] + pad});
     const int64_t cells = (int64_t{hi.x} - lo.x + 1) * (int64_t{hi.y} - lo.y + 1);
