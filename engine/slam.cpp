@@ -658,11 +658,15 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   return out;
 }
 
+bool Slam::MatchesScan(const ScanPlan& plan, size_t matching) const {
+  return plan.refine && matching > 0 && (plan.candidates > 1 || particles_.size() > 1);
+}
+
 Slam::WindowPlan Slam::PlanWindows(const Prediction& prediction,
                                    const std::vector<const Measurement*>& matching,
                                    const ScanPlan& plan) const {
   const size_t n_particles = particles_.size();
-  if (!(plan.refine && !matching.empty() && (plan.candidates > 1 || n_particles > 1))) return {};
+  if (!MatchesScan(plan, matching.size())) return {};
   const auto n_candidates = static_cast<size_t>(std::max(1, plan.candidates));
   // A particle whose candidates cast enough rays gets a MatchWindow over the cells they can
   // reach: each matching ray from its sample's pose under the predicted correction, its end
@@ -710,7 +714,7 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
   MatchResult out;
   out.chosen = predicted;
   out.chosen_ll.assign(n_particles, 0.0);
-  out.matched = !window_plan.empty();  // PlanWindows: whether phase B runs
+  out.matched = MatchesScan(plan, matching.size());
   if (!out.matched) return out;
   const size_t n_candidates = static_cast<size_t>(std::max(1, plan.candidates));
   out.candidates = n_candidates;

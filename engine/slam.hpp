@@ -176,6 +176,8 @@ class Slam {
   /// Phase A: each particle's path through the scan and its end pose sampled from the motion
   /// model (noise-free without refinement: odometry-only mapping).
   Prediction PredictMotion(const Scan& scan, bool refine, uint64_t step) const;
+  /// Whether phase B runs: refinement on, readings to match, and more than one pose to weigh.
+  bool MatchesScan(const ScanPlan& plan, size_t matching) const;
   /// Which particles' phase B pays for a MatchWindow, and over which cells (per particle;
   /// empty when nothing is matched). The others cast their rays through their grid's tiles.
   WindowPlan PlanWindows(const Prediction& prediction,

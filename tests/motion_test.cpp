@@ -143,12 +143,6 @@ TEST(MotionModel, ReversingIsANegativeTranslationNotAHalfTurn) {
   EXPECT_NEAR(slam.Best().pose.theta, 0.0, 1e-12);
 }
 
-}  // namespace
-}  // namespace slam
-
-namespace slam {
-namespace {
-
 TEST(SmallTurn, AgreesWithLibmToTheLastBitsOverItsDomain) {
   // Every turn a candidate's correction gives a sample, up to kSmallTurnRad either way.
   int exact = 0, n = 0;
