@@ -17,6 +17,12 @@ constexpr double RadToDeg(double rad) { return rad * 180.0 / kPi; }
 
 /// Wraps an angle to (-pi, pi].
 inline double NormalizeAngle(double a) {
+  // Most angles are in range or one turn out: there, std::remainder's answers without its call
+  // (a -+ 2 pi is exact for |a| in [pi, 4 pi], Sterbenz's lemma, as remainder's answer is; 8
+  // keeps clear of 3 pi, where remainder rounds the quotient 1.5 to even; -2 pi gives -0).
+  if (a > -kPi && a <= kPi) return a;
+  if (a > kPi && a < 8.0) return a - 2.0 * kPi;
+  if (a <= -kPi && a > -8.0) return -(-a - 2.0 * kPi);
   a = std::remainder(a, 2.0 * kPi);
   return a <= -kPi ? a + 2.0 * kPi : a;
 }

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 #include <utility>
+#include <vector>
 
 #include "engine/fast_math.hpp"
 #include "engine/odometry.hpp"
@@ -156,6 +157,30 @@ TEST(SmallTurn, AgreesWithLibmToTheLastBitsOverItsDomain) {
   EXPECT_EQ(SmallTurn(0.0), (std::pair<double, double>{1.0, 0.0}));
   EXPECT_EQ(SmallTurn(-0.3).second, -SmallTurn(0.3).second);  // odd and even as they should be
   EXPECT_EQ(SmallTurn(-0.3).first, SmallTurn(0.3).first);
+}
+
+TEST(NormalizeAngle, GivesStdRemaindersAnswersBitForBit) {
+  // The fast paths (in range, one turn out) against the formula they replace, at the boundaries
+  // (pi, 3 pi and their neighbours) and over many turns either way.
+  const auto reference = [](double a) {
+    a = std::remainder(a, 2.0 * kPi);
+    return a <= -kPi ? a + 2.0 * kPi : a;
+  };
+  std::vector<double> angles = {0.0,       -0.0,       kPi, -kPi, 2.0 * kPi, -2.0 * kPi,
+                                3.0 * kPi, -3.0 * kPi, 8.0, -8.0, 1e6,       -1e6};
+  for (const double edge : std::vector<double>(angles)) {
+    angles.push_back(std::nextafter(edge, 1e9));
+    angles.push_back(std::nextafter(edge, -1e9));
+  }
+  for (double a = -30.0; a <= 30.0; a += 1e-3) angles.push_back(a);
+  for (const double a : angles) {
+    const double got = NormalizeAngle(a), want = reference(a);
+    EXPECT_EQ(std::signbit(got), std::signbit(want)) << a;
+    EXPECT_EQ(got, want) << a;
+    EXPECT_GT(got, -kPi) << a;
+    EXPECT_LE(got, kPi) << a;
+  }
+  EXPECT_TRUE(std::isnan(NormalizeAngle(std::numeric_limits<double>::quiet_NaN())));
 }
 
 }  // namespace
