@@ -85,4 +85,18 @@ std::optional<TrajectoryQuality> EvaluateTrajectory(const std::vector<TimedPose>
   return quality;
 }
 
+double ErrorLowerBound(const std::vector<TimedPose>& prefix,
+                       const std::vector<TimedPose>& reference) {
+  if (prefix.empty()) return 0.0;
+  const std::optional<TrajectoryQuality> quality = EvaluateTrajectory(prefix, reference);
+  if (!quality) return 0.0;
+  const double start = prefix.front().t;
+  const auto reachable = std::count_if(reference.begin(), reference.end(),
+                                       [&](const TimedPose& r) { return r.t >= start; });
+  if (reachable == 0) return 0.0;
+  // The prefix's aligned sum of squares (cm^2), spread over every pose the whole run can match.
+  const double sum_sq_cm2 = -quality->q_cm2 * static_cast<double>(quality->matched);
+  return std::log1p(sum_sq_cm2 / static_cast<double>(reachable));
+}
+
 }  // namespace slam

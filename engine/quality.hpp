@@ -41,4 +41,12 @@ struct TrajectoryQuality {
 std::optional<TrajectoryQuality> EvaluateTrajectory(const std::vector<TimedPose>& estimate,
                                                     const std::vector<TimedPose>& reference);
 
+/// A lower bound on the e (eq. 9) of every trajectory that begins with `prefix` (the same poses
+/// up to its last, later poses after it), against `reference`: the later poses can only add
+/// residuals, the final alignment fits the prefix's poses no better than their own best
+/// alignment does, and the mean divides by every reference pose from the prefix's start on (the
+/// most the final trajectory can match). 0 while fewer than two reference poses fall within it.
+double ErrorLowerBound(const std::vector<TimedPose>& prefix,
+                       const std::vector<TimedPose>& reference);
+
 }  // namespace slam

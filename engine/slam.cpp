@@ -367,9 +367,11 @@ const Particle& Slam::Best() const {
   return particles_[best];
 }
 
-std::vector<TimedPose> Slam::Trajectory() const {
+std::vector<TimedPose> Slam::Trajectory() const { return History(Best()); }
+
+std::vector<TimedPose> Slam::History(const Particle& particle) {
   std::vector<const TrajectoryChunk*> chunks;
-  for (const TrajectoryChunk* c = Best().history.get(); c != nullptr; c = c->parent.get()) {
+  for (const TrajectoryChunk* c = particle.history.get(); c != nullptr; c = c->parent.get()) {
     chunks.push_back(c);
   }
   std::vector<TimedPose> poses;

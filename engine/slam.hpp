@@ -146,6 +146,8 @@ class Slam {
   const Particle& Best() const;
   /// The best particle's trajectory, time-ordered, starting at the origin.
   std::vector<TimedPose> Trajectory() const;
+  /// A particle's history as one time-ordered trajectory (Trajectory() is the best one's).
+  static std::vector<TimedPose> History(const Particle& particle);
   int64_t scans_processed() const { return scans_processed_; }
 
  private:

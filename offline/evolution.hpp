@@ -53,6 +53,9 @@ struct Individual {
   SlamParams params;
   double fitness = 0.0;  // lower is better (the tuner's: mean e over the experiments)
   bool evaluated = false;
+  /// Racing stopped its evaluation once it could no longer enter the elite (RunTuning):
+  /// `fitness` is then a lower bound on its mean e, above the elite's worst.
+  bool raced_out = false;
 };
 
 /// The particle bound of the tuned parameters (TunedParameters()).

@@ -5,9 +5,12 @@
 #include <algorithm>
 #include <chrono>
 #include <ctime>
+#include <limits>
 
 namespace slam::offline {
 namespace {
+
+constexpr double kNoStop = std::numeric_limits<double>::infinity();
 
 /// CPU time so far: the whole process's when the engine may use worker threads, else this
 /// thread's (so that replays running side by side each measure their own).
@@ -55,7 +58,11 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   const auto wall_start = std::chrono::steady_clock::now();
   const double cpu_start = CpuSeconds(options.config.parallel);
   size_t done = 0;
-  bool cancelled = false;
+  bool cancelled = false, stopped_early = false;
+  double e_lower_bound = 0.0;
+  // The early stop's bound costs a pass over the histories: checked about 32 times a replay.
+  const bool bound_checks = !ground_truth.empty() && options.stop_above_e < kNoStop;
+  const size_t check_every = std::max<size_t>(1, scans.size() / 32);
   for (size_t k = 0; k < scans.size(); ++k) {
     if (options.cancel != nullptr && options.cancel->load(std::memory_order_relaxed)) {
       cancelled = true;
@@ -80,6 +87,18 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
     resamplings += report.resampled ? 1 : 0;
     done = k + 1;
     if (options.progress) options.progress(k + 1, scans.size());
+    if (bound_checks && done < scans.size() && done % check_every == 0) {
+      // The final trajectory is the history of a particle descending from one of today's.
+      double bound = std::numeric_limits<double>::infinity();
+      for (const Particle& particle : engine.particles()) {
+        bound = std::min(bound, ErrorLowerBound(Slam::History(particle), ground_truth));
+      }
+      if (bound > options.stop_above_e) {
+        stopped_early = true;
+        e_lower_bound = bound;
+        break;
+      }
+    }
   }
   const double cpu_s = CpuSeconds(options.config.parallel) - cpu_start;
   const double wall_s =
@@ -90,6 +109,8 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   if (!ground_truth.empty()) result.quality = EvaluateTrajectory(result.trajectory, ground_truth);
   result.scans = static_cast<int64_t>(done);
   result.cancelled = cancelled;
+  result.stopped_early = stopped_early;
+  result.e_lower_bound = e_lower_bound;
   result.rays_total = rays_total;
   result.rays_per_scan_max = rays_max;
   result.resamplings = resamplings;

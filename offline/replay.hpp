@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <optional>
 #include <string>
 #include <utility>
@@ -39,6 +40,11 @@ struct ReplayOptions {
   /// whole experiment, nor a scan of seconds, first): the result covers the scans done and
   /// says `cancelled`. May be null.
   const std::atomic<bool>* cancel = nullptr;
+  /// With ground truth: the replay stops once no later scan can bring its e (eq. 9) down to
+  /// this, that is once ErrorLowerBound over every particle's history exceeds it (checked every
+  /// few scans, never after the last): a tuner's candidate that can no longer enter the elite.
+  /// The result then says `stopped_early` and holds the bound. Infinity: never.
+  double stop_above_e = std::numeric_limits<double>::infinity();
 };
 
 struct ReplayResult {
@@ -47,6 +53,9 @@ struct ReplayResult {
   std::optional<TrajectoryQuality> quality;  // against the ground truth, when there is one
   int64_t scans = 0;                         // scans replayed (fewer than given when cancelled)
   bool cancelled = false;
+  /// Stopped by `stop_above_e`; every e the full replay could score is at least `e_lower_bound`.
+  bool stopped_early = false;
+  double e_lower_bound = 0.0;
   int64_t rays_total = 0;
   int64_t rays_per_scan_max = 0;
   int64_t resamplings = 0;

@@ -4,6 +4,8 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <cmath>
+#include <limits>
 #include <mutex>
 
 #include "engine/thread_safety.hpp"
@@ -41,21 +43,46 @@ TuningState NewTuningState(const TuningSettings& settings,
   return state;
 }
 
+namespace {
+
+/// One replay of a tuning evaluation, on this thread, with the settings' policy and seed.
+ReplayResult ReplayFor(const TuningExperiment& e, const SlamParams& params, int64_t budget,
+                       const TuningSettings& settings, const std::atomic<bool>* cancel,
+                       double stop_above_e = std::numeric_limits<double>::infinity()) {
+  ReplayOptions options;
+  options.params = ParamsChoice("candidate", params);
+  options.config.seed = settings.evolution.seed;
+  options.config.parallel = false;  // evaluations are the parallelism
+  options.budget.rays_per_scan = budget;
+  options.budget.policy = settings.policy;
+  options.budget.max_particles = settings.max_particles;
+  options.cancel = cancel;
+  options.stop_above_e = stop_above_e;
+  return Replay(*e.robot, *e.scans, *e.ground_truth, options);
+}
+
+/// The e of a finished replay (0, the best, when too little of it matched the ground truth).
+double EOf(const ReplayResult& run) { return run.quality ? run.quality->e : 0.0; }
+
+/// Racing's margin on the replays' bound: ErrorLowerBound is the same sums as e in another
+/// order, so a bound equal to the cut within rounding must not stop a replay.
+double StopAbove(double allowed) { return allowed + 1e-9 * (1.0 + std::abs(allowed)); }
+
+/// An individual's evaluation: every experiment in order, or until racing stops it.
+struct Evaluation {
+  double sum = 0.0;  // of e over the experiments replayed (the last one's bound when stopped)
+  bool raced_out = false;
+  int64_t replays = 0, scans = 0;
+};
+
+}  // namespace
+
 double Fitness(const std::vector<TuningExperiment>& experiments, const SlamParams& params,
                int64_t budget, const TuningSettings& settings, const std::atomic<bool>* cancel) {
   double sum = 0.0;
   for (const TuningExperiment& e : experiments) {
     if (cancel != nullptr && cancel->load()) break;
-    ReplayOptions options;
-    options.params = ParamsChoice("candidate", params);
-    options.config.seed = settings.evolution.seed;
-    options.config.parallel = false;  // evaluations are the parallelism
-    options.budget.rays_per_scan = budget;
-    options.budget.policy = settings.policy;
-    options.budget.max_particles = settings.max_particles;
-    options.cancel = cancel;
-    const ReplayResult run = Replay(*e.robot, *e.scans, *e.ground_truth, options);
-    sum += run.quality ? run.quality->e : 0.0;
+    sum += EOf(ReplayFor(e, params, budget, settings, cancel));
   }
   return experiments.empty() ? 0.0 : sum / static_cast<double>(experiments.size());
 }
@@ -66,7 +93,7 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
   const EvolutionConfig& es = settings.evolution;
   const int generations = es.generations;
 
-  // The work left, for the progress callback.
+  // The work left without racing, for the progress callback (racing's savings count as done).
   double total = 0.0;
   for (const BudgetRun& run : state.budgets) {
     const int done = static_cast<int>(run.generations.size());
@@ -78,6 +105,16 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
   double done_work = 0.0;
   Mutex progress_mutex;
   const auto cancelled = [&] { return callbacks.cancel && callbacks.cancel->load(); };
+  const auto report = [&](double work) {
+    if (!callbacks.progress) return;
+    MutexLock lock(progress_mutex);
+    done_work += work;
+    callbacks.progress(done_work, total);
+  };
+  int64_t all_scans = 0;
+  for (const TuningExperiment& e : experiments) all_scans += static_cast<int64_t>(e.scans->size());
+  const size_t n_exp = experiments.size();
+  const double n = static_cast<double>(n_exp);
 
   tbb::task_arena arena(jobs > 0 ? jobs : tbb::task_arena::automatic);
   for (BudgetRun& run : state.budgets) {
@@ -89,37 +126,80 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
               ? InitialPopulation(settings.start, es, stream, es.MaxParticles(run.budget))
               : NextGeneration(run.population, es, stream, generation, es.MaxParticles(run.budget));
 
-      // Every (individual, experiment) pair not evaluated yet, in parallel; each writes its slot.
+      // The elite cut: the worst of the elites carried over (racing only between the first and
+      // the last generation, and only with a full elite to beat).
       std::vector<size_t> pending;
+      std::vector<double> carried;
       for (size_t i = 0; i < population.size(); ++i) {
-        if (!population[i].evaluated) pending.push_back(i);
+        if (!population[i].evaluated) {
+          pending.push_back(i);
+        } else {
+          carried.push_back(population[i].fitness);
+        }
       }
-      const size_t n_exp = experiments.size();
-      std::vector<double> e(pending.size() * n_exp, 0.0);
-      const double item_work = static_cast<double>(run.budget);
+      double cut = std::numeric_limits<double>::infinity();
+      if (settings.racing && generation > 0 && generation + 1 < generations &&
+          carried.size() >= static_cast<size_t>(es.elites()) && n_exp > 0) {
+        std::sort(carried.begin(), carried.end());
+        cut = carried[static_cast<size_t>(es.elites()) - 1];
+      }
+
+      // Every new individual, in parallel; each replays its experiments in order.
+      std::vector<Evaluation> evaluations(pending.size());
       arena.execute([&] {
-        tbb::parallel_for(size_t{0}, e.size(), [&](size_t k) {
-          if (cancelled()) return;
-          const TuningExperiment& experiment = experiments[k % n_exp];
-          e[k] = Fitness({experiment}, population[pending[k / n_exp]].params, run.budget, settings,
-                         callbacks.cancel);
-          if (callbacks.progress) {
-            MutexLock lock(progress_mutex);
-            done_work += item_work * static_cast<double>(experiment.scans->size());
-            callbacks.progress(done_work, total);
+        tbb::parallel_for(size_t{0}, pending.size(), [&](size_t j) {
+          Evaluation& ev = evaluations[j];
+          const SlamParams& params = population[pending[j]].params;
+          for (size_t x = 0; x < n_exp; ++x) {
+            if (cancelled()) return;
+            const TuningExperiment& experiment = experiments[x];
+            // Racing: the e this replay may reach before the mean can no longer be under the cut.
+            const double allowed = cut * n - ev.sum;
+            const ReplayResult replay = ReplayFor(experiment, params, run.budget, settings,
+                                                  callbacks.cancel, StopAbove(allowed));
+            ++ev.replays;
+            ev.scans += replay.scans;
+            const double work = static_cast<double>(run.budget);
+            if (replay.stopped_early) {
+              ev.sum += replay.e_lower_bound;
+              ev.raced_out = true;
+            } else {
+              ev.sum += EOf(replay);
+              ev.raced_out = x + 1 < n_exp && ev.sum / n > cut;
+            }
+            if (ev.raced_out) {
+              // What is spared counts as done, so that the progress reaches its end.
+              int64_t rest = static_cast<int64_t>(experiment.scans->size()) - replay.scans;
+              for (size_t y = x + 1; y < n_exp; ++y)
+                rest += static_cast<int64_t>(experiments[y].scans->size());
+              report(work * static_cast<double>(replay.scans + rest));
+              return;
+            }
+            report(work * static_cast<double>(replay.scans));
           }
         });
       });
       if (cancelled()) return false;
+      int64_t replays = 0, scans = 0;
+      int raced_out = 0;
       for (size_t j = 0; j < pending.size(); ++j) {
-        double sum = 0.0;
-        for (size_t x = 0; x < n_exp; ++x) sum += e[j * n_exp + x];
+        const Evaluation& ev = evaluations[j];
         Individual& individual = population[pending[j]];
-        individual.fitness = n_exp > 0 ? sum / static_cast<double>(n_exp) : 0.0;
+        individual.fitness = n_exp > 0 ? ev.sum / n : 0.0;
         individual.evaluated = true;
+        individual.raced_out = ev.raced_out;
+        replays += ev.replays;
+        scans += ev.scans;
+        raced_out += ev.raced_out ? 1 : 0;
       }
-      run.generations.push_back(
-          Summarize(population, generation, static_cast<int>(pending.size())));
+      GenerationSummary summary =
+          Summarize(population, generation, static_cast<int>(pending.size()));
+      summary.replays = replays;
+      summary.scans = scans;
+      summary.replays_saved = static_cast<int64_t>(pending.size() * n_exp) - replays;
+      summary.scans_saved = static_cast<int64_t>(pending.size()) * all_scans - scans;
+      summary.raced_out = raced_out;
+      run.generations.push_back(std::move(summary));
       run.population = std::move(population);
       if (callbacks.generation_done) callbacks.generation_done(state, run.budget);
     }

@@ -35,6 +35,10 @@ struct TuningSettings {
   BudgetPolicy policy = BudgetPolicy::kFixed;
   int max_particles = BudgetSettings{}.max_particles;
   SlamParams start;  // generation 0's first individual (Table II defaults)
+  /// Racing (RunTuning): a new individual's evaluation stops as soon as it can no longer enter
+  /// the elite. It never changes which individuals are elites, so neither the study's course
+  /// nor its best sets; only the fitness of the individuals it stopped (a lower bound).
+  bool racing = true;
 };
 
 struct GenerationSummary {
@@ -43,6 +47,10 @@ struct GenerationSummary {
   Individual best;                     // best so far (elitism keeps it)
   std::vector<double> fitness_values;  // every individual's, in population order
   int evaluations = 0;                 // individuals evaluated in this generation (elites are not)
+  // What the generation cost: replays started and scans replayed; and what racing spared
+  // against replaying every evaluated individual on every experiment to its end.
+  int64_t replays = 0, scans = 0, replays_saved = 0, scans_saved = 0;
+  int raced_out = 0;  // individuals whose evaluation racing stopped
 };
 
 struct BudgetRun {
@@ -82,6 +90,17 @@ struct TuningCallbacks {
 /// Runs or continues the study until every budget has settings.evolution.generations
 /// generations, `jobs` evaluations at a time (0: one per core). Returns false when cancelled;
 /// `state` then holds every finished generation.
+///
+/// Racing (settings.racing), in every generation but the first and the last (whose whole
+/// population is evaluated: Table III compares the last one's fitness values): the generation's
+/// elite cut T is the worst fitness among the elites carried over. A new individual is replayed
+/// on the experiments one after the other, and stops as soon as the e it has gathered, over the
+/// number of experiments, exceeds T (e >= 0, so its mean can only exceed T more); within a
+/// replay, as soon as the e that replay can at best score would take it over (ErrorLowerBound,
+/// ReplayOptions::stop_above_e). Such an individual cannot rank among the elites, whatever the
+/// other new individuals score, so the elites, the best sets and every later generation are
+/// those of the study without racing; its fitness is the lower bound it reached. Deterministic:
+/// T is fixed for the generation and every stop depends only on the individual's own replays.
 bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& state, int jobs,
                const TuningCallbacks& callbacks = {});
 

@@ -25,11 +25,14 @@ Json SettingsToJson(const TuningSettings& s) {
           {"seed", s.evolution.seed},
           {"policy", std::string(ToString(s.policy))},
           {"max_particles", s.max_particles},
+          {"racing", s.racing},
           {"start", io::ParamsToJson(s.start)}};
 }
 
 Json IndividualToJson(const Individual& i) {
-  return {{"fitness", i.fitness}, {"params", io::ParamsToJson(i.params)}};
+  Json j = {{"fitness", i.fitness}, {"params", io::ParamsToJson(i.params)}};
+  if (i.raced_out) j["raced_out"] = true;  // its fitness is a lower bound
+  return j;
 }
 
 /// Thrown inside the reader only, turned into an error at its boundary.
@@ -48,6 +51,7 @@ Individual IndividualAt(const Json& json, const std::string& pointer) {
   i.fitness = json.at("fitness").get<double>();
   i.params = ParamsAt(json.at("params"), pointer + "/params");
   i.evaluated = true;
+  i.raced_out = json.value("raced_out", false);
   return i;
 }
 
@@ -93,6 +97,12 @@ Json TuningStateToJson(const TuningState& state) {
                              {"q3", g.fitness.q3},
                              {"max", g.fitness.max},
                              {"evaluations", g.evaluations},
+                             {"cost",
+                              {{"replays", g.replays},
+                               {"scans", g.scans},
+                               {"replays_saved", g.replays_saved},
+                               {"scans_saved", g.scans_saved},
+                               {"raced_out", g.raced_out}}},
                              {"best", IndividualToJson(g.best)}});
     }
     b["generations"] = generations;
@@ -129,6 +139,7 @@ Result<TuningState> TuningStateFromJson(const Json& json) {
     if (!policy) throw ReadError{"/settings/policy", "unknown policy"};
     state.settings.policy = *policy;
     state.settings.max_particles = s.at("max_particles").get<int>();
+    state.settings.racing = s.value("racing", false);  // absent before racing existed
     state.settings.start = ParamsAt(s.at("start"), "/settings/start");
     state.experiments = json.at("experiments").get<std::vector<std::string>>();
     const Json& budgets = json.at("budgets");
@@ -153,6 +164,13 @@ Result<TuningState> TuningStateFromJson(const Json& json) {
                            gj.at("median").get<double>(), gj.at("q3").get<double>(),
                            gj.at("max").get<double>()};
         summary.evaluations = gj.at("evaluations").get<int>();
+        if (const auto cost = gj.find("cost"); cost != gj.end()) {  // absent before racing
+          summary.replays = cost->at("replays").get<int64_t>();
+          summary.scans = cost->at("scans").get<int64_t>();
+          summary.replays_saved = cost->at("replays_saved").get<int64_t>();
+          summary.scans_saved = cost->at("scans_saved").get<int64_t>();
+          summary.raced_out = cost->at("raced_out").get<int>();
+        }
         summary.best =
             IndividualAt(gj.at("best"), at + "/generations/" + std::to_string(g) + "/best");
         run.generations.push_back(summary);
@@ -185,8 +203,12 @@ std::vector<std::string> ResumeConflicts(const TuningState& saved, const TuningS
                                          const std::vector<std::string>& experiments) {
   std::vector<std::string> conflicts;
   Json a = SettingsToJson(saved.settings), b = SettingsToJson(settings);
-  a.erase("generations");
-  b.erase("generations");
+  // Neither the generation count (a study can be extended) nor racing (it never changes the
+  // elites, so a study may go on with it or without) must match.
+  for (const char* free_key : {"generations", "racing"}) {
+    a.erase(free_key);
+    b.erase(free_key);
+  }
   for (const auto& [key, value] : b.items()) {
     if (a[key] != value)
       conflicts.push_back(key + ": saved " + a[key].dump() + ", asked " + value.dump());

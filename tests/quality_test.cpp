@@ -77,6 +77,37 @@ TEST(PoseAt, InterpolatesTheShortWayRound) {
   EXPECT_FALSE(PoseAt(traj, 2.1));
 }
 
+TEST(ErrorLowerBound, NoPrefixScoresBelowItAndTheWholeRunMeetsIt) {
+  // An estimate that drifts away from the reference (a random walk of errors): every prefix's
+  // bound is at most the whole run's e, grows with the prefix, and equals e on the whole run.
+  Rng rng(11);
+  std::vector<TimedPose> reference, estimate;
+  Vec2 error = Vec2::Zero();
+  for (int i = 0; i <= 400; ++i) {
+    const double t = 0.05 * i;
+    const Pose2 truth{std::cos(0.3 * t), std::sin(0.5 * t), 0.1 * t};
+    reference.push_back({t, truth});
+    error += Vec2(rng.Gaussian(0.003), rng.Gaussian(0.003));
+    estimate.push_back({t, {truth.x + error.x(), truth.y + error.y(), truth.theta}});
+  }
+  const auto whole = EvaluateTrajectory(estimate, reference);
+  ASSERT_TRUE(whole);
+  ASSERT_GT(whole->e, 0.5);
+  double last = 0.0;
+  for (size_t end = 1; end <= estimate.size(); end += 7) {
+    const std::vector<TimedPose> prefix(estimate.begin(),
+                                        estimate.begin() + static_cast<std::ptrdiff_t>(end));
+    const double bound = ErrorLowerBound(prefix, reference);
+    EXPECT_LE(bound, whole->e * (1 + 1e-12)) << end;
+    EXPECT_GE(bound, last - 1e-12) << end;
+    last = bound;
+  }
+  EXPECT_GT(last, 0.5 * whole->e);  // it does bound: late prefixes come close
+  EXPECT_NEAR(ErrorLowerBound(estimate, reference), whole->e, 1e-12);
+  EXPECT_EQ(ErrorLowerBound({}, reference), 0.0);
+  EXPECT_EQ(ErrorLowerBound({estimate.front()}, reference), 0.0);  // fewer than two matched
+}
+
 }  // namespace
 }  // namespace slam
 

@@ -229,6 +229,45 @@ TEST_F(ReplayTest, ACancelledReplayStopsAfterTheScanInProgress) {
   EXPECT_EQ(whole.scans, static_cast<int64_t>(Box().scans.size()));
 }
 
+TEST_F(ReplayTest, AReplayStopsOnceNoLaterScanCanBringItsErrorDown) {
+  // The tuner's racing: stop_above_e stops a replay once the lower bound of its final e (over
+  // every particle's history) exceeds it; the bound never exceeds the e of the whole replay.
+  for (const bool refine : {false, true}) {
+    offline::ReplayOptions options;
+    options.budget.rays_per_scan = 2000;
+    options.refine = refine;
+    SlamParams params;
+    params.particles = 3;
+    options.params = ParamsChoice("table-ii", params);
+    const offline::ReplayResult whole =
+        offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
+    ASSERT_TRUE(whole.quality);
+    EXPECT_FALSE(whole.stopped_early);
+    const double e = whole.quality->e;
+    ASSERT_GT(e, 0.0);
+
+    options.stop_above_e = 0.5 * e;
+    const offline::ReplayResult stopped =
+        offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
+    EXPECT_TRUE(stopped.stopped_early) << refine;
+    EXPECT_LT(stopped.scans, whole.scans);
+    EXPECT_GT(stopped.e_lower_bound, 0.5 * e);
+    EXPECT_LE(stopped.e_lower_bound, e * (1 + 1e-12));
+    // Up to the stop it is the same replay (without phase B every particle is the best one).
+    ASSERT_LE(stopped.trajectory.size(), whole.trajectory.size());
+    for (size_t i = 0; !refine && i < stopped.trajectory.size(); ++i) {
+      ASSERT_EQ(stopped.trajectory[i].pose.x, whole.trajectory[i].pose.x) << i;
+    }
+    // A bar the whole replay stays under never stops it.
+    options.stop_above_e = e * (1 + 1e-9);
+    const offline::ReplayResult kept =
+        offline::Replay(Box().robot, Box().scans, Box().ground_truth, options);
+    EXPECT_FALSE(kept.stopped_early);
+    EXPECT_EQ(kept.scans, whole.scans);
+    EXPECT_EQ(kept.quality->e, e);
+  }
+}
+
 TEST_F(ReplayTest, ACancelInTheMiddleOfAScanOfSecondsEndsItSoon) {
   // At 1e8 rays/scan one scan takes seconds: the cancel waited for it.
   std::atomic<bool> cancel{false};

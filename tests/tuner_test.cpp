@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -215,6 +216,18 @@ void ExpectSameStudy(const offline::TuningState& a, const offline::TuningState& 
   EXPECT_EQ(offline::TuningStateToJson(a), offline::TuningStateToJson(b));
 }
 
+/// The same study but for what racing reports of generation `g`: its fitness quartiles and cost
+/// (a study of g + 1 generations evaluates its last one whole, a longer one races it).
+void ExpectSameStudyButRacingOf(const offline::TuningState& a, const offline::TuningState& b,
+                                size_t g) {
+  nlohmann::json ja = offline::TuningStateToJson(a), jb = offline::TuningStateToJson(b);
+  for (nlohmann::json* j : {&ja, &jb}) {
+    for (const char* key : {"min", "q1", "median", "q3", "max", "cost"})
+      (*j)["budgets"][0]["generations"][g].erase(key);
+  }
+  EXPECT_EQ(ja, jb);
+}
+
 TEST_F(TunerTest, ReducedStudyImprovesOverGenerations) {
   const offline::TuningState& state = Full();
   ASSERT_EQ(state.budgets.size(), 1u);
@@ -244,10 +257,22 @@ TEST_F(TunerTest, SameResultWithOneThreadAndResumedOrExtended) {
   offline::TuningState part = offline::NewTuningState(Reduced(3), Experiments());
   ASSERT_TRUE(offline::RunTuning(Experiments(), part, 1));
   ASSERT_EQ(part.budgets[0].generations.size(), 3u);
-  for (size_t g = 0; g < 3; ++g) {
+  for (size_t g = 0; g < 2; ++g) {
     EXPECT_EQ(part.budgets[0].generations[g].fitness_values,
               Full().budgets[0].generations[g].fitness_values);
   }
+  // Generation 2, the last of three, is evaluated whole; the longer study raced it: where it
+  // stopped an individual, it holds a lower bound.
+  const offline::GenerationSummary& whole = part.budgets[0].generations[2];
+  const offline::GenerationSummary& raced = Full().budgets[0].generations[2];
+  EXPECT_EQ(whole.best.fitness, raced.best.fitness);
+  EXPECT_EQ(whole.raced_out, 0);
+  int differ = 0;
+  for (size_t i = 0; i < whole.fitness_values.size(); ++i) {
+    EXPECT_LE(raced.fitness_values[i], whole.fitness_values[i]) << i;
+    differ += raced.fitness_values[i] != whole.fitness_values[i] ? 1 : 0;
+  }
+  EXPECT_LE(differ, raced.raced_out);
   // Saved to JSON, read back and extended to eight generations: the same study.
   auto reread =
       offline::TuningStateFromJson(nlohmann::json::parse(offline::TuningStateToJson(part).dump()));
@@ -257,7 +282,58 @@ TEST_F(TunerTest, SameResultWithOneThreadAndResumedOrExtended) {
       offline::ResumeConflicts(resumed, Reduced(8), {"rooms-seed3", "cluttered-seed4"}).empty());
   resumed.settings.evolution.generations = 8;
   ASSERT_TRUE(offline::RunTuning(Experiments(), resumed, 2));
-  ExpectSameStudy(resumed, Full());
+  ExpectSameStudyButRacingOf(resumed, Full(), 2);
+}
+
+TEST_F(TunerTest, RacingKeepsEveryEliteAndSparesReplays) {
+  offline::TuningSettings settings = Reduced(8);
+  settings.racing = false;
+  offline::TuningState unraced = offline::NewTuningState(settings, Experiments());
+  ASSERT_TRUE(offline::RunTuning(Experiments(), unraced, 2));
+  const offline::BudgetRun& a = Full().budgets[0];
+  const offline::BudgetRun& b = unraced.budgets[0];
+  ASSERT_EQ(a.generations.size(), b.generations.size());
+  int64_t saved = 0, stopped = 0;
+  const size_t elites = static_cast<size_t>(settings.evolution.elites());
+  for (size_t g = 0; g < a.generations.size(); ++g) {
+    const offline::GenerationSummary& raced = a.generations[g];
+    const offline::GenerationSummary& whole = b.generations[g];
+    // The same elites, so the same best and the same next generation.
+    EXPECT_EQ(raced.best.params, whole.best.params) << g;
+    EXPECT_EQ(raced.best.fitness, whole.best.fitness) << g;
+    EXPECT_EQ(raced.evaluations, whole.evaluations) << g;
+    // Unraced: every new individual on every experiment, to the end.
+    EXPECT_EQ(whole.replays, whole.evaluations * 2) << g;
+    EXPECT_EQ(whole.replays_saved, 0) << g;
+    EXPECT_EQ(whole.scans_saved, 0) << g;
+    EXPECT_EQ(raced.replays + raced.replays_saved, whole.replays) << g;
+    EXPECT_EQ(raced.scans + raced.scans_saved, whole.scans) << g;
+    // A stopped individual's fitness is a lower bound, above the elite's worst.
+    std::vector<double> sorted = whole.fitness_values;
+    std::sort(sorted.begin(), sorted.end());
+    const double cut = sorted[elites - 1];
+    for (size_t i = 0; i < whole.fitness_values.size(); ++i) {
+      EXPECT_LE(raced.fitness_values[i], whole.fitness_values[i]) << g << " " << i;
+      if (raced.fitness_values[i] != whole.fitness_values[i]) {
+        EXPECT_GT(raced.fitness_values[i], cut) << g << " " << i;
+      }
+    }
+    if (g == 0 || g + 1 == a.generations.size()) {
+      EXPECT_EQ(raced.raced_out, 0) << g;
+    }
+    saved += raced.scans_saved;
+    stopped += raced.raced_out;
+  }
+  // The last generation is evaluated whole in both: the same population.
+  EXPECT_EQ(offline::TuningStateToJson(Full())["budgets"][0]["population"],
+            offline::TuningStateToJson(unraced)["budgets"][0]["population"]);
+  EXPECT_GT(stopped, 0);
+  EXPECT_GT(saved, 0);
+  int64_t all = 0;
+  for (const offline::GenerationSummary& g : b.generations) all += g.scans;
+  std::printf("racing: %lld individuals stopped, %lld of %lld scans spared\n",
+              static_cast<long long>(stopped), static_cast<long long>(saved),
+              static_cast<long long>(all));
 }
 
 TEST_F(TunerTest, InterruptedRunKeepsFinishedGenerationsAndResumesExactly) {

@@ -139,11 +139,16 @@ int main(int argc, char** argv) {
          "evaluations at once, one thread each (0: one per core); results do not depend on it")
       ->capture_default_str()
       ->check(CLI::Range(0, 256));
+  bool no_racing = false;
+  app.add_flag("--no-racing", no_racing,
+               "evaluate every new individual on every experiment to the end (racing stops those "
+               "that can no longer enter the elite; it never changes the elites or the best sets)");
   app.add_flag("--restart", restart, "discard a saved study in --out instead of resuming it");
   app.add_flag("--quiet", quiet, "no progress on stderr");
   CLI11_PARSE(app, argc, argv);
 
   settings.policy = *slam::ParseBudgetPolicy(policy_name);
+  settings.racing = !no_racing;
   std::sort(settings.budgets.begin(), settings.budgets.end());
   settings.budgets.erase(std::unique(settings.budgets.begin(), settings.budgets.end()),
                          settings.budgets.end());
@@ -199,6 +204,7 @@ int main(int argc, char** argv) {
     }
     state = std::move(saved).value();
     state.settings.evolution.generations = settings.evolution.generations;
+    state.settings.racing = settings.racing;
     size_t finished = 0;
     for (const slam::offline::BudgetRun& run : state.budgets) finished += run.generations.size();
     if (!quiet)
@@ -221,11 +227,18 @@ int main(int argc, char** argv) {
     for (const slam::offline::BudgetRun& run : s.budgets) {
       if (run.budget != budget || run.generations.empty()) continue;
       const slam::offline::GenerationSummary& g = run.generations.back();
-      char text[160];
-      std::snprintf(
-          text, sizeof(text), "budget %lld generation %d/%d: median %.4f, IQR %.4f-%.4f, best %.4f",
-          static_cast<long long>(budget), g.generation + 1, s.settings.evolution.generations,
-          g.fitness.median, g.fitness.q1, g.fitness.q3, g.best.fitness);
+      char text[240];
+      std::snprintf(text, sizeof(text),
+                    "budget %lld generation %d/%d: median %.4f, IQR %.4f-%.4f, best %.4f; "
+                    "%lld replays, %lld saved by racing (%d individuals stopped, %.0f %% of "
+                    "the scans spared)",
+                    static_cast<long long>(budget), g.generation + 1,
+                    s.settings.evolution.generations, g.fitness.median, g.fitness.q1, g.fitness.q3,
+                    g.best.fitness, static_cast<long long>(g.replays),
+                    static_cast<long long>(g.replays_saved), g.raced_out,
+                    g.scans + g.scans_saved > 0 ? 100.0 * static_cast<double>(g.scans_saved) /
+                                                      static_cast<double>(g.scans + g.scans_saved)
+                                                : 0.0);
       status = "budget " + std::to_string(budget) + ", best " +
                std::to_string(g.best.fitness).substr(0, 6);
       if (!quiet) bar.Line(text);
