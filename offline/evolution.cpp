@@ -145,7 +145,10 @@ std::vector<Individual> InitialPopulation(const SlamParams& start, const Evoluti
 
 std::vector<Individual> Ranked(std::vector<Individual> population) {
   std::stable_sort(population.begin(), population.end(),
-                   [](const Individual& a, const Individual& b) { return a.fitness < b.fitness; });
+                   [](const Individual& a, const Individual& b) {
+                     if (a.raced_out != b.raced_out) return b.raced_out;
+                     return a.fitness < b.fitness;
+                   });
   return population;
 }
 

@@ -54,8 +54,13 @@ struct Individual {
   double fitness = 0.0;  // lower is better (the tuner's: mean e over the experiments)
   bool evaluated = false;
   /// Racing stopped its evaluation once it could no longer enter the elite (RunTuning):
-  /// `fitness` is then a lower bound on its mean e, above the elite's worst.
+  /// `fitness` is then above the elite's worst, a lower bound on its mean e (or, stopped by
+  /// racing's test, its estimate from the experiments replayed), and it never ranks among the
+  /// individuals evaluated whole.
   bool raced_out = false;
+  /// e of each experiment replayed, in the experiments' order (when raced out, the last one is
+  /// the bound its replay stopped at); racing compares new individuals with these.
+  std::vector<double> scores{};
 };
 
 /// The particle bound of the tuned parameters (TunedParameters()).
@@ -70,7 +75,8 @@ SlamParams Mutate(const SlamParams& params, Rng& rng, int max_particles = kMaxTu
 std::vector<Individual> InitialPopulation(const SlamParams& start, const EvolutionConfig& config,
                                           uint64_t stream, int max_particles = kMaxTunedParticles);
 
-/// Ranks an evaluated population, best first (stable: ties keep their order).
+/// Ranks an evaluated population, best first (stable: ties keep their order); individuals that
+/// racing stopped come after every other.
 std::vector<Individual> Ranked(std::vector<Individual> population);
 
 /// Generation `generation` (>= 1) from the evaluated previous one: its elites unchanged (with

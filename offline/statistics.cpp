@@ -179,4 +179,13 @@ MannWhitneyResult MannWhitneyU(const std::vector<double>& a, const std::vector<d
   return result;
 }
 
+double NormalQuantile(double p) {
+  double lo = -40.0, hi = 40.0;
+  while (hi - lo > 1e-12) {
+    const double mid = 0.5 * (lo + hi);
+    (0.5 * std::erfc(-mid / std::sqrt(2.0)) < p ? lo : hi) = mid;
+  }
+  return 0.5 * (lo + hi);
+}
+
 }  // namespace slam::offline

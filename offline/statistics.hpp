@@ -27,4 +27,8 @@ struct MannWhitneyResult {
 /// Preconditions: both samples non-empty, no NaN.
 MannWhitneyResult MannWhitneyU(const std::vector<double>& a, const std::vector<double>& b);
 
+/// The standard normal distribution's quantile: the z with P(Z <= z) = p, for p in (0, 1)
+/// (bisection on erfc, to within 1e-12).
+double NormalQuantile(double p);
+
 }  // namespace slam::offline

@@ -10,6 +10,7 @@
 
 #include "engine/thread_safety.hpp"
 #include "offline/replay.hpp"
+#include "offline/statistics.hpp"
 
 namespace slam::offline {
 namespace {
@@ -71,9 +72,57 @@ double StopAbove(double allowed) { return allowed + 1e-9 * (1.0 + std::abs(allow
 /// An individual's evaluation: every experiment in order, or until racing stops it.
 struct Evaluation {
   double sum = 0.0;  // of e over the experiments replayed (the last one's bound when stopped)
+  std::vector<double> scores;
+  double trail = 0.0;  // the sum of its e minus the worst elite's (racing's test)
   bool raced_out = false;
   int64_t replays = 0, scans = 0;
 };
+
+/// What a generation's new individuals race against.
+struct Race {
+  double cut = std::numeric_limits<double>::infinity();  // the elites' worst fitness
+  // The statistical test: the worst elite's scores and z sigma (infinite: the bound only).
+  std::vector<double> cut_scores;
+  double z_sigma = std::numeric_limits<double>::infinity();
+
+  /// How far the individual may trail the worst elite (sum of differences) after k of n
+  /// experiments and still stay in the race.
+  double Slack(size_t k, size_t n) const { return z_sigma * std::sqrt(static_cast<double>(n - k)); }
+};
+
+/// The race of a generation: `carried` are the individuals carried over (evaluated).
+Race MakeRace(const std::vector<const Individual*>& carried, int elites, size_t n_exp,
+              double alpha) {
+  Race race;
+  if (carried.size() < static_cast<size_t>(elites) || elites < 1 || n_exp == 0) return race;
+  std::vector<const Individual*> ranked = carried;
+  std::stable_sort(ranked.begin(), ranked.end(), [](const Individual* a, const Individual* b) {
+    return a->fitness < b->fitness;
+  });
+  const Individual& worst = *ranked[static_cast<size_t>(elites) - 1];
+  race.cut = worst.fitness;
+  if (!(alpha > 0.0) || n_exp < 2 || worst.scores.size() != n_exp) return race;
+  // Pooled over the other elites: the variance of their e minus the worst's, experiment to
+  // experiment.
+  double squares = 0.0;
+  size_t dof = 0;
+  for (size_t m = 0; m + 1 < static_cast<size_t>(elites); ++m) {
+    const Individual& other = *ranked[m];
+    if (other.scores.size() != n_exp) return race;  // saved before scores were kept
+    double mean = 0.0;
+    for (size_t i = 0; i < n_exp; ++i) mean += other.scores[i] - worst.scores[i];
+    mean /= static_cast<double>(n_exp);
+    for (size_t i = 0; i < n_exp; ++i) {
+      const double d = other.scores[i] - worst.scores[i] - mean;
+      squares += d * d;
+    }
+    dof += n_exp - 1;
+  }
+  if (dof == 0) return race;
+  race.cut_scores = worst.scores;
+  race.z_sigma = NormalQuantile(1.0 - alpha) * std::sqrt(squares / static_cast<double>(dof));
+  return race;
+}
 
 }  // namespace
 
@@ -126,23 +175,22 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
               ? InitialPopulation(settings.start, es, stream, es.MaxParticles(run.budget))
               : NextGeneration(run.population, es, stream, generation, es.MaxParticles(run.budget));
 
-      // The elite cut: the worst of the elites carried over (racing only between the first and
-      // the last generation, and only with a full elite to beat).
+      // The race: against the worst of the elites carried over (only between the first and the
+      // last generation, and only with a full elite to beat).
       std::vector<size_t> pending;
-      std::vector<double> carried;
+      std::vector<const Individual*> carried;
       for (size_t i = 0; i < population.size(); ++i) {
         if (!population[i].evaluated) {
           pending.push_back(i);
         } else {
-          carried.push_back(population[i].fitness);
+          carried.push_back(&population[i]);
         }
       }
-      double cut = std::numeric_limits<double>::infinity();
-      if (settings.racing && generation > 0 && generation + 1 < generations &&
-          carried.size() >= static_cast<size_t>(es.elites()) && n_exp > 0) {
-        std::sort(carried.begin(), carried.end());
-        cut = carried[static_cast<size_t>(es.elites()) - 1];
+      Race race;
+      if (settings.racing && generation > 0 && generation + 1 < generations) {
+        race = MakeRace(carried, es.elites(), n_exp, settings.race_alpha);
       }
+      const double cut = race.cut;
 
       // Every new individual, in parallel; each replays its experiments in order.
       std::vector<Evaluation> evaluations(pending.size());
@@ -150,23 +198,29 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
         tbb::parallel_for(size_t{0}, pending.size(), [&](size_t j) {
           Evaluation& ev = evaluations[j];
           const SlamParams& params = population[pending[j]].params;
+          double& trail = ev.trail;
           for (size_t x = 0; x < n_exp; ++x) {
             if (cancelled()) return;
             const TuningExperiment& experiment = experiments[x];
-            // Racing: the e this replay may reach before the mean can no longer be under the cut.
-            const double allowed = cut * n - ev.sum;
+            // Racing: the e this replay may reach before the mean can no longer be under the
+            // cut, or (the test) before it trails the worst elite by more than the rest allows.
+            double allowed = cut * n - ev.sum;
+            if (!race.cut_scores.empty()) {
+              allowed = std::min(allowed, race.cut_scores[x] - trail + race.Slack(x + 1, n_exp));
+            }
             const ReplayResult replay = ReplayFor(experiment, params, run.budget, settings,
                                                   callbacks.cancel, StopAbove(allowed));
             ++ev.replays;
             ev.scans += replay.scans;
             const double work = static_cast<double>(run.budget);
-            if (replay.stopped_early) {
-              ev.sum += replay.e_lower_bound;
-              ev.raced_out = true;
-            } else {
-              ev.sum += EOf(replay);
-              ev.raced_out = x + 1 < n_exp && ev.sum / n > cut;
-            }
+            const double e = replay.stopped_early ? replay.e_lower_bound : EOf(replay);
+            ev.sum += e;
+            ev.scores.push_back(e);
+            if (!race.cut_scores.empty()) trail += e - race.cut_scores[x];
+            ev.raced_out =
+                replay.stopped_early ||
+                (x + 1 < n_exp && (ev.sum / n > cut ||
+                                   (!race.cut_scores.empty() && trail > race.Slack(x + 1, n_exp))));
             if (ev.raced_out) {
               // What is spared counts as done, so that the progress reaches its end.
               int64_t rest = static_cast<int64_t>(experiment.scans->size()) - replay.scans;
@@ -186,8 +240,15 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
         const Evaluation& ev = evaluations[j];
         Individual& individual = population[pending[j]];
         individual.fitness = n_exp > 0 ? ev.sum / n : 0.0;
+        if (ev.raced_out && !race.cut_scores.empty()) {
+          // Stopped by the test: its paired estimate (the worst elite's fitness plus its mean
+          // trail so far) when that is above its bound; above the cut either way.
+          individual.fitness =
+              std::max(individual.fitness, cut + ev.trail / static_cast<double>(ev.scores.size()));
+        }
         individual.evaluated = true;
         individual.raced_out = ev.raced_out;
+        individual.scores = ev.scores;
         replays += ev.replays;
         scans += ev.scans;
         raced_out += ev.raced_out ? 1 : 0;

@@ -39,6 +39,12 @@ struct TuningSettings {
   /// the elite. It never changes which individuals are elites, so neither the study's course
   /// nor its best sets; only the fitness of the individuals it stopped (a lower bound).
   bool racing = true;
+  /// Racing's statistical test (0: off, only the bound above): an individual also stops when,
+  /// on the experiments replayed so far, it trails the elite's worst by more than the rest
+  /// could make up at this one-sided level, given how much two elites' e differ from one
+  /// experiment to another (RunTuning). It may drop an individual that would have just made the
+  /// elite, in exchange for stopping most others after one or two experiments.
+  double race_alpha = 0.05;
 };
 
 struct GenerationSummary {
@@ -101,6 +107,15 @@ struct TuningCallbacks {
 /// other new individuals score, so the elites, the best sets and every later generation are
 /// those of the study without racing; its fitness is the lower bound it reached. Deterministic:
 /// T is fixed for the generation and every stop depends only on the individual's own replays.
+///
+/// With settings.race_alpha > 0 and the elites' scores known, racing also tests, as F-Race
+/// does, against the elite's worst on the same experiments: after k of n experiments, with S the
+/// sum of the individual's e minus that elite's over them, the individual stops when
+/// S > z sigma sqrt(n - k), z the normal quantile of 1 - alpha and sigma the pooled standard
+/// deviation, over the experiments, of each other elite's e minus the worst's (how much two
+/// individuals' difference varies from one experiment to the next): even were the rest to go
+/// as well for it as that spread allows, it would not make the cut. Inside a replay the same
+/// test runs on the replay's ErrorLowerBound.
 bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& state, int jobs,
                const TuningCallbacks& callbacks = {});
 

@@ -26,12 +26,14 @@ Json SettingsToJson(const TuningSettings& s) {
           {"policy", std::string(ToString(s.policy))},
           {"max_particles", s.max_particles},
           {"racing", s.racing},
+          {"race_alpha", s.race_alpha},
           {"start", io::ParamsToJson(s.start)}};
 }
 
 Json IndividualToJson(const Individual& i) {
   Json j = {{"fitness", i.fitness}, {"params", io::ParamsToJson(i.params)}};
   if (i.raced_out) j["raced_out"] = true;  // its fitness is a lower bound
+  if (!i.scores.empty()) j["scores"] = i.scores;
   return j;
 }
 
@@ -52,6 +54,9 @@ Individual IndividualAt(const Json& json, const std::string& pointer) {
   i.params = ParamsAt(json.at("params"), pointer + "/params");
   i.evaluated = true;
   i.raced_out = json.value("raced_out", false);
+  if (const auto scores = json.find("scores"); scores != json.end()) {  // absent before racing
+    i.scores = scores->get<std::vector<double>>();
+  }
   return i;
 }
 
@@ -139,7 +144,9 @@ Result<TuningState> TuningStateFromJson(const Json& json) {
     if (!policy) throw ReadError{"/settings/policy", "unknown policy"};
     state.settings.policy = *policy;
     state.settings.max_particles = s.at("max_particles").get<int>();
-    state.settings.racing = s.value("racing", false);  // absent before racing existed
+    // Absent before racing existed: those studies ran without it.
+    state.settings.racing = s.value("racing", false);
+    state.settings.race_alpha = s.value("race_alpha", 0.0);
     state.settings.start = ParamsAt(s.at("start"), "/settings/start");
     state.experiments = json.at("experiments").get<std::vector<std::string>>();
     const Json& budgets = json.at("budgets");
@@ -203,11 +210,17 @@ std::vector<std::string> ResumeConflicts(const TuningState& saved, const TuningS
                                          const std::vector<std::string>& experiments) {
   std::vector<std::string> conflicts;
   Json a = SettingsToJson(saved.settings), b = SettingsToJson(settings);
-  // Neither the generation count (a study can be extended) nor racing (it never changes the
-  // elites, so a study may go on with it or without) must match.
+  // Neither the generation count (a study can be extended) nor racing on or off must match:
+  // racing's bound never changes the elites, so a study may go on with it or without; its
+  // test's level must (it can change them), unless racing is off on either side.
+  const bool test_matters = a.value("racing", false) && b.value("racing", false);
   for (const char* free_key : {"generations", "racing"}) {
     a.erase(free_key);
     b.erase(free_key);
+  }
+  if (!test_matters) {
+    a.erase("race_alpha");
+    b.erase("race_alpha");
   }
   for (const auto& [key, value] : b.items()) {
     if (a[key] != value)

@@ -189,12 +189,15 @@ class TunerTest : public ::testing::Test {
       out.push_back({e.meta.name, &e.robot, &e.scans, &e.ground_truth});
     return out;
   }
-  static offline::TuningSettings Reduced(int generations) {
+  /// The reduced study; racing by its bound alone unless `race_alpha` > 0 (then the study's
+  /// course may differ from one without racing).
+  static offline::TuningSettings Reduced(int generations, double race_alpha = 0.0) {
     offline::TuningSettings settings;
     settings.budgets = {4000};
     settings.evolution.population = 12;
     settings.evolution.generations = generations;
     settings.evolution.seed = 5;
+    settings.race_alpha = race_alpha;
     return settings;
   }
   /// The full study of the suite, run once: 12 individuals, 8 generations, 2 threads.
@@ -334,6 +337,43 @@ TEST_F(TunerTest, RacingKeepsEveryEliteAndSparesReplays) {
   std::printf("racing: %lld individuals stopped, %lld of %lld scans spared\n",
               static_cast<long long>(stopped), static_cast<long long>(saved),
               static_cast<long long>(all));
+}
+
+TEST_F(TunerTest, RacingsTestStopsMoreAndResumesExactly) {
+  // The statistical test on top of the bound: deterministic (one thread or two, interrupted and
+  // resumed from results.json), and it spares more than the bound alone.
+  offline::TuningState tested = offline::NewTuningState(Reduced(8, 0.05), Experiments());
+  ASSERT_TRUE(offline::RunTuning(Experiments(), tested, 2));
+  int64_t spared_bound = 0, spared_test = 0;
+  for (const auto& g : Full().budgets[0].generations) spared_bound += g.scans_saved;
+  for (const auto& g : tested.budgets[0].generations) spared_test += g.scans_saved;
+  EXPECT_GT(spared_test, spared_bound);
+  const offline::BudgetRun& run = tested.budgets[0];
+  EXPECT_LT(run.generations.back().best.fitness, run.generations.front().best.fitness);
+  for (const offline::Individual& i : run.population) {
+    ASSERT_EQ(i.scores.size(), 2u);  // the last generation is evaluated whole
+    EXPECT_DOUBLE_EQ(i.fitness, (i.scores[0] + i.scores[1]) / 2);
+  }
+  std::printf("racing's test: %lld scans spared, the bound alone %lld\n",
+              static_cast<long long>(spared_test), static_cast<long long>(spared_bound));
+
+  // Interrupted in generation 4, saved as slam-tune saves it, read back and resumed.
+  offline::TuningState state = offline::NewTuningState(Reduced(8, 0.05), Experiments());
+  std::atomic<bool> cancel{false};
+  nlohmann::json saved;
+  offline::TuningCallbacks callbacks;
+  callbacks.cancel = &cancel;
+  callbacks.generation_done = [&](const offline::TuningState& s, int64_t) {
+    saved = offline::TuningStateToJson(s);
+    if (s.budgets[0].generations.size() == 3) cancel = true;
+  };
+  EXPECT_FALSE(offline::RunTuning(Experiments(), state, 2, callbacks));
+  auto reread = offline::TuningStateFromJson(nlohmann::json::parse(saved.dump()));
+  ASSERT_TRUE(reread.ok()) << reread.Message();
+  offline::TuningState resumed = std::move(reread).value();
+  ASSERT_EQ(resumed.budgets[0].generations.size(), 3u);
+  ASSERT_TRUE(offline::RunTuning(Experiments(), resumed, 1));
+  ExpectSameStudy(resumed, tested);
 }
 
 TEST_F(TunerTest, InterruptedRunKeepsFinishedGenerationsAndResumesExactly) {

@@ -143,6 +143,12 @@ int main(int argc, char** argv) {
   app.add_flag("--no-racing", no_racing,
                "evaluate every new individual on every experiment to the end (racing stops those "
                "that can no longer enter the elite; it never changes the elites or the best sets)");
+  app.add_option("--race-alpha", settings.race_alpha,
+                 "racing's statistical test: one-sided level at which an individual trailing "
+                 "the elite's worst on the experiments so far is stopped (0: only stop those "
+                 "that provably cannot enter the elite)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 0.5));
   app.add_flag("--restart", restart, "discard a saved study in --out instead of resuming it");
   app.add_flag("--quiet", quiet, "no progress on stderr");
   CLI11_PARSE(app, argc, argv);
@@ -205,6 +211,7 @@ int main(int argc, char** argv) {
     state = std::move(saved).value();
     state.settings.evolution.generations = settings.evolution.generations;
     state.settings.racing = settings.racing;
+    state.settings.race_alpha = settings.race_alpha;
     size_t finished = 0;
     for (const slam::offline::BudgetRun& run : state.budgets) finished += run.generations.size();
     if (!quiet)
