@@ -73,7 +73,8 @@ double StopAbove(double allowed) { return allowed + 1e-9 * (1.0 + std::abs(allow
 struct Evaluation {
   double sum = 0.0;  // of e over the experiments replayed (the last one's bound when stopped)
   std::vector<double> scores;
-  double trail = 0.0;  // the sum of its e minus the worst elite's (racing's test)
+  double trail = 0.0;   // the sum of its e minus the worst elite's (racing's test)
+  size_t replayed = 0;  // experiments replayed (scores of the others: NaN)
   bool raced_out = false;
   int64_t replays = 0, scans = 0;
 };
@@ -81,19 +82,19 @@ struct Evaluation {
 /// What a generation's new individuals race against.
 struct Race {
   double cut = std::numeric_limits<double>::infinity();  // the elites' worst fitness
-  // The statistical test: the worst elite's scores and z sigma (infinite: the bound only).
+  // The statistical test: the worst elite's scores (empty: the bound only), the order in which
+  // the experiments are replayed (the most telling first), and slack[k], how far an individual
+  // may trail that elite after the first k of them and stay in the race.
   std::vector<double> cut_scores;
-  double z_sigma = std::numeric_limits<double>::infinity();
-
-  /// How far the individual may trail the worst elite (sum of differences) after k of n
-  /// experiments and still stay in the race.
-  double Slack(size_t k, size_t n) const { return z_sigma * std::sqrt(static_cast<double>(n - k)); }
+  std::vector<size_t> order;
+  std::vector<double> slack;
 };
 
-/// The race of a generation: `carried` are the individuals carried over (evaluated).
+/// The race of a generation: `carried` are the individuals carried over (evaluated whole).
 Race MakeRace(const std::vector<const Individual*>& carried, int elites, size_t n_exp,
               double alpha) {
   Race race;
+  for (size_t x = 0; x < n_exp; ++x) race.order.push_back(x);
   if (carried.size() < static_cast<size_t>(elites) || elites < 1 || n_exp == 0) return race;
   std::vector<const Individual*> ranked = carried;
   std::stable_sort(ranked.begin(), ranked.end(), [](const Individual* a, const Individual* b) {
@@ -101,26 +102,37 @@ Race MakeRace(const std::vector<const Individual*>& carried, int elites, size_t 
   });
   const Individual& worst = *ranked[static_cast<size_t>(elites) - 1];
   race.cut = worst.fitness;
-  if (!(alpha > 0.0) || n_exp < 2 || worst.scores.size() != n_exp) return race;
-  // Pooled over the other elites: the variance of their e minus the worst's, experiment to
-  // experiment.
-  double squares = 0.0;
-  size_t dof = 0;
-  for (size_t m = 0; m + 1 < static_cast<size_t>(elites); ++m) {
-    const Individual& other = *ranked[m];
-    if (other.scores.size() != n_exp) return race;  // saved before scores were kept
+  const auto whole = [&](const Individual& i) {
+    return i.scores.size() == n_exp &&
+           std::all_of(i.scores.begin(), i.scores.end(), [](double e) { return std::isfinite(e); });
+  };
+  // The spread, per experiment, of the other elites' e minus the worst's.
+  const size_t others = static_cast<size_t>(elites) - 1;
+  if (!(alpha > 0.0) || n_exp < 2 || others < 2 || !whole(worst)) return race;
+  std::vector<double> variance(n_exp, 0.0);
+  for (size_t x = 0; x < n_exp; ++x) {
     double mean = 0.0;
-    for (size_t i = 0; i < n_exp; ++i) mean += other.scores[i] - worst.scores[i];
-    mean /= static_cast<double>(n_exp);
-    for (size_t i = 0; i < n_exp; ++i) {
-      const double d = other.scores[i] - worst.scores[i] - mean;
-      squares += d * d;
+    for (size_t m = 0; m < others; ++m) {
+      if (!whole(*ranked[m])) return race;  // saved before scores were kept
+      mean += ranked[m]->scores[x] - worst.scores[x];
     }
-    dof += n_exp - 1;
+    mean /= static_cast<double>(others);
+    for (size_t m = 0; m < others; ++m) {
+      const double d = ranked[m]->scores[x] - worst.scores[x] - mean;
+      variance[x] += d * d / static_cast<double>(others - 1);
+    }
   }
-  if (dof == 0) return race;
   race.cut_scores = worst.scores;
-  race.z_sigma = NormalQuantile(1.0 - alpha) * std::sqrt(squares / static_cast<double>(dof));
+  std::stable_sort(race.order.begin(), race.order.end(),
+                   [&](size_t a, size_t b) { return variance[a] > variance[b]; });
+  const double z = NormalQuantile(1.0 - alpha);
+  race.slack.assign(n_exp + 1, 0.0);
+  double rest = 0.0;
+  for (size_t k = n_exp; k-- > 0;) {
+    race.slack[k + 1] = z * std::sqrt(rest);
+    rest += variance[race.order[k]];
+  }
+  race.slack[0] = z * std::sqrt(rest);
   return race;
 }
 
@@ -189,6 +201,8 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
       Race race;
       if (settings.racing && generation > 0 && generation + 1 < generations) {
         race = MakeRace(carried, es.elites(), n_exp, settings.race_alpha);
+      } else {
+        for (size_t x = 0; x < n_exp; ++x) race.order.push_back(x);  // no race: in order
       }
       const double cut = race.cut;
 
@@ -199,15 +213,16 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
           Evaluation& ev = evaluations[j];
           const SlamParams& params = population[pending[j]].params;
           double& trail = ev.trail;
-          for (size_t x = 0; x < n_exp; ++x) {
+          const bool test = !race.cut_scores.empty();
+          ev.scores.assign(n_exp, std::numeric_limits<double>::quiet_NaN());
+          for (size_t k = 0; k < n_exp; ++k) {
             if (cancelled()) return;
+            const size_t x = race.order[k];
             const TuningExperiment& experiment = experiments[x];
             // Racing: the e this replay may reach before the mean can no longer be under the
             // cut, or (the test) before it trails the worst elite by more than the rest allows.
             double allowed = cut * n - ev.sum;
-            if (!race.cut_scores.empty()) {
-              allowed = std::min(allowed, race.cut_scores[x] - trail + race.Slack(x + 1, n_exp));
-            }
+            if (test) allowed = std::min(allowed, race.cut_scores[x] - trail + race.slack[k + 1]);
             const ReplayResult replay = ReplayFor(experiment, params, run.budget, settings,
                                                   callbacks.cancel, StopAbove(allowed));
             ++ev.replays;
@@ -215,17 +230,17 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
             const double work = static_cast<double>(run.budget);
             const double e = replay.stopped_early ? replay.e_lower_bound : EOf(replay);
             ev.sum += e;
-            ev.scores.push_back(e);
-            if (!race.cut_scores.empty()) trail += e - race.cut_scores[x];
+            ev.scores[x] = e;
+            ev.replayed = k + 1;
+            if (test) trail += e - race.cut_scores[x];
             ev.raced_out =
                 replay.stopped_early ||
-                (x + 1 < n_exp && (ev.sum / n > cut ||
-                                   (!race.cut_scores.empty() && trail > race.Slack(x + 1, n_exp))));
+                (k + 1 < n_exp && (ev.sum / n > cut || (test && trail > race.slack[k + 1])));
             if (ev.raced_out) {
               // What is spared counts as done, so that the progress reaches its end.
               int64_t rest = static_cast<int64_t>(experiment.scans->size()) - replay.scans;
-              for (size_t y = x + 1; y < n_exp; ++y)
-                rest += static_cast<int64_t>(experiments[y].scans->size());
+              for (size_t y = k + 1; y < n_exp; ++y)
+                rest += static_cast<int64_t>(experiments[race.order[y]].scans->size());
               report(work * static_cast<double>(replay.scans + rest));
               return;
             }
@@ -239,12 +254,19 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
       for (size_t j = 0; j < pending.size(); ++j) {
         const Evaluation& ev = evaluations[j];
         Individual& individual = population[pending[j]];
-        individual.fitness = n_exp > 0 ? ev.sum / n : 0.0;
-        if (ev.raced_out && !race.cut_scores.empty()) {
-          // Stopped by the test: its paired estimate (the worst elite's fitness plus its mean
-          // trail so far) when that is above its bound; above the cut either way.
-          individual.fitness =
-              std::max(individual.fitness, cut + ev.trail / static_cast<double>(ev.scores.size()));
+        if (ev.raced_out) {
+          individual.fitness = ev.sum / n;
+          if (!race.cut_scores.empty()) {
+            // Stopped by the test: its paired estimate (the worst elite's fitness plus its mean
+            // trail so far) when that is above its bound; above the cut either way.
+            individual.fitness =
+                std::max(individual.fitness, cut + ev.trail / static_cast<double>(ev.replayed));
+          }
+        } else {
+          // In the experiments' order, whatever order they ran in: as without racing.
+          double sum = 0.0;
+          for (const double e : ev.scores) sum += e;
+          individual.fitness = n_exp > 0 ? sum / n : 0.0;
         }
         individual.evaluated = true;
         individual.raced_out = ev.raced_out;

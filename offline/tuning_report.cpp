@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <limits>
 
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/map_image.hpp"
@@ -55,7 +56,9 @@ Individual IndividualAt(const Json& json, const std::string& pointer) {
   i.evaluated = true;
   i.raced_out = json.value("raced_out", false);
   if (const auto scores = json.find("scores"); scores != json.end()) {  // absent before racing
-    i.scores = scores->get<std::vector<double>>();
+    for (const Json& e : *scores) {  // null: an experiment racing did not replay
+      i.scores.push_back(e.is_null() ? std::numeric_limits<double>::quiet_NaN() : e.get<double>());
+    }
   }
   return i;
 }
