@@ -163,14 +163,18 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
                                 : (generations - done) * (es.population - es.elites());
     total += fresh * Work(experiments, run.budget);
   }
-  double done_work = 0.0;
+  TuningProgress progress;
+  progress.total = total;
   Mutex progress_mutex;
   const auto cancelled = [&] { return callbacks.cancel && callbacks.cancel->load(); };
-  const auto report = [&](double work) {
+  // A replay's work done (racing's savings with it), and the replays it finished or spared.
+  const auto report = [&](double work, int64_t replays, int64_t saved) {
     if (!callbacks.progress) return;
     MutexLock lock(progress_mutex);
-    done_work += work;
-    callbacks.progress(done_work, total);
+    progress.done += work;
+    progress.replays += replays;
+    progress.replays_saved += saved;
+    callbacks.progress(progress);
   };
   int64_t all_scans = 0;
   for (const TuningExperiment& e : experiments) all_scans += static_cast<int64_t>(e.scans->size());
@@ -181,6 +185,11 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
   for (BudgetRun& run : state.budgets) {
     while (static_cast<int>(run.generations.size()) < generations) {
       const int generation = static_cast<int>(run.generations.size());
+      {
+        MutexLock lock(progress_mutex);
+        progress.budget = run.budget;
+        progress.generation = generation;
+      }
       const auto stream = static_cast<uint64_t>(run.budget);
       std::vector<Individual> population =
           generation == 0
@@ -241,10 +250,11 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
               int64_t rest = static_cast<int64_t>(experiment.scans->size()) - replay.scans;
               for (size_t y = k + 1; y < n_exp; ++y)
                 rest += static_cast<int64_t>(experiments[race.order[y]].scans->size());
-              report(work * static_cast<double>(replay.scans + rest));
+              report(work * static_cast<double>(replay.scans + rest), 1,
+                     static_cast<int64_t>(n_exp - k - 1));
               return;
             }
-            report(work * static_cast<double>(replay.scans));
+            report(work * static_cast<double>(replay.scans), 1, 0);
           }
         });
       });

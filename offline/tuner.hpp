@@ -84,11 +84,20 @@ double Fitness(const std::vector<TuningExperiment>& experiments, const SlamParam
                int64_t budget, const TuningSettings& settings,
                const std::atomic<bool>* cancel = nullptr);
 
+/// Where a study stands, for a progress line.
+struct TuningProgress {
+  double done = 0.0, total = 0.0;  // work (scans times budget); what racing spares counts done
+  int64_t budget = 0;              // the budget in progress
+  int generation = 0;              // its generation in progress (0-based)
+  int64_t replays = 0;             // finished in this call
+  int64_t replays_saved = 0;       // spared by racing in this call
+};
+
 struct TuningCallbacks {
   /// After every finished generation of a budget (to save the state); may be empty.
   std::function<void(const TuningState&, int64_t budget)> generation_done;
   /// Work done and in all for this call (replayed scans times budget), serialised; may be empty.
-  std::function<void(double done, double total)> progress;
+  std::function<void(const TuningProgress&)> progress;
   /// When set to true, the run stops soon; unfinished generations are dropped.
   const std::atomic<bool>* cancel = nullptr;
 };

@@ -245,10 +245,10 @@ void JobManager::Run(Job& job) {
     offline::TuningState state = offline::NewTuningState(settings, experiments);
     offline::TuningCallbacks callbacks;
     callbacks.cancel = &job.cancel;
-    callbacks.progress = [&](double done, double total) {
+    callbacks.progress = [&](const offline::TuningProgress& p) {
       {
         MutexLock lock(mutex_);
-        job.progress = total > 0.0 ? done / total : 0.0;
+        job.progress = p.total > 0.0 ? p.done / p.total : 0.0;
       }
       Touch();
     };

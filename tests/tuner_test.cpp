@@ -387,12 +387,16 @@ TEST_F(TunerTest, InterruptedRunKeepsFinishedGenerationsAndResumesExactly) {
     ++saved;
   };
   double last_done = 0.0;
-  callbacks.progress = [&](double done, double total) {
-    EXPECT_GT(done, last_done);
-    EXPECT_LE(done, total * (1 + 1e-12));
-    last_done = done;
-    // Stop in the middle of generation 3 (12 + 9 + 9 evaluations of 2 experiments before it).
-    if (++calls == 2 * (12 + 9 + 9) + 5) cancel = true;
+  int64_t last_replays = 0;
+  callbacks.progress = [&](const offline::TuningProgress& p) {
+    EXPECT_GT(p.done, last_done);
+    EXPECT_LE(p.done, p.total * (1 + 1e-12));
+    EXPECT_EQ(p.budget, 4000);
+    EXPECT_EQ(p.replays, last_replays + 1);  // one call per replay
+    last_done = p.done;
+    last_replays = p.replays;
+    // Stop in the middle of generation 3 (the fourth), after 5 of its replays.
+    if (p.generation == 3 && ++calls == 5) cancel = true;
   };
   EXPECT_FALSE(offline::RunTuning(Experiments(), state, 2, callbacks));
   EXPECT_EQ(saved, 3);

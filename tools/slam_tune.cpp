@@ -252,7 +252,15 @@ int main(int argc, char** argv) {
     }
   };
   if (!quiet)
-    callbacks.progress = [&](double done, double total) { bar.Update(done, total, status); };
+    callbacks.progress = [&](const slam::offline::TuningProgress& p) {
+      char line[160];
+      std::snprintf(line, sizeof(line), "budget %lld gen %d/%d, %lld replays done, %lld saved%s%s",
+                    static_cast<long long>(p.budget), p.generation + 1,
+                    state.settings.evolution.generations, static_cast<long long>(p.replays),
+                    static_cast<long long>(p.replays_saved), status.empty() ? "" : "; ",
+                    status.c_str());
+      bar.Update(p.done, p.total, line);
+    };
 
   const auto start = std::chrono::steady_clock::now();
   const bool finished = slam::offline::RunTuning(tuning, state, jobs, callbacks);
