@@ -234,6 +234,7 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
             if (test) allowed = std::min(allowed, race.cut_scores[x] - trail + race.slack[k + 1]);
             const ReplayResult replay = ReplayFor(experiment, params, run.budget, settings,
                                                   callbacks.cancel, StopAbove(allowed));
+            if (replay.cancelled) return;  // the generation is dropped
             ++ev.replays;
             ev.scans += replay.scans;
             const double work = static_cast<double>(run.budget);
