@@ -136,6 +136,42 @@ Race MakeRace(const std::vector<const Individual*>& carried, int elites, size_t 
   return race;
 }
 
+/// Every process's evaluations to every process (each owns some items, zeros elsewhere); false
+/// when any process was cancelled.
+bool ShareEvaluations(const EvaluationSpread& spread, std::vector<Evaluation>& evaluations,
+                      size_t n_exp, bool cancelled) {
+  constexpr size_t kFixed = 6;  // sum, trail, replayed, raced out, replays, scans; then scores
+  const size_t record = kFixed + n_exp;
+  std::vector<double> values(evaluations.size() * record + 1, 0.0);
+  for (size_t j = 0; j < evaluations.size(); ++j) {
+    if (!spread.Mine(j)) continue;
+    const Evaluation& ev = evaluations[j];
+    double* r = values.data() + j * record;
+    r[0] = ev.sum;
+    r[1] = ev.trail;
+    r[2] = static_cast<double>(ev.replayed);
+    r[3] = ev.raced_out ? 1.0 : 0.0;
+    r[4] = static_cast<double>(ev.replays);
+    r[5] = static_cast<double>(ev.scans);
+    for (size_t x = 0; x < n_exp && x < ev.scores.size(); ++x) r[kFixed + x] = ev.scores[x];
+  }
+  values.back() = cancelled ? 1.0 : 0.0;
+  spread.SumAll(values);
+  if (values.back() > 0.0) return false;
+  for (size_t j = 0; j < evaluations.size(); ++j) {
+    Evaluation& ev = evaluations[j];
+    const double* r = values.data() + j * record;
+    ev.sum = r[0];
+    ev.trail = r[1];
+    ev.replayed = static_cast<size_t>(r[2]);
+    ev.raced_out = r[3] > 0.5;
+    ev.replays = static_cast<int64_t>(r[4]);
+    ev.scans = static_cast<int64_t>(r[5]);
+    ev.scores.assign(r + kFixed, r + record);
+  }
+  return true;
+}
+
 }  // namespace
 
 double Fitness(const std::vector<TuningExperiment>& experiments, const SlamParams& params,
@@ -163,18 +199,28 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
                                 : (generations - done) * (es.population - es.elites());
     total += fresh * Work(experiments, run.budget);
   }
-  TuningProgress progress;
-  progress.total = total;
+  // Progress: exact at every generation's start (`base`); within a generation, this process's
+  // own replays (`local`), times the processes when the evaluations are spread.
+  const EvaluationSpread* spread = callbacks.spread;
+  const double processes = spread != nullptr ? spread->size() : 1;
+  state.ranks = spread != nullptr ? spread->size() : 1;
+  TuningProgress base, local;
+  base.total = total;
   Mutex progress_mutex;
   const auto cancelled = [&] { return callbacks.cancel && callbacks.cancel->load(); };
   // A replay's work done (racing's savings with it), and the replays it finished or spared.
   const auto report = [&](double work, int64_t replays, int64_t saved) {
     if (!callbacks.progress) return;
     MutexLock lock(progress_mutex);
-    progress.done += work;
-    progress.replays += replays;
-    progress.replays_saved += saved;
-    callbacks.progress(progress);
+    local.done += work;
+    local.replays += replays;
+    local.replays_saved += saved;
+    TuningProgress p = base;
+    p.done += processes * local.done;
+    p.replays += static_cast<int64_t>(processes * static_cast<double>(local.replays));
+    p.replays_saved += static_cast<int64_t>(processes * static_cast<double>(local.replays_saved));
+    p.done = std::min(p.done, p.total);
+    callbacks.progress(p);
   };
   int64_t all_scans = 0;
   for (const TuningExperiment& e : experiments) all_scans += static_cast<int64_t>(e.scans->size());
@@ -187,8 +233,9 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
       const int generation = static_cast<int>(run.generations.size());
       {
         MutexLock lock(progress_mutex);
-        progress.budget = run.budget;
-        progress.generation = generation;
+        base.budget = run.budget;
+        base.generation = generation;
+        local = TuningProgress{};
       }
       const auto stream = static_cast<uint64_t>(run.budget);
       std::vector<Individual> population =
@@ -219,6 +266,7 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
       std::vector<Evaluation> evaluations(pending.size());
       arena.execute([&] {
         tbb::parallel_for(size_t{0}, pending.size(), [&](size_t j) {
+          if (spread != nullptr && !spread->Mine(j)) return;  // another process's
           Evaluation& ev = evaluations[j];
           const SlamParams& params = population[pending[j]].params;
           double& trail = ev.trail;
@@ -259,7 +307,12 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
           }
         });
       });
-      if (cancelled()) return false;
+      if (spread != nullptr) {
+        // Every process's results (and whether any was cancelled) to every process.
+        if (!ShareEvaluations(*spread, evaluations, n_exp, cancelled())) return false;
+      } else if (cancelled()) {
+        return false;
+      }
       int64_t replays = 0, scans = 0;
       int raced_out = 0;
       for (size_t j = 0; j < pending.size(); ++j) {
@@ -293,6 +346,13 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
       summary.replays_saved = static_cast<int64_t>(pending.size() * n_exp) - replays;
       summary.scans_saved = static_cast<int64_t>(pending.size()) * all_scans - scans;
       summary.raced_out = raced_out;
+      {
+        MutexLock lock(progress_mutex);  // exact again: every process's replays
+        base.replays += replays;
+        base.replays_saved += summary.replays_saved;
+        base.done += static_cast<double>(run.budget) *
+                     static_cast<double>(static_cast<int64_t>(pending.size()) * all_scans);
+      }
       run.generations.push_back(std::move(summary));
       run.population = std::move(population);
       if (callbacks.generation_done) callbacks.generation_done(state, run.budget);

@@ -69,6 +69,23 @@ struct TuningState {
   TuningSettings settings;
   std::vector<std::string> experiments;  // names, in order: a resumed run must use the same
   std::vector<BudgetRun> budgets;        // in the order of settings.budgets
+  int ranks = 1;  // processes (MPI ranks) of the run that wrote it last; results never depend on it
+};
+
+/// Spreads each generation's evaluations over processes that all run the same study (MPI ranks,
+/// tools/slam_tune.cpp): each evaluates the new individuals it owns, then every process gets
+/// every result. The study is the same with any number of processes.
+class EvaluationSpread {
+ public:
+  virtual ~EvaluationSpread() = default;
+  /// Processes in all.
+  virtual int size() const = 0;
+  /// Whether this process evaluates the generation's `item`-th new individual.
+  virtual bool Mine(size_t item) const = 0;
+  /// Sums `values` element by element over every process, in place (each process leaves zeros
+  /// where it has no result, so the sum is every result; exact: x + 0 = x). Every process calls
+  /// it once per generation, with the same size; it returns only when all have.
+  virtual void SumAll(std::vector<double>& values) const = 0;
 };
 
 /// A fresh state for `settings` over these experiments.
@@ -100,6 +117,8 @@ struct TuningCallbacks {
   std::function<void(const TuningProgress&)> progress;
   /// When set to true, the run stops soon; unfinished generations are dropped.
   const std::atomic<bool>* cancel = nullptr;
+  /// Evaluations spread over processes; null: all here.
+  const EvaluationSpread* spread = nullptr;
 };
 
 /// Runs or continues the study until every budget has settings.evolution.generations

@@ -92,6 +92,7 @@ Json TuningStateToJson(const TuningState& state) {
   j["format"] = kFormat;
   j["settings"] = SettingsToJson(state.settings);
   j["experiments"] = state.experiments;
+  j["ranks"] = state.ranks;  // processes of the last run (MPI ranks); results never depend on it
   Json budgets = Json::array();
   for (const BudgetRun& run : state.budgets) {
     Json b;
@@ -152,6 +153,7 @@ Result<TuningState> TuningStateFromJson(const Json& json) {
     state.settings.race_alpha = s.value("race_alpha", 0.0);
     state.settings.start = ParamsAt(s.at("start"), "/settings/start");
     state.experiments = json.at("experiments").get<std::vector<std::string>>();
+    state.ranks = json.value("ranks", 1);
     const Json& budgets = json.at("budgets");
     if (!budgets.is_array() || budgets.size() != state.settings.budgets.size()) {
       throw ReadError{"/budgets", "one entry per budget of the settings expected"};

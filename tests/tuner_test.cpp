@@ -11,11 +11,14 @@
 
 #include <algorithm>
 #include <atomic>
+#include <barrier>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <sstream>
+#include <thread>
 
 #include "engine/io/params_json.hpp"
 #include "offline/evolution.hpp"
@@ -374,6 +377,74 @@ TEST_F(TunerTest, RacingsTestStopsMoreAndResumesExactly) {
   ASSERT_EQ(resumed.budgets[0].generations.size(), 3u);
   ASSERT_TRUE(offline::RunTuning(Experiments(), resumed, 1));
   ExpectSameStudy(resumed, tested);
+}
+
+/// Processes simulated by threads: each runs the same study, owns every third new individual,
+/// and sums its results with the others' at each generation's end.
+class ThreadSpread final : public offline::EvaluationSpread {
+ public:
+  struct Shared {
+    explicit Shared(int n) : size(n), sync(n) {}
+    int size;
+    std::barrier<> sync;
+    std::mutex mutex;
+    std::vector<double> sum;
+  };
+  ThreadSpread(Shared& shared, int rank) : shared_(shared), rank_(rank) {}
+  int size() const override { return shared_.size; }
+  bool Mine(size_t item) const override {
+    return static_cast<int>(item % static_cast<size_t>(shared_.size)) == rank_;
+  }
+  void SumAll(std::vector<double>& values) const override {
+    {
+      std::lock_guard<std::mutex> lock(shared_.mutex);
+      if (shared_.sum.empty()) shared_.sum.assign(values.size(), 0.0);
+      for (size_t i = 0; i < values.size(); ++i) shared_.sum[i] += values[i];
+    }
+    shared_.sync.arrive_and_wait();  // every part added
+    values = shared_.sum;
+    shared_.sync.arrive_and_wait();  // every copy taken
+    if (rank_ == 0) shared_.sum.clear();
+    shared_.sync.arrive_and_wait();  // cleared before the next generation's
+  }
+
+ private:
+  Shared& shared_;
+  int rank_;
+};
+
+TEST_F(TunerTest, SpreadOverProcessesGivesTheOneProcessStudy) {
+  // As under MPI, each process evaluating its own share: the same study as one process, racing's
+  // test included, and each records how many processes ran it.
+  offline::TuningState one = offline::NewTuningState(Reduced(5, 0.05), Experiments());
+  ASSERT_TRUE(offline::RunTuning(Experiments(), one, 1));
+  constexpr int kProcesses = 3;
+  ThreadSpread::Shared shared(kProcesses);
+  std::vector<offline::TuningState> states(
+      kProcesses, offline::NewTuningState(Reduced(5, 0.05), Experiments()));
+  std::vector<int> finished(kProcesses, 0);
+  std::vector<std::thread> processes;
+  for (int r = 0; r < kProcesses; ++r) {
+    processes.emplace_back([&, r] {
+      const ThreadSpread spread(shared, r);
+      offline::TuningCallbacks callbacks;
+      callbacks.spread = &spread;
+      finished[static_cast<size_t>(r)] =
+          offline::RunTuning(Experiments(), states[static_cast<size_t>(r)], 1, callbacks) ? 1 : 0;
+    });
+  }
+  for (std::thread& t : processes) t.join();
+  EXPECT_EQ(one.ranks, 1);
+  for (int r = 0; r < kProcesses; ++r) {
+    EXPECT_EQ(finished[static_cast<size_t>(r)], 1);
+    offline::TuningState state = states[static_cast<size_t>(r)];
+    EXPECT_EQ(state.ranks, kProcesses);
+    state.ranks = 1;
+    ExpectSameStudy(state, one);
+  }
+  int64_t spared = 0;
+  for (const auto& g : one.budgets[0].generations) spared += g.replays_saved;
+  EXPECT_GT(spared, 0);  // racing ran, spread over the processes
 }
 
 TEST_F(TunerTest, InterruptedRunKeepsFinishedGenerationsAndResumesExactly) {

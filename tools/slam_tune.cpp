@@ -6,11 +6,16 @@
 
 #include <unistd.h>
 
+#ifdef SLAM_WITH_MPI
+#include <mpi.h>
+#endif
+
 #include <CLI/CLI.hpp>
 #include <atomic>
 #include <chrono>
 #include <csignal>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <iostream>
 #include <string>
@@ -31,10 +36,37 @@ std::atomic<bool> g_cancel{false};
 
 extern "C" void OnSignal(int) { g_cancel.store(true); }
 
+// This process's rank among those running the study (MPI), and how many there are: only rank 0
+// reports, prints and writes; every rank reads the same inputs and fails the same way.
+int g_rank = 0, g_ranks = 1;
+
 int Fail(const std::string& message, int status = 1) {
-  std::cerr << "slam-tune: " << message << "\n";
+  if (g_rank == 0) std::cerr << "slam-tune: " << message << "\n";
   return status;
 }
+
+/// Whether an MPI launcher (mpirun, srun) started this process: then it is one rank of several.
+bool LaunchedByMpi() {
+  for (const char* name : {"OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK", "PMI_SIZE"}) {
+    if (std::getenv(name) != nullptr) return true;
+  }
+  return false;
+}
+
+#ifdef SLAM_WITH_MPI
+/// The generation's new individuals dealt round robin over the ranks; results summed over them.
+class MpiSpread final : public slam::offline::EvaluationSpread {
+ public:
+  int size() const override { return g_ranks; }
+  bool Mine(size_t item) const override {
+    return static_cast<int>(item % static_cast<size_t>(g_ranks)) == g_rank;
+  }
+  void SumAll(std::vector<double>& values) const override {
+    MPI_Allreduce(MPI_IN_PLACE, values.data(), static_cast<int>(values.size()), MPI_DOUBLE, MPI_SUM,
+                  MPI_COMM_WORLD);
+  }
+};
+#endif
 
 std::string Duration(double seconds) {
   char text[32];
@@ -87,7 +119,7 @@ class ProgressBar {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+int Run(int argc, char** argv) {
   CLI::App app{
       "Tunes the SLAM parameters for each ray budget with the paper's evolution strategy "
       "(fitness: mean of e = log(1 - q) over the experiments, lower is better). Writes "
@@ -151,7 +183,14 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 0.5));
   app.add_flag("--restart", restart, "discard a saved study in --out instead of resuming it");
   app.add_flag("--quiet", quiet, "no progress on stderr");
-  CLI11_PARSE(app, argc, argv);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    if (g_rank == 0) return app.exit(e);
+    return e.get_exit_code();
+  }
+  quiet = quiet || g_rank != 0;            // rank 0 alone reports
+  if (g_ranks > 1 && jobs == 0) jobs = 1;  // one rank per core
 
   settings.policy = *slam::ParseBudgetPolicy(policy_name);
   settings.racing = !no_racing;
@@ -226,7 +265,12 @@ int main(int argc, char** argv) {
   slam::offline::TuningCallbacks callbacks;
   callbacks.cancel = &g_cancel;
   bool write_failed = false;
+#ifdef SLAM_WITH_MPI
+  const MpiSpread spread;
+  if (g_ranks > 1) callbacks.spread = &spread;
+#endif
   callbacks.generation_done = [&](const slam::offline::TuningState& s, int64_t budget) {
+    if (g_rank != 0) return;  // rank 0 writes
     for (const std::string& e : slam::offline::WriteTuningOutputs(out_dir, s)) {
       std::cerr << "slam-tune: " << e << "\n";
       write_failed = true;
@@ -264,9 +308,11 @@ int main(int argc, char** argv) {
 
   const auto start = std::chrono::steady_clock::now();
   const bool finished = slam::offline::RunTuning(tuning, state, jobs, callbacks);
-  for (const std::string& e : slam::offline::WriteTuningOutputs(out_dir, state)) {
-    std::cerr << "slam-tune: " << e << "\n";
-    write_failed = true;
+  if (g_rank == 0) {
+    for (const std::string& e : slam::offline::WriteTuningOutputs(out_dir, state)) {
+      std::cerr << "slam-tune: " << e << "\n";
+      write_failed = true;
+    }
   }
   const double wall =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -275,8 +321,38 @@ int main(int argc, char** argv) {
                     out_dir + ": run the same command again to resume",
                 130);
   }
+  if (g_rank != 0) return 0;
   std::cout << slam::offline::Table2Markdown(state) << "\n" << slam::offline::Table3Markdown(state);
-  std::fprintf(stderr, "slam-tune: done in %s (%.0f s); results in %s\n", Duration(wall).c_str(),
-               wall, out_dir.c_str());
+  std::fprintf(stderr, "slam-tune: done in %s (%.0f s) with %d process%s; results in %s\n",
+               Duration(wall).c_str(), wall, g_ranks, g_ranks == 1 ? "" : "es", out_dir.c_str());
   return write_failed ? 1 : 0;
+}
+
+int main(int argc, char** argv) {
+  if (!LaunchedByMpi()) return Run(argc, argv);
+#ifdef SLAM_WITH_MPI
+  // Only the main thread calls MPI (between generations); oneTBB's workers never do.
+  int provided = 0;
+  if (MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided) != MPI_SUCCESS) {
+    std::cerr << "slam-tune: MPI_Init_thread failed\n";
+    return 1;
+  }
+  MPI_Comm_rank(MPI_COMM_WORLD, &g_rank);
+  MPI_Comm_size(MPI_COMM_WORLD, &g_ranks);
+  const int status = Run(argc, argv);
+  // A rank that failed before the study while others run it would leave them waiting: abort all.
+  int worst = status;
+  MPI_Allreduce(&status, &worst, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
+  MPI_Finalize();
+  return worst;
+#else
+  const char* size = std::getenv("OMPI_COMM_WORLD_SIZE");
+  if (size != nullptr && std::string(size) != "1") {
+    std::cerr << "slam-tune: started by an MPI launcher, but built without MPI: every process "
+                 "would run the whole study and write the same files. Install libopenmpi-dev "
+                 "(scripts/deps) and rebuild, or run slam-tune without mpirun.\n";
+    return 1;
+  }
+  return Run(argc, argv);
+#endif
 }
