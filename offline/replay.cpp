@@ -89,7 +89,7 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
     if (options.progress) options.progress(k + 1, scans.size());
     if (bound_checks && done < scans.size() && done % check_every == 0) {
       // The final trajectory is the history of a particle descending from one of today's.
-      double bound = std::numeric_limits<double>::infinity();
+      double bound = kNoStop;
       for (const Particle& particle : engine.particles()) {
         bound = std::min(bound, ErrorLowerBound(Slam::History(particle), ground_truth));
       }

@@ -90,11 +90,17 @@ struct Race {
   std::vector<double> slack;
 };
 
+/// No race: every experiment, in order, to the end.
+Race NoRace(size_t n_exp) {
+  Race race;
+  for (size_t x = 0; x < n_exp; ++x) race.order.push_back(x);
+  return race;
+}
+
 /// The race of a generation: `carried` are the individuals carried over (evaluated whole).
 Race MakeRace(const std::vector<const Individual*>& carried, int elites, size_t n_exp,
               double alpha) {
-  Race race;
-  for (size_t x = 0; x < n_exp; ++x) race.order.push_back(x);
+  Race race = NoRace(n_exp);
   if (carried.size() < static_cast<size_t>(elites) || elites < 1 || n_exp == 0) return race;
   std::vector<const Individual*> ranked = carried;
   std::stable_sort(ranked.begin(), ranked.end(), [](const Individual* a, const Individual* b) {
@@ -254,12 +260,9 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
           carried.push_back(&population[i]);
         }
       }
-      Race race;
-      if (settings.racing && generation > 0 && generation + 1 < generations) {
-        race = MakeRace(carried, es.elites(), n_exp, settings.race_alpha);
-      } else {
-        for (size_t x = 0; x < n_exp; ++x) race.order.push_back(x);  // no race: in order
-      }
+      const Race race = settings.racing && generation > 0 && generation + 1 < generations
+                            ? MakeRace(carried, es.elites(), n_exp, settings.race_alpha)
+                            : NoRace(n_exp);
       const double cut = race.cut;
 
       // Every new individual, in parallel; each replays its experiments in order.
@@ -350,8 +353,7 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
         MutexLock lock(progress_mutex);  // exact again: every process's replays
         base.replays += replays;
         base.replays_saved += summary.replays_saved;
-        base.done += static_cast<double>(run.budget) *
-                     static_cast<double>(static_cast<int64_t>(pending.size()) * all_scans);
+        base.done += static_cast<double>(pending.size()) * Work(experiments, run.budget);
       }
       run.generations.push_back(std::move(summary));
       run.population = std::move(population);

@@ -340,7 +340,8 @@ int main(int argc, char** argv) {
   MPI_Comm_rank(MPI_COMM_WORLD, &g_rank);
   MPI_Comm_size(MPI_COMM_WORLD, &g_ranks);
   const int status = Run(argc, argv);
-  // A rank that failed before the study while others run it would leave them waiting: abort all.
+  // Every rank reads the same inputs, so all fail or succeed alike (an unreadable file on one
+  // machine only would leave the others waiting in the study); each exits with the worst status.
   int worst = status;
   MPI_Allreduce(&status, &worst, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
   MPI_Finalize();
