@@ -1,6 +1,8 @@
 #include "offline/tuner.hpp"
 
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/partitioner.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
@@ -97,7 +99,7 @@ Race NoRace(size_t n_exp) {
   return race;
 }
 
-/// The race of a generation: `carried` are the individuals carried over (evaluated whole).
+/// A race against the `elites`-th best of `carried`, the individuals evaluated whole so far.
 Race MakeRace(const std::vector<const Individual*>& carried, int elites, size_t n_exp,
               double alpha) {
   Race race = NoRace(n_exp);
@@ -249,8 +251,6 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
               ? InitialPopulation(settings.start, es, stream, es.MaxParticles(run.budget))
               : NextGeneration(run.population, es, stream, generation, es.MaxParticles(run.budget));
 
-      // The race: against the worst of the elites carried over (only between the first and the
-      // last generation, and only with a full elite to beat).
       std::vector<size_t> pending;
       std::vector<const Individual*> carried;
       for (size_t i = 0; i < population.size(); ++i) {
@@ -260,87 +260,117 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
           carried.push_back(&population[i]);
         }
       }
-      const Race race = settings.racing && generation > 0 && generation + 1 < generations
-                            ? MakeRace(carried, es.elites(), n_exp, settings.race_alpha)
-                            : NoRace(n_exp);
-      const double cut = race.cut;
-
-      // Every new individual, in parallel; each replays its experiments in order.
-      std::vector<Evaluation> evaluations(pending.size());
-      arena.execute([&] {
-        tbb::parallel_for(size_t{0}, pending.size(), [&](size_t j) {
-          if (spread != nullptr && !spread->Mine(j)) return;  // another process's
-          Evaluation& ev = evaluations[j];
-          const SlamParams& params = population[pending[j]].params;
-          double& trail = ev.trail;
-          const bool test = !race.cut_scores.empty();
-          ev.scores.assign(n_exp, std::numeric_limits<double>::quiet_NaN());
-          for (size_t k = 0; k < n_exp; ++k) {
-            if (cancelled()) return;
-            const size_t x = race.order[k];
-            const TuningExperiment& experiment = experiments[x];
-            // Racing: the e this replay may reach before the mean can no longer be under the
-            // cut, or (the test) before it trails the worst elite by more than the rest allows.
-            double allowed = cut * n - ev.sum;
-            if (test) allowed = std::min(allowed, race.cut_scores[x] - trail + race.slack[k + 1]);
-            const ReplayResult replay = ReplayFor(experiment, params, run.budget, settings,
-                                                  callbacks.cancel, StopAbove(allowed));
-            if (replay.cancelled) return;  // the generation is dropped
-            ++ev.replays;
-            ev.scans += replay.scans;
-            const double work = static_cast<double>(run.budget);
-            const double e = replay.stopped_early ? replay.e_lower_bound : EOf(replay);
-            ev.sum += e;
-            ev.scores[x] = e;
-            ev.replayed = k + 1;
-            if (test) trail += e - race.cut_scores[x];
-            ev.raced_out =
-                replay.stopped_early ||
-                (k + 1 < n_exp && (ev.sum / n > cut || (test && trail > race.slack[k + 1])));
-            if (ev.raced_out) {
-              // What is spared counts as done, so that the progress reaches its end.
-              int64_t rest = static_cast<int64_t>(experiment.scans->size()) - replay.scans;
-              for (size_t y = k + 1; y < n_exp; ++y)
-                rest += static_cast<int64_t>(experiments[race.order[y]].scans->size());
-              report(work * static_cast<double>(replay.scans + rest), 1,
-                     static_cast<int64_t>(n_exp - k - 1));
-              return;
-            }
-            report(work * static_cast<double>(replay.scans), 1, 0);
-          }
-        });
-      });
-      if (spread != nullptr) {
-        // Every process's results (and whether any was cancelled) to every process.
-        if (!ShareEvaluations(*spread, evaluations, n_exp, cancelled())) return false;
-      } else if (cancelled()) {
-        return false;
-      }
       int64_t replays = 0, scans = 0;
       int raced_out = 0;
-      for (size_t j = 0; j < pending.size(); ++j) {
-        const Evaluation& ev = evaluations[j];
-        Individual& individual = population[pending[j]];
-        if (ev.raced_out) {
-          individual.fitness = ev.sum / n;
-          if (!race.cut_scores.empty()) {
-            // Stopped by the test: its paired estimate (the worst elite's fitness plus its mean
-            // trail so far) when that is above its bound; above the cut either way.
-            individual.fitness =
-                std::max(individual.fitness, cut + ev.trail / static_cast<double>(ev.replayed));
-          }
-        } else {
-          // In the experiments' order, whatever order they ran in: as without racing.
-          double sum = 0.0;
-          for (const double e : ev.scores) sum += e;
-          individual.fitness = n_exp > 0 ? sum / n : 0.0;
+      // Evaluates population[items[j]] for every j, in parallel, each racing `race`; false when
+      // cancelled (the generation is then dropped).
+      const auto evaluate = [&](const std::vector<size_t>& items, const Race& race) {
+        const double cut = race.cut;
+        std::vector<Evaluation> evaluations(items.size());
+        arena.execute([&] {
+          // One individual a task, so that a core that finishes early takes the next one.
+          const auto one = [&](size_t j) {
+            if (spread != nullptr && !spread->Mine(j)) return;  // another process's
+            Evaluation& ev = evaluations[j];
+            const SlamParams& params = population[items[j]].params;
+            double& trail = ev.trail;
+            const bool test = !race.cut_scores.empty();
+            ev.scores.assign(n_exp, std::numeric_limits<double>::quiet_NaN());
+            for (size_t k = 0; k < n_exp; ++k) {
+              if (cancelled()) return;
+              const size_t x = race.order[k];
+              const TuningExperiment& experiment = experiments[x];
+              // Racing: the e this replay may reach before the mean can no longer be under the
+              // cut, or (the test) before it trails the worst elite by more than the rest allows.
+              double allowed = cut * n - ev.sum;
+              if (test) allowed = std::min(allowed, race.cut_scores[x] - trail + race.slack[k + 1]);
+              const ReplayResult replay = ReplayFor(experiment, params, run.budget, settings,
+                                                    callbacks.cancel, StopAbove(allowed));
+              if (replay.cancelled) return;  // the generation is dropped
+              ++ev.replays;
+              ev.scans += replay.scans;
+              const double work = static_cast<double>(run.budget);
+              const double e = replay.stopped_early ? replay.e_lower_bound : EOf(replay);
+              ev.sum += e;
+              ev.scores[x] = e;
+              ev.replayed = k + 1;
+              if (test) trail += e - race.cut_scores[x];
+              ev.raced_out =
+                  replay.stopped_early ||
+                  (k + 1 < n_exp && (ev.sum / n > cut || (test && trail > race.slack[k + 1])));
+              if (ev.raced_out) {
+                // What is spared counts as done, so that the progress reaches its end.
+                int64_t rest = static_cast<int64_t>(experiment.scans->size()) - replay.scans;
+                for (size_t y = k + 1; y < n_exp; ++y)
+                  rest += static_cast<int64_t>(experiments[race.order[y]].scans->size());
+                report(work * static_cast<double>(replay.scans + rest), 1,
+                       static_cast<int64_t>(n_exp - k - 1));
+                return;
+              }
+              report(work * static_cast<double>(replay.scans), 1, 0);
+            }
+          };
+          tbb::parallel_for(
+              tbb::blocked_range<size_t>(0, items.size(), 1),
+              [&](const tbb::blocked_range<size_t>& r) {
+                for (size_t j = r.begin(); j != r.end(); ++j) one(j);
+              },
+              tbb::simple_partitioner());
+        });
+        if (spread != nullptr) {
+          // Every process's results (and whether any was cancelled) to every process.
+          if (!ShareEvaluations(*spread, evaluations, n_exp, cancelled())) return false;
+        } else if (cancelled()) {
+          return false;
         }
-        individual.evaluated = true;
-        individual.raced_out = ev.raced_out;
-        individual.scores = ev.scores;
-        replays += ev.replays;
-        scans += ev.scans;
-        raced_out += ev.raced_out ? 1 : 0;
+        for (size_t j = 0; j < items.size(); ++j) {
+          const Evaluation& ev = evaluations[j];
+          Individual& individual = population[items[j]];
+          if (ev.raced_out) {
+            individual.fitness = ev.sum / n;
+            if (!race.cut_scores.empty()) {
+              // Stopped by the test: its paired estimate (the worst elite's fitness plus its
+              // mean trail so far) when that is above its bound; above the cut either way.
+              individual.fitness =
+                  std::max(individual.fitness, cut + ev.trail / static_cast<double>(ev.replayed));
+            }
+          } else {
+            // In the experiments' order, whatever order they ran in: as without racing.
+            double sum = 0.0;
+            for (const double e : ev.scores) sum += e;
+            individual.fitness = n_exp > 0 ? sum / n : 0.0;
+          }
+          individual.evaluated = true;
+          individual.raced_out = ev.raced_out;
+          individual.scores = ev.scores;
+          replays += ev.replays;
+          scans += ev.scans;
+          raced_out += ev.raced_out ? 1 : 0;
+        }
+        return true;
+      };
+
+      // The race, in every generation but the last, against the worst of the best `elites`
+      // individuals evaluated whole so far: the elites carried over, and the new individuals of
+      // the generation's first half that finished. An individual that cannot beat the worst of
+      // them cannot be among the generation's best `elites`. The second half races against a
+      // cut that the first half's good individuals made tighter. Generation 0 has no elite yet:
+      // its first half is evaluated whole.
+      const bool racing = settings.racing && generation + 1 < generations;
+      if (!racing) {
+        if (!evaluate(pending, NoRace(n_exp))) return false;
+      } else {
+        const auto half = static_cast<std::ptrdiff_t>(pending.size() / 2);
+        const std::vector<size_t> first(pending.begin(), pending.begin() + half),
+            second(pending.begin() + half, pending.end());
+        for (const std::vector<size_t>* wave : {&first, &second}) {
+          std::vector<const Individual*> whole = carried;
+          for (size_t i : first) {
+            if (wave != &first && !population[i].raced_out) whole.push_back(&population[i]);
+          }
+          if (!evaluate(*wave, MakeRace(whole, es.elites(), n_exp, settings.race_alpha)))
+            return false;
+        }
       }
       GenerationSummary summary =
           Summarize(population, generation, static_cast<int>(pending.size()));

@@ -125,25 +125,28 @@ struct TuningCallbacks {
 /// generations, `jobs` evaluations at a time (0: one per core). Returns false when cancelled;
 /// `state` then holds every finished generation.
 ///
-/// Racing (settings.racing), in every generation but the first and the last (whose whole
-/// population is evaluated: Table III compares the last one's fitness values): the generation's
-/// elite cut T is the worst fitness among the elites carried over. A new individual is replayed
-/// on the experiments one after the other, and stops as soon as the e it has gathered, over the
-/// number of experiments, exceeds T (e >= 0, so its mean can only exceed T more); within a
-/// replay, as soon as the e that replay can at best score would take it over (ErrorLowerBound,
-/// ReplayOptions::stop_above_e). Such an individual cannot rank among the elites, whatever the
-/// other new individuals score, so the elites, the best sets and every later generation are
-/// those of the study without racing; its fitness is the lower bound it reached. Deterministic:
-/// T is fixed for the generation and every stop depends only on the individual's own replays.
+/// Racing (settings.racing), in every generation but the last (whose whole population is
+/// evaluated: Table III compares the last one's fitness values). The new individuals are
+/// evaluated in two halves, one after the other; each half's elite cut T is the fitness of the
+/// `elites`-th best individual evaluated whole so far in the generation (the elites carried over,
+/// then also the first half's individuals that finished; generation 0 has no elite, so its first
+/// half is evaluated whole). A new individual is replayed on the experiments one after the
+/// other, and stops as soon as the e it has gathered, over the number of experiments, exceeds T
+/// (e >= 0, so its mean can only exceed T more); within a replay, as soon as the e that replay
+/// can at best score would take it over (ErrorLowerBound, ReplayOptions::stop_above_e). Such an
+/// individual has `elites` individuals better than it, whatever the others score, so the
+/// elites, the best sets and every later generation are those of the study without racing; its
+/// fitness is the lower bound it reached. Deterministic: T is fixed for each half and every stop
+/// depends only on the individual's own replays.
 ///
 /// With settings.race_alpha > 0 and the elites' scores known, racing also tests, as F-Race
-/// does, against the elite's worst on the same experiments: after k of n experiments, with S the
-/// sum of the individual's e minus that elite's over them, the individual stops when
-/// S > z sigma sqrt(n - k), z the normal quantile of 1 - alpha and sigma the pooled standard
-/// deviation, over the experiments, of each other elite's e minus the worst's (how much two
-/// individuals' difference varies from one experiment to the next): even were the rest to go
-/// as well for it as that spread allows, it would not make the cut. Inside a replay the same
-/// test runs on the replay's ErrorLowerBound.
+/// does, against the individual at the cut on the same experiments: after k of n experiments, with
+/// S the sum of the individual's e minus that elite's over them, the individual stops when S > z
+/// sigma sqrt(n - k), z the normal quantile of 1 - alpha and sigma the pooled standard deviation,
+/// over the experiments, of each other elite's e minus the worst's (how much two individuals'
+/// difference varies from one experiment to the next): even were the rest to go as well for it as
+/// that spread allows, it would not make the cut. Inside a replay the same test runs on the
+/// replay's ErrorLowerBound.
 bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& state, int jobs,
                const TuningCallbacks& callbacks = {});
 

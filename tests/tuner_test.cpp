@@ -324,7 +324,7 @@ TEST_F(TunerTest, RacingKeepsEveryEliteAndSparesReplays) {
         EXPECT_GT(raced.fitness_values[i], cut) << g << " " << i;
       }
     }
-    if (g == 0 || g + 1 == a.generations.size()) {
+    if (g + 1 == a.generations.size()) {
       EXPECT_EQ(raced.raced_out, 0) << g;
     }
     saved += raced.scans_saved;
@@ -335,6 +335,10 @@ TEST_F(TunerTest, RacingKeepsEveryEliteAndSparesReplays) {
             offline::TuningStateToJson(unraced)["budgets"][0]["population"]);
   EXPECT_GT(stopped, 0);
   EXPECT_GT(saved, 0);
+  // Generation 0 races too: its second half against its first, evaluated whole.
+  EXPECT_GT(a.generations[0].scans_saved, 0);
+  EXPECT_EQ(a.generations[0].replays + a.generations[0].replays_saved,
+            a.generations[0].evaluations * 2);
   int64_t all = 0;
   for (const offline::GenerationSummary& g : b.generations) all += g.scans;
   std::printf("racing: %lld individuals stopped, %lld of %lld scans spared\n",
