@@ -11,7 +11,7 @@ if ! command -v mpirun >/dev/null 2>&1; then
   echo "mpirun not found (scripts/deps installs openmpi-bin): skipped" >&2
   exit 77
 fi
-if ! ldd "$tune" | grep -q libmpi; then
+if ! ldd "$tune" | grep libmpi >/dev/null; then
   echo "slam-tune was built without MPI (scripts/deps installs libopenmpi-dev): skipped" >&2
   exit 77
 fi
