@@ -4,11 +4,14 @@
 #include <tbb/parallel_for.h>
 #include <tbb/partitioner.h>
 #include <tbb/task_arena.h>
+#include <tbb/task_group.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <numeric>
 
 #include "engine/thread_safety.hpp"
 #include "offline/replay.hpp"
@@ -212,21 +215,27 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
   const EvaluationSpread* spread = callbacks.spread;
   const double processes = spread != nullptr ? spread->size() : 1;
   state.ranks = spread != nullptr ? spread->size() : 1;
-  TuningProgress base, local;
+  // `local[b]`: budget b's generation in progress (budgets may run side by side).
+  TuningProgress base;
+  std::vector<TuningProgress> local(state.budgets.size());
   base.total = total;
   Mutex progress_mutex;
   const auto cancelled = [&] { return callbacks.cancel && callbacks.cancel->load(); };
   // A replay's work done (racing's savings with it), and the replays it finished or spared.
-  const auto report = [&](double work, int64_t replays, int64_t saved) {
+  const auto report = [&](size_t slot, double work, int64_t replays, int64_t saved) {
     if (!callbacks.progress) return;
     MutexLock lock(progress_mutex);
-    local.done += work;
-    local.replays += replays;
-    local.replays_saved += saved;
+    local[slot].done += work;
+    local[slot].replays += replays;
+    local[slot].replays_saved += saved;
     TuningProgress p = base;
-    p.done += processes * local.done;
-    p.replays += static_cast<int64_t>(processes * static_cast<double>(local.replays));
-    p.replays_saved += static_cast<int64_t>(processes * static_cast<double>(local.replays_saved));
+    p.budget = local[slot].budget;
+    p.generation = local[slot].generation;
+    for (const TuningProgress& l : local) {
+      p.done += processes * l.done;
+      p.replays += static_cast<int64_t>(processes * static_cast<double>(l.replays));
+      p.replays_saved += static_cast<int64_t>(processes * static_cast<double>(l.replays_saved));
+    }
     p.done = std::min(p.done, p.total);
     callbacks.progress(p);
   };
@@ -236,14 +245,18 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
   const double n = static_cast<double>(n_exp);
 
   tbb::task_arena arena(jobs > 0 ? jobs : tbb::task_arena::automatic);
-  for (BudgetRun& run : state.budgets) {
+  // Guards the state's budget runs while budgets run side by side (and the callback's reading).
+  Mutex state_mutex;
+  // One budget's study, from where it stands to its last generation; false when cancelled.
+  const auto study = [&](size_t slot) {
+    BudgetRun& run = state.budgets[slot];
     while (static_cast<int>(run.generations.size()) < generations) {
       const int generation = static_cast<int>(run.generations.size());
       {
         MutexLock lock(progress_mutex);
-        base.budget = run.budget;
-        base.generation = generation;
-        local = TuningProgress{};
+        local[slot] = TuningProgress{};
+        local[slot].budget = run.budget;
+        local[slot].generation = generation;
       }
       const auto stream = static_cast<uint64_t>(run.budget);
       std::vector<Individual> population =
@@ -303,11 +316,11 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
                 int64_t rest = static_cast<int64_t>(experiment.scans->size()) - replay.scans;
                 for (size_t y = k + 1; y < n_exp; ++y)
                   rest += static_cast<int64_t>(experiments[race.order[y]].scans->size());
-                report(work * static_cast<double>(replay.scans + rest), 1,
+                report(slot, work * static_cast<double>(replay.scans + rest), 1,
                        static_cast<int64_t>(n_exp - k - 1));
                 return;
               }
-              report(work * static_cast<double>(replay.scans), 1, 0);
+              report(slot, work * static_cast<double>(replay.scans), 1, 0);
             }
           };
           tbb::parallel_for(
@@ -384,13 +397,50 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
         base.replays += replays;
         base.replays_saved += summary.replays_saved;
         base.done += static_cast<double>(pending.size()) * Work(experiments, run.budget);
+        local[slot] = TuningProgress{};
       }
+      MutexLock lock(state_mutex);
       run.generations.push_back(std::move(summary));
       run.population = std::move(population);
-      if (callbacks.generation_done) callbacks.generation_done(state, run.budget);
+      if (callbacks.generation_done) {
+        MutexLock serial(progress_mutex);  // never at once with the progress callback
+        callbacks.generation_done(state, run.budget);
+      }
     }
+    return true;
+  };
+
+  // One budget after the other when spread over processes (every process must share its
+  // evaluations in the same order) or on one thread. Otherwise the budgets run side by side,
+  // the dearest first, so that a core idle at the end of one budget's generation (or half of
+  // one) takes the other's individuals: the same study, without the waits.
+  const size_t budgets = state.budgets.size();
+  const auto workers = static_cast<size_t>(arena.max_concurrency());
+  if (spread != nullptr || workers < 2 || budgets < 2) {
+    for (size_t slot = 0; slot < budgets; ++slot) {
+      if (!study(slot)) return false;
+    }
+    return true;
   }
-  return true;
+  std::vector<size_t> order(budgets);
+  std::iota(order.begin(), order.end(), size_t{0});
+  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+    return state.budgets[a].budget > state.budgets[b].budget;
+  });
+  std::atomic<size_t> next{0};
+  std::atomic<bool> finished{true};
+  arena.execute([&] {
+    tbb::task_group group;
+    for (size_t w = 0; w < std::min(workers, budgets); ++w) {
+      group.run([&] {
+        for (size_t k = next++; k < budgets && finished.load(); k = next++) {
+          if (!study(order[k])) finished = false;
+        }
+      });
+    }
+    group.wait();
+  });
+  return finished.load();
 }
 
 }  // namespace slam::offline

@@ -110,6 +110,7 @@ struct TuningProgress {
   int64_t replays_saved = 0;       // spared by racing in this call
 };
 
+/// The callbacks are never called at once (budgets may run side by side, on several threads).
 struct TuningCallbacks {
   /// After every finished generation of a budget (to save the state); may be empty.
   std::function<void(const TuningState&, int64_t budget)> generation_done;
@@ -123,7 +124,10 @@ struct TuningCallbacks {
 
 /// Runs or continues the study until every budget has settings.evolution.generations
 /// generations, `jobs` evaluations at a time (0: one per core). Returns false when cancelled;
-/// `state` then holds every finished generation.
+/// `state` then holds every finished generation. With more than one thread and no spread over
+/// processes, the budgets run side by side (the dearest first), so that a thread idle at the end
+/// of one budget's generation takes another's individuals; each budget's study is the same as
+/// when they run one after the other.
 ///
 /// Racing (settings.racing), in every generation but the last (whose whole population is
 /// evaluated: Table III compares the last one's fitness values). The new individuals are

@@ -16,7 +16,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <mutex>
+#include <set>
 #include <sstream>
 #include <thread>
 
@@ -479,6 +481,42 @@ TEST_F(TunerTest, InterruptedRunKeepsFinishedGenerationsAndResumesExactly) {
   cancel = false;
   ASSERT_TRUE(offline::RunTuning(Experiments(), state, 1));
   ExpectSameStudy(state, Full());
+}
+
+TEST_F(TunerTest, BudgetsSideBySideGiveTheBudgetByBudgetStudy) {
+  // Two threads run the budgets side by side; one thread runs them one after the other. The
+  // same study, and the callbacks are never called at once.
+  offline::TuningSettings settings = Reduced(3, 0.05);
+  settings.budgets = {2000, 4000};
+  settings.evolution.population = 8;
+  offline::TuningState side = offline::NewTuningState(settings, Experiments());
+  std::atomic<int> inside{0};
+  std::map<int64_t, int> saved;
+  std::set<int64_t> seen;
+  double last_done = 0.0;
+  offline::TuningCallbacks callbacks;
+  callbacks.generation_done = [&](const offline::TuningState& s, int64_t budget) {
+    EXPECT_EQ(inside++, 0);
+    ++saved[budget];
+    EXPECT_EQ(offline::TuningStateToJson(s)["budgets"].size(), 2u);
+    --inside;
+  };
+  callbacks.progress = [&](const offline::TuningProgress& p) {
+    EXPECT_EQ(inside++, 0);
+    EXPECT_GT(p.done, last_done);
+    EXPECT_LE(p.done, p.total * (1 + 1e-12));
+    last_done = p.done;
+    seen.insert(p.budget);
+    --inside;
+  };
+  ASSERT_TRUE(offline::RunTuning(Experiments(), side, 2, callbacks));
+  EXPECT_EQ(saved, (std::map<int64_t, int>{{2000, 3}, {4000, 3}}));
+  EXPECT_EQ(seen, (std::set<int64_t>{2000, 4000}));
+  offline::TuningState one = offline::NewTuningState(settings, Experiments());
+  ASSERT_TRUE(offline::RunTuning(Experiments(), one, 1));
+  ExpectSameStudy(side, one);
+  EXPECT_GT(side.budgets[0].generations[1].scans_saved + side.budgets[1].generations[1].scans_saved,
+            0);  // raced
 }
 
 TEST_F(TunerTest, TablesAndFilesReadBack) {
