@@ -376,14 +376,13 @@ bool RunTuning(const std::vector<TuningExperiment>& experiments, TuningState& st
         const auto half = static_cast<std::ptrdiff_t>(pending.size() / 2);
         const std::vector<size_t> first(pending.begin(), pending.begin() + half),
             second(pending.begin() + half, pending.end());
-        for (const std::vector<size_t>* wave : {&first, &second}) {
-          std::vector<const Individual*> whole = carried;
-          for (size_t i : first) {
-            if (wave != &first && !population[i].raced_out) whole.push_back(&population[i]);
-          }
-          if (!evaluate(*wave, MakeRace(whole, es.elites(), n_exp, settings.race_alpha)))
-            return false;
+        if (!evaluate(first, MakeRace(carried, es.elites(), n_exp, settings.race_alpha)))
+          return false;
+        for (size_t i : first) {
+          if (!population[i].raced_out) carried.push_back(&population[i]);
         }
+        if (!evaluate(second, MakeRace(carried, es.elites(), n_exp, settings.race_alpha)))
+          return false;
       }
       GenerationSummary summary =
           Summarize(population, generation, static_cast<int>(pending.size()));
