@@ -131,10 +131,13 @@ UpdateProfile LongSensorProfile(double distance_m) {
   type.use_max_m = type.range_max_m;
   const SensorModel model(type, UpdateModelConfig{}, 0.01);
   const auto raw = static_cast<uint16_t>(CalibratedRaw(type.calibration, distance_m));
-  const UpdateProfile* profile = model.Update(raw);
-  return profile ? *profile
-                 : UpdateProfile{
-                       0.005, std::vector<int16_t>(static_cast<size_t>(distance_m / 0.005), -850)};
+  const std::optional<UpdateProfile> profile = model.Update(raw);
+  if (profile) return *profile;
+  UpdateProfile free;
+  free.step_m = 0.005;
+  free.free_bins = static_cast<int32_t>(distance_m / 0.005);
+  free.free_delta = -850;
+  return free;
 }
 
 // ---------------------------------------------------------------------------------------------

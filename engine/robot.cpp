@@ -24,6 +24,8 @@ constexpr double kMaxGyroUnitDps = 100.0;
 constexpr double kMaxSampleRateHz = 10000.0;
 constexpr double kMaxMountRadiusM = 5.0;
 constexpr double kMaxAngleDeg = 360.0;
+constexpr int kMaxBeams = 100000;         // a sweep's readings
+constexpr double kRangeRawMaxM = 65.535;  // RangeToRaw's largest (sensor_model.hpp)
 
 // A double for messages (6 significant digits are enough to point at the culprit).
 std::string Num(double value) {
@@ -116,6 +118,41 @@ void CheckCalibration(Checker& check, const std::string& pointer,
   }
 }
 
+// A range sensor: its beams, and ranges its raw values can carry (millimetres in 16 bits).
+void CheckRangeSensor(Checker& check, const std::string& pointer,
+                      const SensorTypeDescription& type) {
+  const BeamPattern& beams = type.beams;
+  check.IntIn(pointer + "/beams/count", beams.count, 1, kMaxBeams);
+  check.Finite(pointer + "/beams/first_deg", beams.first_deg);
+  check.Finite(pointer + "/beams/increment_deg", beams.increment_deg);
+  check.Within(pointer + "/beams/first_deg", beams.first_deg, -kMaxAngleDeg, kMaxAngleDeg, " deg");
+  if (beams.count > 1 && !(std::abs(beams.increment_deg * (beams.count - 1)) <= kMaxAngleDeg)) {
+    check.Fail(pointer + "/beams/increment_deg", Num(beams.increment_deg) + " deg between " +
+                                                     std::to_string(beams.count) +
+                                                     " beams spans more than a turn");
+  }
+  if (beams.count > 1 && !(beams.increment_deg != 0.0)) {
+    check.Fail(pointer + "/beams/increment_deg", "must not be 0 with more than one beam");
+  }
+  const double raw_max_m = kRangeRawMaxM;
+  check.AtMost(pointer + "/range_m/1", type.range_max_m, raw_max_m,
+               " m (a range sensor's readings travel as millimetres in 16 bits)");
+  if (!(type.use_min_m > 0.0)) {
+    check.Fail(pointer + "/use_m/0", "must be > 0 for a range sensor (a zero range is no reading)");
+  }
+  if (!std::isfinite(type.no_return_m) || type.no_return_m < 0.0) {
+    check.Fail(pointer + "/no_return_m", Num(type.no_return_m) + " must be >= 0");
+  } else if (type.no_return_m > 0.0 && type.no_return_m <= type.use_max_m) {
+    check.Fail(pointer + "/no_return_m",
+               Num(type.no_return_m) +
+                   " m lies inside the use window: a beam without echo would "
+                   "be taken for a surface");
+  }
+  if (!type.calibration.empty()) {
+    check.Fail(pointer + "/calibration", "a range sensor reports distances: no calibration table");
+  }
+}
+
 void CheckSensorType(Checker& check, const std::string& pointer,
                      const SensorTypeDescription& type) {
   const bool range_ok = std::isfinite(type.range_min_m) && std::isfinite(type.range_max_m) &&
@@ -132,7 +169,11 @@ void CheckSensorType(Checker& check, const std::string& pointer,
   }
   check.AtMost(pointer + "/range_m/1", type.range_max_m, kMaxRangeM, " m");
   check.AtMost(pointer + "/use_m/1", type.use_max_m, kMaxRangeM, " m");
-  CheckCalibration(check, pointer + "/calibration", type.calibration);
+  if (type.kind == SensorKind::kInfrared) {
+    CheckCalibration(check, pointer + "/calibration", type.calibration);
+  } else {
+    CheckRangeSensor(check, pointer, type);
+  }
 
   bool coefficients_ok = true;
   for (std::size_t k = 0; k < type.sigma_m.size(); ++k) {
@@ -192,8 +233,15 @@ ConfigErrors Validate(const RobotDescription& robot) {
   check.NonNegative("/scanner/mount_radius_m", scanner.mount_radius_m);
   check.AtMost("/scanner/sample_rate_hz", scanner.sample_rate_hz, kMaxSampleRateHz, " Hz");
   check.AtMost("/scanner/mount_radius_m", scanner.mount_radius_m, kMaxMountRadiusM, " m");
-  if (scanner.sensors.size() != static_cast<std::size_t>(kScannerSensors)) {
-    check.Fail("/scanner/sensors", "needs exactly " + std::to_string(kScannerSensors) +
+  check.Finite("/scanner/offset_m/0", scanner.offset_x_m);
+  check.Finite("/scanner/offset_m/1", scanner.offset_y_m);
+  check.Within("/scanner/offset_m/0", scanner.offset_x_m, -kMaxMountRadiusM, kMaxMountRadiusM,
+               " m");
+  check.Within("/scanner/offset_m/1", scanner.offset_y_m, -kMaxMountRadiusM, kMaxMountRadiusM,
+               " m");
+  if (scanner.sensors.empty() ||
+      scanner.sensors.size() > static_cast<std::size_t>(kScannerSensors)) {
+    check.Fail("/scanner/sensors", "needs 1 to " + std::to_string(kScannerSensors) +
                                        " sensors, has " + std::to_string(scanner.sensors.size()));
   }
   for (std::size_t i = 0; i < scanner.sensors.size(); ++i) {

@@ -13,7 +13,7 @@
 
 namespace slam {
 
-/// Number of distance sensors on the scanner (the scanner event carries s0..s3).
+/// Most distance sensors on the scanner (the scanner event carries s0..s3; a laser is one).
 inline constexpr int kScannerSensors = 4;
 
 struct BaseDescription {
@@ -38,7 +38,11 @@ struct ScannerDescription {
   int event = 0x20;
   double sample_rate_hz = 60.0;
   double mount_radius_m = 0.05;
-  std::vector<ScannerSensor> sensors;  // exactly kScannerSensors, in event word order
+  /// Where the scanner's centre is on the robot (robot frame, x forward): 0 for the marXbot's
+  /// turret; a laser mounted ahead of the wheel axis, for one.
+  double offset_x_m = 0.0;
+  double offset_y_m = 0.0;
+  std::vector<ScannerSensor> sensors;  // 1 to kScannerSensors, in event word order
 };
 
 /// One point of a sensor's calibration: raw 10-bit ADC value and the distance it means.
@@ -47,13 +51,33 @@ struct CalibrationPoint {
   double distance_m = 0.0;
 };
 
+/// How a sensor reports a distance.
+enum class SensorKind {
+  kInfrared,  // a raw 10-bit reading that the calibration table turns into a distance (Sharp)
+  kRange,     // the distance itself (laser and time-of-flight scanners): ScanSample::raw holds
+              // it in millimetres (RangeToRaw)
+};
+
+/// The beams of one sweep of a range scanner, counter-clockwise from the sensor's forward axis.
+struct BeamPattern {
+  double first_deg = 0.0;
+  double increment_deg = 0.0;
+  int count = 0;
+
+  double AngleDeg(int beam) const { return first_deg + increment_deg * beam; }
+};
+
 struct SensorTypeDescription {
   std::string model;
+  SensorKind kind = SensorKind::kInfrared;
   double range_min_m = 0.0;  // datasheet range; below the minimum the response is not injective
   double range_max_m = 0.0;
   double use_min_m = 0.0;  // readings outside [use_min, use_max] are not used
   double use_max_m = 0.0;
-  std::vector<CalibrationPoint> calibration;  // raw strictly decreasing, distance increasing
+  std::vector<CalibrationPoint>
+      calibration;           // infrared: raw strictly decreasing, distance increasing
+  BeamPattern beams;         // range: the sweep's beams
+  double no_return_m = 0.0;  // range: the value a beam reports without an echo (0: none)
   /// Standard deviation of a reading at distance d: sigma[0] + sigma[1] d + sigma[2] d^2.
   std::array<double, 3> sigma_m{0.003, 0.0, 0.02};
 };

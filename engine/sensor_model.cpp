@@ -35,31 +35,40 @@ int CalibratedRaw(const std::vector<CalibrationPoint>& table, double distance_m)
 
 SensorModel::SensorModel(const SensorTypeDescription& type, const UpdateModelConfig& update,
                          double resolution_m)
-    : type_(type), update_(kRawValues) {
-  const double step =
-      resolution_m / 8.0;  // fine bins: the free/occupied edge is exact to 1/16 cell
-  const int free_delta = EncodeLogOdds(update.free_logodds);
-  const int occupied_delta = EncodeLogOdds(update.occupied_logodds);
-  const double use_min = std::max(type.use_min_m, type.range_min_m);
+    : type_(type),
+      update_config_(update),
+      resolution_m_(resolution_m),
+      use_min_m_(std::max(type.use_min_m, type.range_min_m)) {
+  distance_.fill(-1.0);
+  if (type.kind == SensorKind::kRange) return;  // the distance is the reading
   for (int raw = 0; raw < kRawValues; ++raw) {
-    distance_[static_cast<size_t>(raw)] = -1.0;
     const std::optional<double> d = CalibratedDistance(type.calibration, raw);
     // Outside the table is the non-injective near zone or the floor beyond range: never used.
-    if (!d || *d < use_min || *d > type.use_max_m) continue;
+    if (!d || *d < use_min_m_ || *d > type.use_max_m) continue;
     distance_[static_cast<size_t>(raw)] = *d;
-    // Fig. 7: free before the measured distance, occupied at it (and a little behind, so that
-    // walls are closed), nothing beyond.
-    const double depth = std::max(update.occupied_depth_cells * resolution_m,
-                                  update.occupied_sigma_factor * Sigma(*d));
-    UpdateProfile& profile = update_[static_cast<size_t>(raw)];
-    profile.step_m = step;
-    const auto bins = static_cast<size_t>(std::ceil((*d + depth) / step));
-    profile.delta.resize(bins);
-    for (size_t i = 0; i < bins; ++i) {
-      const double r = (static_cast<double>(i) + 0.5) * step;  // bin centre
-      profile.delta[i] = static_cast<int16_t>(r < *d ? free_delta : occupied_delta);
-    }
+    update_[static_cast<size_t>(raw)] = ProfileAt(*d);
   }
+}
+
+UpdateProfile SensorModel::ProfileAt(double distance_m) const {
+  // Fine bins: the free/occupied edge is exact to 1/16 cell. Occupied from the first bin whose
+  // centre is at or beyond the reading, for the occupied depth (walls are closed behind it).
+  const double step = resolution_m_ / 8.0;
+  const double depth = std::max(update_config_.occupied_depth_cells * resolution_m_,
+                                update_config_.occupied_sigma_factor * Sigma(distance_m));
+  const auto bins = static_cast<int32_t>(std::ceil((distance_m + depth) / step));
+  auto free = static_cast<int32_t>(std::max(0.0, std::ceil(distance_m / step - 0.5)));
+  const auto centre = [&](int32_t i) { return (static_cast<double>(i) + 0.5) * step; };
+  while (free > 0 && !(centre(free - 1) < distance_m)) --free;  // exact where rounding strays
+  while (free < bins && centre(free) < distance_m) ++free;
+  free = std::min(free, bins);
+  UpdateProfile profile;
+  profile.step_m = step;
+  profile.free_bins = free;
+  profile.occupied_bins = bins - free;
+  profile.free_delta = static_cast<int16_t>(EncodeLogOdds(update_config_.free_logodds));
+  profile.occupied_delta = static_cast<int16_t>(EncodeLogOdds(update_config_.occupied_logodds));
+  return profile;
 }
 
 double SensorModel::Sigma(double distance_m) const {

@@ -384,9 +384,10 @@ std::vector<TimedPose> Slam::History(const Particle& particle) {
 std::vector<Slam::Measurement> Slam::CollectMeasurements(const Scan& scan) const {
   std::vector<Measurement> measurements;
   const double radius = robot_.scanner.mount_radius_m;
+  const Vec2 offset(robot_.scanner.offset_x_m, robot_.scanner.offset_y_m);
   for (size_t i = 0; i < scan.samples.size(); ++i) {
     const ScanSample& sample = scan.samples[i];
-    for (int k = 0; k < kScannerSensors; ++k) {
+    for (int k = 0; k < static_cast<int>(sensor_models_.size()); ++k) {
       const SensorModel& model = sensor_models_[static_cast<size_t>(k)];
       const uint16_t raw = sample.raw[static_cast<size_t>(k)];
       const std::optional<double> d = model.Distance(raw);
@@ -402,7 +403,7 @@ std::vector<Slam::Measurement> Slam::CollectMeasurements(const Scan& scan) const
       m.local_angle = sample.platform_angle_rad +
                       DegToRad(robot_.scanner.sensors[static_cast<size_t>(k)].angle_deg);
       m.local_direction = Vec2(std::cos(m.local_angle), std::sin(m.local_angle));
-      m.local_origin = radius * m.local_direction;
+      m.local_origin = offset + radius * m.local_direction;
       m.match_range_m = m.distance_m + config_.match_range_sigmas * m.sigma_m;
       measurements.push_back(m);
     }
@@ -847,7 +848,8 @@ size_t Slam::UpdateParticles(const Scan& scan, const std::vector<Measurement>& u
     for (size_t u : updates) {
       const Measurement& m = usable[u];
       const Pose2 robot = path.SamplePose(m.sample, correction);
-      const UpdateProfile* profile = sensor_models_[static_cast<size_t>(m.sensor)].Update(m.raw);
+      const std::optional<UpdateProfile> profile =
+          sensor_models_[static_cast<size_t>(m.sensor)].Update(m.raw);
       ApplyUpdateRay(particle.map, robot.Transform(m.local_origin), robot.theta + m.local_angle,
                      *profile);
     }
@@ -860,9 +862,11 @@ size_t Slam::UpdateParticles(const Scan& scan, const std::vector<Measurement>& u
     auto chunk = std::make_shared<TrajectoryChunk>();
     chunk->poses.reserve(scan.samples.size() + 1);
     for (size_t i = 0; i < scan.samples.size(); ++i) {
-      // A sample at the scan's start is the previous end pose, already in the history.
-      if (scan.samples[i].t > scan.t_begin)
-        chunk->poses.push_back({scan.samples[i].t, path.SamplePose(i, correction)});
+      // A sample at the scan's start is the previous end pose, already in the history; samples
+      // that share a time (a laser's sweep, read at one pose) give one pose.
+      const double t = scan.samples[i].t;
+      if (t > scan.t_begin && (chunk->poses.empty() || t > chunk->poses.back().t))
+        chunk->poses.push_back({t, path.SamplePose(i, correction)});
     }
     if (chunk->poses.empty() || chunk->poses.back().t < scan.t_end)
       chunk->poses.push_back({scan.t_end, match.chosen[p]});

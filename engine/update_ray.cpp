@@ -11,7 +11,7 @@ namespace slam {
 
 int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle,
                    const UpdateProfile& profile) {
-  if (profile.delta.empty() || profile.step_m <= 0) return 0;
+  if (profile.bins() <= 0 || profile.step_m <= 0) return 0;
   const Vec2 direction(std::cos(angle), std::sin(angle));
   const double inv_step = 1.0 / profile.step_m;
   const int limit = grid.limit();
@@ -20,10 +20,10 @@ int ApplyUpdateRay(OccupancyGrid& grid, const Vec2& origin, double angle,
   int changed = 0;
   TraverseCells(grid.geometry(), origin, direction, profile.length_m(),
                 [&](CellIndex c, double enter_m, double exit_m) {
-                  const size_t size = profile.delta.size();
+                  const auto size = static_cast<size_t>(profile.bins());
                   if (static_cast<size_t>(enter_m * inv_step) >= size) return false;
                   const int delta =
-                      profile.delta[std::min(static_cast<size_t>(exit_m * inv_step), size - 1)];
+                      profile.Delta(std::min(static_cast<size_t>(exit_m * inv_step), size - 1));
                   if (delta == 0) return true;
                   const TileIndex t = GridGeometry::TileOf(c);
                   if (cached == nullptr || !(t == cached_index)) {

@@ -14,6 +14,7 @@
 #include <numeric>
 
 #include "engine/thread_safety.hpp"
+#include "offline/carmen_log.hpp"
 #include "offline/replay.hpp"
 #include "offline/replay_report.hpp"
 
@@ -86,10 +87,16 @@ std::vector<double> Column(const std::vector<EvaluationRun>& runs, int64_t budge
 }  // namespace
 
 Result<std::vector<std::string>> FindExperimentDirs(const std::vector<std::string>& paths) {
+  // An experiment directory holds can.log, or log.clf for a robot with a laser.
+  const auto is_experiment = [](const std::filesystem::path& dir) {
+    std::error_code ec;
+    return std::filesystem::exists(dir / "can.log", ec) ||
+           std::filesystem::exists(dir / "log.clf", ec);
+  };
   std::vector<std::string> dirs;
   for (const std::string& path : paths) {
     std::error_code ec;
-    if (std::filesystem::exists(std::filesystem::path(path) / "can.log", ec)) {
+    if (is_experiment(path) || LooksLikeCarmenLog(path)) {
       dirs.push_back(path);
       continue;
     }
@@ -99,12 +106,12 @@ Result<std::vector<std::string>> FindExperimentDirs(const std::vector<std::strin
     std::vector<std::string> found;
     for (const std::filesystem::directory_entry& entry :
          std::filesystem::directory_iterator(path, ec)) {
-      if (entry.is_directory() && std::filesystem::exists(entry.path() / "can.log")) {
+      if (entry.is_directory() && is_experiment(entry.path())) {
         found.push_back(entry.path().string());
       }
     }
     if (ec || found.empty()) {
-      return Error(path + ": no experiment in it (no subdirectory with a can.log)");
+      return Error(path + ": no experiment in it (no subdirectory with a can.log or log.clf)");
     }
     std::sort(found.begin(), found.end());
     dirs.insert(dirs.end(), found.begin(), found.end());

@@ -18,9 +18,9 @@
 
 namespace slam::offline {
 
-/// The experiment directories named by `paths`: each is an experiment (it holds a can.log) or a
-/// dataset of them (its subdirectories holding one, sorted); an error naming the path that is
-/// neither.
+/// The experiments named by `paths`: each is an experiment (a directory holding can.log or
+/// log.clf, or a CARMEN log file) or a dataset of them (its subdirectories holding one, sorted);
+/// an error naming the path that is neither.
 Result<std::vector<std::string>> FindExperimentDirs(const std::vector<std::string>& paths);
 
 struct EvaluationPlan {

@@ -96,6 +96,7 @@ class LogClock {
 Result<Experiment> LoadExperiment(const std::string& dir,
                                   const ScanAssemblerConfig& assembler_config) {
   std::error_code ec;
+  if (LooksLikeCarmenLog(dir)) return LoadCarmenExperiment(dir);
   if (!std::filesystem::is_directory(dir, ec)) {
     return Error(dir + ": not an experiment directory (" +
                  (std::filesystem::exists(dir, ec) ? "not a directory" : "does not exist") + ")");
@@ -135,13 +136,29 @@ Result<Experiment> LoadExperiment(const std::string& dir,
       experiment.world = std::move(world).value();
     }
   }
-  if (!std::filesystem::exists(file("can.log"), ec)) {
+  // A robot with a laser is recorded as a CARMEN log (log.clf) instead of can.log.
+  const bool carmen =
+      !std::filesystem::exists(file("can.log"), ec) && std::filesystem::exists(file("log.clf"), ec);
+  if (!carmen && !std::filesystem::exists(file("can.log"), ec)) {
     errors.push_back(file("can.log") + ": cannot open (No such file or directory)");
   }
   if (!errors.empty()) {
     ConfigErrors all;
     for (std::string& e : errors) all.push_back({"", std::move(e), 0});
     return all;
+  }
+
+  if (carmen) {
+    CarmenOptions options;
+    options.robot = experiment.robot;
+    Result<Experiment> log = LoadCarmenExperiment(file("log.clf"), options);
+    if (!log.ok()) return log;
+    Experiment& read = log.value();
+    read.dir = dir;
+    read.meta = std::move(experiment.meta);
+    read.ground_truth = std::move(experiment.ground_truth);
+    read.world = std::move(experiment.world);
+    return log;
   }
 
   hw::OpenResult opened = hw::OpenCandumpReplay(file("can.log"));

@@ -6,7 +6,8 @@
 //
 // What is an error and what is a counted skip:
 // - robot.json, can.log and meta.json are required; a missing, unreadable or malformed one is
-//   an error naming the file (and the line, for JSON with a known position).
+//   an error naming the file (and the line, for JSON with a known position). A robot with a
+//   range scanner (laser) is recorded as a CARMEN log, log.clf, in place of can.log.
 // - groundtruth.tum and world.json are optional; when present they must be well formed
 //   (groundtruth.tum: times strictly increasing, errors give file:line). Its times are the log's
 //   clock's; where that clock jumped (can.log's replay takes the jumps out) they are moved with
@@ -28,6 +29,7 @@
 #include "hw_link/aseba.hpp"
 #include "hw_link/event_decoder.hpp"
 #include "hw_link/frame_source.hpp"
+#include "offline/carmen_log.hpp"
 #include "sim/world.hpp"
 
 namespace slam::offline {
@@ -44,6 +46,10 @@ struct ExperimentCounters {
   /// Ground-truth poses left out: stamped inside a clock jump (or a silence taken for one) or
   /// in a stretch of time the log repeats after a step back, they match no replayed time.
   uint64_t ground_truth_unplaced = 0;
+  /// CARMEN logs: laser records left out because their time was not after the previous scan's
+  /// (the log's order is kept; their odometry still counts), or because no odometry covered it.
+  uint64_t scans_out_of_order = 0;
+  uint64_t scans_without_odometry = 0;
 
   /// Frames, lines and messages rejected anywhere on the way: garbled lines, frames the Aseba
   /// reassembly dropped, messages the decoder did not recognise.
@@ -62,14 +68,38 @@ struct Experiment {
   double t_first = 0.0;             // times of the first and last frame of can.log
   double t_last = 0.0;
   ExperimentCounters counters;
+  /// The first lines skipped as malformed, "file:line: why" (CARMEN logs; a CAN log's garbled
+  /// lines are only counted).
+  std::vector<std::string> problems;
 
   /// Recorded time covered by can.log, seconds.
   double duration_s() const { return t_last - t_first; }
 };
 
 /// Reads and decodes the experiment in `dir`; the errors (Message(): one line each) name their
-/// files.
+/// files. `dir` may also be a CARMEN log (LooksLikeCarmenLog), read with LoadCarmenExperiment.
 Result<Experiment> LoadExperiment(const std::string& dir,
                                   const ScanAssemblerConfig& assembler = {});
+
+/// How a CARMEN log becomes an experiment.
+struct CarmenOptions {
+  /// The robot; derived from the log when not given (DeriveCarmenRobot).
+  std::optional<RobotDescription> robot;
+};
+
+/// Reads a CARMEN text log as an experiment: one scan per laser record of the front laser
+/// (FLASER, RAWLASER1 or ROBOTLASER1, whichever the log has most of), its beams the scan's
+/// samples at the record's time and odometry (the record's own, else interpolated between ODOM
+/// lines), ranges as RangeToRaw. Malformed lines are counted (counters.bad_lines) and skipped;
+/// meta.name is the file's name, meta.source "robot". No ground truth.
+Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOptions& options = {});
+
+/// A robot for a CARMEN log: one range sensor at the robot's centre (or where PARAM
+/// robot_frontlaser_offset puts it), its beams from the records (RAWLASER / ROBOTLASER1) or the
+/// CARMEN convention (FLASER: PARAM laser_front_laser_fov, else 180 degrees, first beam at
+/// -fov/2, the last at +fov/2), its maximum range from PARAM robot_front_laser_max or the
+/// records, a no-return value where the log saturates at its largest reading, and a generic
+/// laser noise (1 cm + 0.5 % of the range).
+RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name);
 
 }  // namespace slam::offline

@@ -28,11 +28,14 @@ std::vector<TimedPose> DeadReckoning(const std::vector<Scan>& scans) {
   Pose2 start;
   trajectory.push_back({scans.front().t_begin, start});
   for (const Scan& scan : scans) {
-    // As the engine's history: a sample at the scan's start is the previous end pose, and the
-    // end pose is added unless the last sample is at the scan's end.
+    // As the engine's history: a sample at the scan's start is the previous end pose, samples
+    // that share a time give one pose, and the end pose is added unless the last sample is at
+    // the scan's end.
     const size_t first = trajectory.size();
     for (const ScanSample& sample : scan.samples) {
-      if (sample.t <= scan.t_begin) continue;
+      if (sample.t <= scan.t_begin ||
+          (trajectory.size() > first && sample.t <= trajectory.back().t))
+        continue;
       trajectory.push_back({sample.t, Compose(start, Between(scan.odom_begin, sample.odom))});
     }
     start = Compose(start, Between(scan.odom_begin, scan.odom_end));

@@ -20,6 +20,8 @@ Json CountersJson(const offline::ExperimentCounters& c) {
           {"ignored_lines", c.ignored_lines},
           {"clock_jumps", c.clock_jumps},
           {"ground_truth_unplaced", c.ground_truth_unplaced},
+          {"scans_out_of_order", c.scans_out_of_order},
+          {"scans_without_odometry", c.scans_without_odometry},
           {"reassembly", hw::ReassemblyCountersToJson(c.reassembly)},
           {"decoder", hw::DecoderCountersToJson(c.decoder)},
           {"assembler", hw::AssemblerCountersToJson(c.assembler)}};

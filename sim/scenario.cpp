@@ -244,6 +244,43 @@ uint16_t SenseRaw(const World& world, const std::vector<Vec2>& corners,
   return ClampRaw(CalibratedRaw(table, std::max(measured, 0.0)));
 }
 
+/// Simulates one sweep of a range scanner on a robot at `pose`: each beam reads the distance to
+/// the first surface plus Gaussian noise of the type's sigma; no echo (the type's no-return
+/// value) beyond its range, and, as for the Sharp sensors, sometimes near a corner.
+LaserSweep SenseSweep(const World& world, const std::vector<Vec2>& corners,
+                      const RobotDescription& robot, const SensorTypeDescription& type,
+                      const ScenarioConfig& config, const Pose2& pose, double t, Rng& rng) {
+  const ScannerSensor& sensor = robot.scanner.sensors.front();
+  const Vec2 origin = pose.Transform({robot.scanner.offset_x_m, robot.scanner.offset_y_m});
+  LaserSweep sweep;
+  sweep.t = t;
+  sweep.ranges.resize(static_cast<size_t>(type.beams.count));
+  const auto no_echo = static_cast<float>(type.no_return_m);
+  for (int b = 0; b < type.beams.count; ++b) {
+    const double angle = pose.theta + DegToRad(sensor.angle_deg + type.beams.AngleDeg(b));
+    const std::optional<double> d = RayDistance(world, origin, angle, type.range_max_m);
+    // Draw every beam's coins so that the stream does not depend on the geometry.
+    const bool hole = rng.Uniform() < config.corner_hole_probability;
+    const double noise = rng.Gaussian();
+    float& range = sweep.ranges[static_cast<size_t>(b)];
+    if (!d) {
+      range = no_echo;
+      continue;
+    }
+    const Vec2 hit = origin + *d * Vec2(std::cos(angle), std::sin(angle));
+    const bool near_corner = std::any_of(corners.begin(), corners.end(), [&](const Vec2& c) {
+      return (c - hit).norm() <= config.corner_radius_m;
+    });
+    if (near_corner && hole) {
+      range = no_echo;
+      continue;
+    }
+    const double sigma = type.sigma_m[0] + type.sigma_m[1] * *d + type.sigma_m[2] * *d * *d;
+    range = static_cast<float>(std::max(0.0, *d + config.sensor_noise_scale * sigma * noise));
+  }
+  return sweep;
+}
+
 }  // namespace
 
 std::vector<std::string> ScenarioConfig::Validate() const {
@@ -475,7 +512,20 @@ void Simulator::Step(ScenarioOutput& out) {
     st.last_gyro_theta = p.theta;
     ++st.next_odometry;
   }
-  while (in_step(st.next_sample, sample_rate)) {
+  const SensorTypeDescription& first_type =
+      robot.sensor_types.at(robot.scanner.sensors.front().type);
+  if (first_type.kind == SensorKind::kRange) {
+    // A laser: whole sweeps at the scan rate, every beam from the pose at the sweep's time.
+    while (in_step(st.next_sample, config.scans_per_s)) {
+      const double t = static_cast<double>(st.next_sample) / config.scans_per_s;
+      const Pose2 p = Move(pose, v, w, extra, t - t0);
+      out.sweeps.push_back(
+          SenseSweep(st.world, st.corners, robot, first_type, config, p, t, st.sensor_rng));
+      out.true_path.push_back({t, Normalized(p)});
+      ++st.next_sample;
+    }
+  }
+  while (first_type.kind == SensorKind::kInfrared && in_step(st.next_sample, sample_rate)) {
     const double t = static_cast<double>(st.next_sample) / sample_rate;
     const Pose2 p = Move(pose, v, w, extra, t - t0);
     const double platform = kPi * config.scans_per_s * t;

@@ -59,7 +59,7 @@ struct OdometryErrors {
 /// (world, robot, config) triple always gives the same output.
 struct ScenarioConfig {
   double duration_s = 60.0;
-  double scans_per_s = 1.5;        // half turns of the scanner platform per second
+  double scans_per_s = 1.5;        // half turns of the scanner platform (or sweeps) per second
   double odometry_rate_hz = 50.0;  // base events; the scanner rate comes from the robot
   double tracker_rate_hz = 30.0;
   double speed_m_s = 0.12;        // cruising speed
@@ -93,12 +93,22 @@ std::string_view OdometryProfileName(OdometryProfile profile);
 /// `config` with the odometry error parameters of `profile` (the others unchanged).
 ScenarioConfig WithOdometryProfile(ScenarioConfig config, OdometryProfile profile);
 
+/// One sweep of a range scanner (laser, time-of-flight): a range per beam of its BeamPattern, in
+/// metres (the sensor type's no_return_m, or 0 when it has none, where no echo came back).
+struct LaserSweep {
+  double t = 0.0;
+  std::vector<float> ranges;
+};
+
 /// Everything a simulated run produces, time-ordered; times in seconds from the start.
 struct ScenarioOutput {
   std::vector<OdometryReading> odometry;  // at odometry_rate_hz, the first at t = 0
-  std::vector<ScannerReading> scanner;    // at the robot's sample rate, the first at t = 0
-  std::vector<TimedPose> ground_truth;    // tracker poses (with tracker noise) at tracker_rate_hz
-  std::vector<TimedPose> true_path;       // exact poses at every scanner sample
+  /// A robot with Sharp sensors: samples at the robot's sample rate, the first at t = 0.
+  std::vector<ScannerReading> scanner;
+  /// A robot whose scanner is a range sensor: sweeps at scans_per_s, the first at t = 0.
+  std::vector<LaserSweep> sweeps;
+  std::vector<TimedPose> ground_truth;  // tracker poses (with tracker noise) at tracker_rate_hz
+  std::vector<TimedPose> true_path;     // exact poses at every scanner sample or sweep
 };
 
 /// The simulation advancing step by step (10 ms each), without an end: the live virtual

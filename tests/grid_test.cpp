@@ -76,7 +76,8 @@ TEST(OccupancyGrid, NothingIsWrittenBeyondTheMapsBound) {
   OccupancyGrid rays(GridGeometry(0.01), 5000);
   UpdateProfile profile;
   profile.step_m = 0.01;
-  profile.delta.assign(400, -10);               // 4 m of free space
+  profile.free_bins = 400;  // 4 m of free space
+  profile.free_delta = -10;
   const double x0 = (edge - 100 + 0.5) * 0.01;  // 1 m before the bound, mid-cell
   const int changed = ApplyUpdateRay(rays, {x0, 0.005}, 0.0, profile);
   EXPECT_EQ(changed, 100);

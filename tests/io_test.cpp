@@ -314,9 +314,17 @@ TEST(RobotJson, OutOfRangeValuesAreReported) {
   EXPECT_TRUE(HasPointer(RobotWith("/sensor_types/short/calibration/0/0", 1024).errors(),
                          "/sensor_types/short/calibration/0"));
 
+  // 1 to 4 sensors (a laser is one); none, or more than the scanner event carries, is an error.
   Json three_sensors = DefaultRobotJson();
   three_sensors["scanner"]["sensors"].erase(3);
-  EXPECT_EQ(Pointers(RobotFromJson(three_sensors).errors()),
+  EXPECT_TRUE(RobotFromJson(three_sensors).ok());
+  Json no_sensor = DefaultRobotJson();
+  no_sensor["scanner"]["sensors"] = Json::array();
+  EXPECT_EQ(Pointers(RobotFromJson(no_sensor).errors()),
+            std::vector<std::string>{"/scanner/sensors"});
+  Json five_sensors = DefaultRobotJson();
+  five_sensors["scanner"]["sensors"].push_back(five_sensors["scanner"]["sensors"][0]);
+  EXPECT_EQ(Pointers(RobotFromJson(five_sensors).errors()),
             std::vector<std::string>{"/scanner/sensors"});
 }
 

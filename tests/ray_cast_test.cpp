@@ -576,8 +576,10 @@ TEST(ApplyUpdateRay, AddsTheProfileByDistance) {
   OccupancyGrid grid(GridGeometry(0.01), 5000);
   UpdateProfile profile;
   profile.step_m = 0.005;
-  profile.delta.assign(10, -100);  // free up to 5 cm
-  profile.delta.push_back(700);    // occupied from 5 to 5.5 cm
+  profile.free_bins = 10;  // free up to 5 cm
+  profile.free_delta = -100;
+  profile.occupied_bins = 1;  // occupied from 5 to 5.5 cm
+  profile.occupied_delta = 700;
   // From the centre of cell 0: cell k is crossed around k cm, so cells 0-4 are free, cell 5 is
   // occupied and the ray ends inside it.
   const int changed = ApplyUpdateRay(grid, {0.005, 0.005}, 0.0, profile);

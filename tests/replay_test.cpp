@@ -8,7 +8,9 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -582,6 +584,62 @@ TEST_F(ReplayTest, EveryRayKernelGivesTheSameReplay) {
   }
   EXPECT_EQ(runs[1].second, runs[0].second);
   EXPECT_EQ(runs[2].second, runs[0].second);
+}
+
+TEST_F(ReplayTest, RelationsScoreTheTrajectoryAndOdometryOnTheBenchmarkMetric) {
+  // Relations from the ground truth between scans 20 apart (about 13 s: odometry drifts more
+  // than the SLAM errs there; over a second or two it does not), at the scans' times.
+  const fs::path scratch = root_ / "relations";
+  fs::create_directories(scratch);
+  const offline::Experiment& e = Box();
+  const auto truth_at = [&](double t) {
+    return std::min_element(e.ground_truth.begin(), e.ground_truth.end(),
+                            [&](const TimedPose& a, const TimedPose& b) {
+                              return std::abs(a.t - t) < std::abs(b.t - t);
+                            })
+        ->pose;
+  };
+  std::ostringstream text;
+  text.precision(9);
+  size_t written = 0;
+  for (size_t i = 0; i + 20 < e.scans.size(); i += 2, ++written) {
+    const double t1 = e.scans[i].t_end, t2 = e.scans[i + 20].t_end;
+    const Pose2 motion = Between(truth_at(t1), truth_at(t2));
+    text << std::fixed << t1 << ' ' << t2 << ' ' << motion.x << ' ' << motion.y << " 0 0 0 "
+         << motion.theta << '\n';
+  }
+  ASSERT_GT(written, 10u);
+  const std::string relations = (scratch / "box.relations").string();
+  std::ofstream(relations) << text.str();
+
+  const std::string tool = std::string(SLAM_REPLAY_BIN) + " " + (root_ / "box").string() +
+                           " --budget 65000 --quiet --out " + (scratch / "out").string();
+  const CommandResult run = RunCommand(tool + " --relations " + relations, scratch);
+  ASSERT_EQ(run.status, 0) << run.err;
+  const Json summary = Json::parse(run.out);
+  ASSERT_TRUE(summary.contains("relations")) << run.out;
+  const Json& r = summary["relations"];
+  EXPECT_EQ(r["count"], written);
+  EXPECT_EQ(r["relations"], written);
+  EXPECT_EQ(r["file"], relations);
+  EXPECT_EQ(r["odometry"]["count"], written);
+  const double slam_m = r["translational_m"]["mean"],
+               odometry_m = r["odometry"]["translational_m"]["mean"];
+  EXPECT_GT(slam_m, 0.0);
+  EXPECT_LT(slam_m, odometry_m);
+  EXPECT_LT(r["rotational_deg"]["mean"].get<double>(),
+            r["odometry"]["rotational_deg"]["mean"].get<double>());
+  EXPECT_NEAR(r["translational_m"]["squared_mean"].get<double>(),
+              std::pow(slam_m, 2) + std::pow(r["translational_m"]["std"].get<double>(), 2), 1e-12);
+
+  // A bad relations file is refused before the replay, naming its line.
+  std::ofstream(relations, std::ios::app) << "1 2 3\n";
+  const CommandResult bad = RunCommand(tool + " --relations " + relations, scratch);
+  EXPECT_EQ(bad.status, 1);
+  EXPECT_TRUE(bad.out.empty());
+  EXPECT_NE(bad.err.find("box.relations:" + std::to_string(written + 1) + ": expected 8 fields"),
+            std::string::npos)
+      << bad.err;
 }
 
 TEST_F(ReplayTest, CommandLineReplaysAndReportsBadExperiments) {

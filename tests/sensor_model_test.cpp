@@ -73,8 +73,8 @@ TEST(SensorModel, UsesOnlyReadingsInsideTheUseWindow) {
 void ExpectFreeOccupiedUntouched(const SensorModel& model, int raw, const UpdateModelConfig& update,
                                  double resolution) {
   OccupancyGrid grid(GridGeometry(resolution), kLogOddsLimit);
-  const UpdateProfile* profile = model.Update(static_cast<uint16_t>(raw));
-  ASSERT_NE(profile, nullptr);
+  const std::optional<UpdateProfile> profile = model.Update(static_cast<uint16_t>(raw));
+  ASSERT_TRUE(profile.has_value());
   ApplyUpdateRay(grid, {resolution / 2, resolution / 2}, 0.0, *profile);
   const double d = *model.Distance(static_cast<uint16_t>(raw));
   const double depth = std::max(update.occupied_depth_cells * resolution,

@@ -18,6 +18,7 @@
 
 #include "engine/io/params_json.hpp"
 #include "offline/experiment_reader.hpp"
+#include "offline/relations.hpp"
 #include "offline/replay.hpp"
 #include "offline/replay_report.hpp"
 
@@ -69,10 +70,11 @@ int Fail(const std::string& message) {
 
 int main(int argc, char** argv) {
   CLI::App app{
-      "Replays a recorded experiment (robot.json, can.log, meta.json, optional groundtruth.tum "
-      "and world.json) through the SLAM. Prints a JSON summary on stdout; writes trajectory.tum, "
-      "map.pgm, map.yaml and map.png into the output directory."};
-  std::string experiment_dir, params_path, out_dir;
+      "Replays a recorded experiment (a directory with robot.json, can.log, meta.json, optional "
+      "groundtruth.tum and world.json; or a CARMEN text log) through the SLAM. Prints a JSON "
+      "summary on stdout; writes trajectory.tum, map.pgm, map.yaml and map.png into the output "
+      "directory."};
+  std::string experiment_dir, params_path, out_dir, relations_path;
   int64_t budget = 65000;
   double cpu_share = 0.0;
   std::string policy_name = "fixed";
@@ -81,7 +83,13 @@ int main(int argc, char** argv) {
   uint64_t seed = 1;
   int threads = 0;
   bool quiet = false;
-  app.add_option("EXP_DIR", experiment_dir, "recorded experiment directory")->required();
+  double resolution = slam::SlamConfig{}.resolution_m;
+  app.add_option("EXP_DIR", experiment_dir, "recorded experiment directory, or a CARMEN log")
+      ->required();
+  app.add_option("--resolution", resolution,
+                 "grid cell size in metres (5 cm suits a laser in a building)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.002, 1.0));
   app.add_option("--params", params_path,
                  "SLAM parameters (JSON, Table II keys) [the shipped set of the budget, "
                  "config/params/]");
@@ -107,6 +115,10 @@ int main(int argc, char** argv) {
                  "worker threads (0: every core; results do not depend on it)")
       ->capture_default_str()
       ->check(CLI::Range(0, 256));
+  app.add_option("--relations", relations_path,
+                 "benchmark relations (Freiburg format: t1 t2 x y z roll pitch yaw per line): adds "
+                 "a \"relations\" object to the summary with the trajectory's relation errors, and "
+                 "odometry's beside them");
   app.add_flag("--quiet", quiet, "no progress line on stderr");
   CLI11_PARSE(app, argc, argv);
 
@@ -117,6 +129,12 @@ int main(int argc, char** argv) {
     params = slam::ParamsChoice(params_path, loaded.value());
   }
   std::unique_ptr<tbb::global_control> thread_limit;
+  std::vector<slam::offline::Relation> relations;
+  if (!relations_path.empty()) {  // read first: a bad file should not cost a replay
+    auto loaded = slam::offline::LoadRelations(relations_path);
+    if (!loaded.ok()) return Fail(loaded.Message());
+    relations = std::move(loaded).value();
+  }
   if (threads > 0) {
     thread_limit = std::make_unique<tbb::global_control>(
         tbb::global_control::max_allowed_parallelism, static_cast<size_t>(threads));
@@ -138,6 +156,9 @@ int main(int argc, char** argv) {
                  experiment.meta.name.c_str(), experiment.scans.size(),
                  static_cast<unsigned long long>(experiment.counters.frames),
                  static_cast<unsigned long long>(experiment.counters.FramesRejected()), load_s);
+    for (const std::string& problem : experiment.problems) {
+      std::fprintf(stderr, "skipped: %s\n", problem.c_str());
+    }
   }
 
   std::error_code ec;
@@ -147,6 +168,7 @@ int main(int argc, char** argv) {
   slam::offline::ReplayOptions options;
   options.params = params;
   options.config.seed = seed;
+  options.config.resolution_m = resolution;
   options.budget.rays_per_scan = budget;
   options.budget.policy = *slam::ParseBudgetPolicy(policy_name);
   options.budget.max_particles = max_particles;
@@ -165,6 +187,14 @@ int main(int argc, char** argv) {
       slam::offline::WriteReplayOutputs(out_dir, experiment, run, no_refine, options.budget);
   Json summary = slam::offline::ReplaySummary(experiment, run, options);
   summary["out"] = out_dir;
+  if (!relations_path.empty()) {
+    Json scored =
+        slam::offline::RelationsToJson(slam::offline::ScoreRelations(run.trajectory, relations));
+    scored["file"] = relations_path;
+    scored["odometry"] = slam::offline::RelationsToJson(
+        slam::offline::ScoreRelations(slam::offline::DeadReckoning(experiment.scans), relations));
+    summary["relations"] = std::move(scored);
+  }
   std::cout << summary.dump(2) << "\n";
   for (const std::string& e : outputs.errors) std::cerr << "slam-replay: " << e << "\n";
   return outputs.errors.empty() ? 0 : 1;

@@ -21,6 +21,7 @@
 
 #include "engine/config_error.hpp"
 #include "engine/io/json_locate.hpp"
+#include "engine/io/text_fields.hpp"
 #include "engine/result.hpp"
 
 namespace slam::io::detail {
@@ -260,25 +261,6 @@ inline Result<Json> ParseJsonText(const std::string& text, const std::string& so
     return Result<Json>(std::move(errors), source);
   }
   return Result<Json>(std::move(json));
-}
-
-/// The bytes of a file; errors name the path.
-inline Result<std::string> ReadTextFile(const std::string& path) {
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) {
-    return Result<std::string>(ConfigErrors{{"", path + ": is a directory, not a JSON file"}},
-                               path);
-  }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    const int error = errno;
-    return Result<std::string>(
-        ConfigErrors{{"", path + ": cannot open (" + std::strerror(error) + ")"}}, path);
-  }
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (in.bad()) return Result<std::string>(ConfigErrors{{"", path + ": read error"}}, path);
-  return Result<std::string>(text.str());
 }
 
 /// A parsed JSON document and the text it was parsed from (to find the lines of errors).

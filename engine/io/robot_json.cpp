@@ -44,6 +44,9 @@ void ReadScanner(const Json& json, const std::string& pointer, ScannerDescriptio
   object.Read("event", scanner.event, true);
   object.Read("sample_rate_hz", scanner.sample_rate_hz, true);
   object.Read("mount_radius_m", scanner.mount_radius_m, true);
+  if (object.Get("offset_m", false) != nullptr) {
+    ReadInterval(object, "offset_m", scanner.offset_x_m, scanner.offset_y_m, errors);
+  }
   const Json* sensors = object.Get("sensors", true);
   const std::string sensors_pointer = object.Member("sensors");
   if (sensors != nullptr && ExpectArray(*sensors, sensors_pointer, 0, errors)) {
@@ -79,11 +82,28 @@ void ReadSensorType(const Json& json, const std::string& pointer, SensorTypeDesc
                     ConfigErrors& errors) {
   ObjectReader object(json, pointer, errors);
   object.Read("model", type.model, true);
+  std::string kind = "infrared";
+  object.Read("kind", kind, false);
+  if (kind == "range") {
+    type.kind = SensorKind::kRange;
+  } else if (kind != "infrared") {
+    errors.push_back(
+        {object.Member("kind"), "\"" + kind + "\" is not a sensor kind (infrared, range)"});
+  }
   ReadInterval(object, "range_m", type.range_min_m, type.range_max_m, errors);
   ReadInterval(object, "use_m", type.use_min_m, type.use_max_m, errors);
-  if (const Json* calibration = object.Get("calibration", true)) {
+  const bool infrared = type.kind == SensorKind::kInfrared;
+  if (const Json* calibration = object.Get("calibration", infrared)) {
     ReadCalibration(*calibration, object.Member("calibration"), type.calibration, errors);
   }
+  if (const Json* beams = object.Get("beams", !infrared)) {
+    ObjectReader beam_object(*beams, object.Member("beams"), errors);
+    beam_object.Read("first_deg", type.beams.first_deg, true);
+    beam_object.Read("increment_deg", type.beams.increment_deg, true);
+    beam_object.Read("count", type.beams.count, true);
+    beam_object.Finish();
+  }
+  object.Read("no_return_m", type.no_return_m, false);
   if (const Json* sigma = object.Get("sigma_m", false)) {
     const std::string at = object.Member("sigma_m");
     if (ExpectArray(*sigma, at, type.sigma_m.size(), errors)) {
@@ -141,9 +161,17 @@ nlohmann::json RobotToJson(const RobotDescription& robot) {
         {"model", type.model},
         {"range_m", Json::array({type.range_min_m, type.range_max_m})},
         {"use_m", Json::array({type.use_min_m, type.use_max_m})},
-        {"calibration", std::move(calibration)},
         {"sigma_m", Json::array({type.sigma_m[0], type.sigma_m[1], type.sigma_m[2]})},
     };
+    if (type.kind == SensorKind::kInfrared) {
+      types[name]["calibration"] = std::move(calibration);
+    } else {
+      types[name]["kind"] = "range";
+      types[name]["beams"] = {{"first_deg", type.beams.first_deg},
+                              {"increment_deg", type.beams.increment_deg},
+                              {"count", type.beams.count}};
+      if (type.no_return_m > 0.0) types[name]["no_return_m"] = type.no_return_m;
+    }
   }
   const BaseDescription& base = robot.base;
   const ScannerDescription& scanner = robot.scanner;
@@ -167,6 +195,9 @@ nlohmann::json RobotToJson(const RobotDescription& robot) {
   // read and write back unchanged.
   if (base.max_speed_m_s != BaseDescription{}.max_speed_m_s) {
     json["base"]["max_speed_m_s"] = base.max_speed_m_s;
+  }
+  if (scanner.offset_x_m != 0.0 || scanner.offset_y_m != 0.0) {
+    json["scanner"]["offset_m"] = Json::array({scanner.offset_x_m, scanner.offset_y_m});
   }
   return json;
 }

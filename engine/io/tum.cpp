@@ -5,29 +5,12 @@
 #include <fstream>
 #include <sstream>
 
+#include "engine/io/text_fields.hpp"
+
 namespace slam::io {
 namespace {
 
 constexpr int kMaxErrors = 20;  // a garbled file should not produce megabytes of errors
-
-bool ParseDouble(std::string_view field, double& value) {
-  const std::string text(field);
-  char* end = nullptr;
-  value = std::strtod(text.c_str(), &end);
-  return end != text.c_str() && *end == '\0' && std::isfinite(value);
-}
-
-std::vector<std::string_view> Fields(std::string_view line) {
-  std::vector<std::string_view> fields;
-  size_t i = 0;
-  while (i < line.size()) {
-    while (i < line.size() && (line[i] == ' ' || line[i] == '\t' || line[i] == '\r')) ++i;
-    const size_t start = i;
-    while (i < line.size() && line[i] != ' ' && line[i] != '\t' && line[i] != '\r') ++i;
-    if (i > start) fields.push_back(line.substr(start, i - start));
-  }
-  return fields;
-}
 
 }  // namespace
 
@@ -50,39 +33,33 @@ Result<std::vector<TimedPose>> ParseTum(std::string_view text, const std::string
       errors.push_back({"", source + ":" + std::to_string(line_number) + ": " + detail});
     }
   };
-  size_t line_number = 0;
-  size_t pos = 0;
-  while (pos < text.size()) {
-    const size_t end = std::min(text.find('\n', pos), text.size());
-    const std::string_view line = text.substr(pos, end - pos);
-    pos = end + 1;
-    ++line_number;
-    const auto fields = Fields(line);
-    if (fields.empty() || fields[0].front() == '#') continue;
+  ForEachLine(text, [&](size_t line_number, std::string_view line) {
+    const auto fields = SplitFields(line);
+    if (fields.empty() || fields[0].front() == '#') return;
     if (fields.size() != 8) {
       fail(line_number,
            "expected 8 fields \"t x y z qx qy qz qw\", found " + std::to_string(fields.size()));
-      continue;
+      return;
     }
     double v[8];
     bool numbers = true;
-    for (size_t i = 0; i < 8; ++i) numbers = numbers && ParseDouble(fields[i], v[i]);
+    for (size_t i = 0; i < 8; ++i) numbers = numbers && ParseFiniteDouble(fields[i], v[i]);
     if (!numbers) {
       fail(line_number, "not a finite number");
-      continue;
+      return;
     }
     const double norm = std::sqrt(v[4] * v[4] + v[5] * v[5] + v[6] * v[6] + v[7] * v[7]);
     if (std::abs(norm - 1.0) > 1e-3) {
       fail(line_number, "quaternion is not of unit length");
-      continue;
+      return;
     }
     if (!poses.empty() && !(v[0] > poses.back().t)) {
       fail(line_number, "time " + std::string(fields[0]) + " is not after the previous line's");
-      continue;
+      return;
     }
     // Planar: the rotation about z (qx, qy are expected to be 0 and are ignored).
     poses.push_back({v[0], Pose2{v[1], v[2], NormalizeAngle(2.0 * std::atan2(v[6], v[7]))}});
-  }
+  });
   if (!errors.empty()) return Result<std::vector<TimedPose>>(std::move(errors), source);
   return poses;
 }

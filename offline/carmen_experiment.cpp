@@ -1,0 +1,262 @@
+// CARMEN logs as experiments (experiment_reader.hpp): the front laser's records become scans.
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <map>
+
+#include "engine/sensor_model.hpp"
+#include "offline/experiment_reader.hpp"
+
+namespace slam::offline {
+namespace {
+
+constexpr double kLargestRangeM = kRangeRawMax * kRangeRawM;
+
+bool IsFrontLaser(const std::string& message) {
+  return message == "FLASER" || message == "RAWLASER1" || message == "ROBOTLASER1";
+}
+
+/// The front laser's message type the log has most of (a log may carry one laser twice, as
+/// FLASER and ROBOTLASER1); empty when it has none.
+std::string FrontMessage(const CarmenLog& log) {
+  std::map<std::string, size_t> count;
+  for (const CarmenLaser& laser : log.lasers) {
+    if (IsFrontLaser(laser.message)) ++count[laser.message];
+  }
+  std::string best;
+  for (const auto& [message, n] : count) {
+    if (best.empty() || n > count[best]) best = message;
+  }
+  return best;
+}
+
+std::optional<double> ParamNumber(const CarmenLog& log, const std::string& key) {
+  const auto it = log.params.find(key);
+  if (it == log.params.end()) return std::nullopt;
+  char* end = nullptr;
+  const double value = std::strtod(it->second.c_str(), &end);
+  if (end == it->second.c_str() || *end != '\0' || !std::isfinite(value)) return std::nullopt;
+  return value;
+}
+
+std::string LaserTypeName(int type) {
+  switch (type) {
+    case 0:
+      return "SICK LMS";
+    case 1:
+      return "SICK PLS";
+    case 2:
+      return "Hokuyo URG";
+    case 3:
+      return "simulated laser";
+    case 4:
+      return "SICK S300";
+    default:
+      return "laser";
+  }
+}
+
+/// The robot's odometry between ODOM records: those whose time is after the previous kept one,
+/// interpolated linearly (the angle the short way round).
+class OdometryTrack {
+ public:
+  explicit OdometryTrack(const std::vector<CarmenOdometry>& records) {
+    for (const CarmenOdometry& r : records) {
+      if (track_.empty() || r.t > track_.back().t) track_.push_back({r.t, r.pose});
+    }
+  }
+  std::optional<Pose2> At(double t) const {
+    if (track_.empty() || t < track_.front().t || t > track_.back().t) return std::nullopt;
+    const auto after = std::lower_bound(track_.begin(), track_.end(), t,
+                                        [](const TimedPose& p, double time) { return p.t < time; });
+    if (after->t == t || after == track_.begin()) return after->pose;
+    const TimedPose& before = *std::prev(after);
+    return Interpolate(before.pose, after->pose, (t - before.t) / (after->t - before.t));
+  }
+
+ private:
+  std::vector<TimedPose> track_;
+};
+
+}  // namespace
+
+RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name) {
+  const std::string front = FrontMessage(log);
+  const CarmenLaser* first = nullptr;
+  for (const CarmenLaser& laser : log.lasers) {
+    if (laser.message == front) {
+      first = &laser;
+      break;
+    }
+  }
+  RobotDescription robot;
+  robot.name = "CARMEN log " + name;
+  robot.scanner.mount_radius_m = 0.0;
+  robot.scanner.offset_x_m = ParamNumber(log, "robot_frontlaser_offset").value_or(0.0);
+  robot.scanner.sensors = {{"laser", 0.0}};
+
+  SensorTypeDescription type;
+  type.kind = SensorKind::kRange;
+  const int n = first != nullptr ? static_cast<int>(first->ranges.size()) : 0;
+  double max_range = 0.0;  // the records' own, when they say it
+  if (first != nullptr && first->beams) {
+    type.model = LaserTypeName(first->beams->laser_type);
+    type.beams = {RadToDeg(first->beams->start_angle_rad), RadToDeg(first->beams->resolution_rad),
+                  n};
+    max_range = first->beams->max_range_m;
+  } else {
+    // CARMEN's convention for the old FLASER records: the beams span the field of view
+    // symmetrically, the first on the right.
+    const double fov = ParamNumber(log, "laser_front_laser_fov").value_or(180.0);
+    type.model = "laser";
+    type.beams = {-fov / 2.0, n > 1 ? fov / (n - 1) : 0.0, n};
+  }
+  max_range = ParamNumber(log, "robot_front_laser_max").value_or(max_range);
+
+  // The readings: the largest, how often, and the largest below it. A scanner without an echo
+  // reports one fixed value (SICK: 81.83 m); readings at the largest value in at least 0.1 % of
+  // the beams are taken for that.
+  double largest = 0.0, below = 0.0;
+  size_t total = 0, at_largest = 0;
+  for (const CarmenLaser& laser : log.lasers) {
+    if (laser.message != front) continue;
+    for (float r : laser.ranges) {
+      if (!(r > 0.0f) || !std::isfinite(r)) continue;
+      ++total;
+      if (r > largest) {
+        below = largest;
+        largest = r;
+        at_largest = 1;
+      } else if (r == largest) {
+        ++at_largest;
+      } else {
+        below = std::max<double>(below, r);
+      }
+    }
+  }
+  const bool saturates = at_largest >= 2 && at_largest * 1000 >= total;
+  double no_return = saturates ? largest : 0.0;
+  if (no_return == 0.0 && max_range > 0.0) no_return = max_range;
+  double use_max = saturates ? below : largest;
+  if (max_range > 0.0) use_max = std::min(use_max, max_range);
+  use_max = std::min(use_max, kLargestRangeM);
+  if (no_return > 0.0 && use_max >= no_return) use_max = std::nextafter(no_return, 0.0);
+  if (!(use_max > 0.02)) use_max = kLargestRangeM;  // a log without readings: anything goes
+  type.range_min_m = 0.0;
+  type.range_max_m = use_max;
+  type.use_min_m = 0.02;
+  type.use_max_m = use_max;
+  type.no_return_m = no_return > use_max ? no_return : 0.0;
+  type.sigma_m = {0.01, 0.005, 0.0};
+  robot.sensor_types["laser"] = type;
+  return robot;
+}
+
+Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOptions& options) {
+  Result<CarmenLog> parsed = LoadCarmenLog(path);
+  if (!parsed.ok()) return {parsed.errors(), path};
+  const CarmenLog& log = parsed.value();
+
+  Experiment experiment;
+  experiment.dir = path;
+  experiment.meta.name = std::filesystem::path(path).stem().string();
+  experiment.meta.source = "robot";
+  experiment.robot = options.robot ? *options.robot : DeriveCarmenRobot(log, experiment.meta.name);
+  ConfigErrors invalid = Validate(experiment.robot);
+  if (!invalid.empty()) {
+    for (ConfigError& e : invalid) e.detail = "robot for " + path + ": " + e.detail;
+    return invalid;
+  }
+  const ScannerSensor& sensor = experiment.robot.scanner.sensors.front();
+  const SensorTypeDescription& type = experiment.robot.sensor_types.at(sensor.type);
+  if (type.kind != SensorKind::kRange || experiment.robot.scanner.sensors.size() != 1) {
+    return Error(path + ": a CARMEN log needs a robot with one range sensor (\"kind\": \"range\")");
+  }
+
+  ExperimentCounters& counters = experiment.counters;
+  counters.frames = log.counters.lasers + log.counters.odometry;
+  counters.bad_lines = log.counters.bad_lines;
+  counters.ignored_lines = log.counters.comments + log.counters.ignored_lines;
+  experiment.problems = log.problems;
+
+  const std::string front = FrontMessage(log);
+  const OdometryTrack track(log.odometry);
+  std::vector<const CarmenLaser*> records;
+  for (const CarmenLaser& laser : log.lasers) {
+    if (laser.message != front) continue;
+    if (laser.ranges.size() != static_cast<size_t>(type.beams.count)) {
+      ++counters.bad_lines;
+      if (experiment.problems.size() < 20) {
+        experiment.problems.push_back(
+            path + ":" + std::to_string(laser.line) + ": " + laser.message + " has " +
+            std::to_string(laser.ranges.size()) + " readings, the robot's laser " +
+            std::to_string(type.beams.count) + " beams");
+      }
+      continue;
+    }
+    records.push_back(&laser);
+  }
+
+  double t_first = std::numeric_limits<double>::infinity(), t_last = -t_first;
+  for (const CarmenLaser& laser : log.lasers) {
+    t_first = std::min(t_first, laser.t);
+    t_last = std::max(t_last, laser.t);
+  }
+  for (const CarmenOdometry& odometry : log.odometry) {
+    t_first = std::min(t_first, odometry.t);
+    t_last = std::max(t_last, odometry.t);
+  }
+
+  std::optional<double> last_t;
+  Pose2 last_odometry;
+  for (size_t k = 0; k < records.size(); ++k) {
+    const CarmenLaser& laser = *records[k];
+    if (last_t && !(laser.t > *last_t)) {
+      ++counters.scans_out_of_order;
+      continue;
+    }
+    const std::optional<Pose2> odometry =
+        laser.robot_odometry ? laser.robot_odometry : track.At(laser.t);
+    if (!odometry) {
+      ++counters.scans_without_odometry;
+      continue;
+    }
+    Scan scan;
+    scan.index = static_cast<int64_t>(experiment.scans.size());
+    scan.t_end = laser.t;
+    if (last_t) {
+      scan.t_begin = *last_t;
+      scan.odom_begin = last_odometry;
+    } else {
+      // The first scan spans as long as the gap to the next record (the CPU-share quota
+      // follows a scan's duration); it moves nothing.
+      const double gap = k + 1 < records.size() ? records[k + 1]->t - laser.t : 1.0;
+      scan.t_begin = laser.t - std::clamp(gap, 1e-3, 10.0);
+      scan.odom_begin = *odometry;
+    }
+    scan.odom_end = *odometry;
+    scan.samples.resize(laser.ranges.size());
+    for (size_t i = 0; i < laser.ranges.size(); ++i) {
+      ScanSample& sample = scan.samples[i];
+      sample.t = laser.t;
+      sample.odom = *odometry;
+      sample.platform_angle_rad = DegToRad(type.beams.AngleDeg(static_cast<int>(i)));
+      sample.raw[0] = RangeToRaw(laser.ranges[i]);
+    }
+    experiment.scans.push_back(std::move(scan));
+    last_t = laser.t;
+    last_odometry = *odometry;
+  }
+  experiment.t_first = t_first;
+  experiment.t_last = t_last;
+  if (experiment.scans.empty()) {
+    return Error(path + ": no usable scan: " + std::to_string(records.size()) + " " + front +
+                 " records with the robot's " + std::to_string(type.beams.count) + " beams, " +
+                 std::to_string(counters.scans_without_odometry) + " without odometry");
+  }
+  return experiment;
+}
+
+}  // namespace slam::offline

@@ -1,0 +1,122 @@
+#include "offline/relations.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <optional>
+
+#include "engine/io/text_fields.hpp"
+
+namespace slam::offline {
+namespace {
+
+constexpr size_t kMaxErrors = 20;  // a garbled file should not produce megabytes of errors
+
+/// The trajectory's pose nearest in time to `t` when within `tolerance`.
+std::optional<Pose2> NearestPose(const std::vector<TimedPose>& trajectory, double t,
+                                 double tolerance) {
+  const auto after = std::lower_bound(trajectory.begin(), trajectory.end(), t,
+                                      [](const TimedPose& p, double time) { return p.t < time; });
+  const TimedPose* best = nullptr;
+  if (after != trajectory.end()) best = &*after;
+  if (after != trajectory.begin()) {
+    const TimedPose& before = *std::prev(after);
+    if (best == nullptr || t - before.t <= best->t - t) best = &before;
+  }
+  if (best == nullptr || std::abs(best->t - t) > tolerance) return std::nullopt;
+  return best->pose;
+}
+
+ErrorStatistics Statistics(const std::vector<double>& errors) {
+  ErrorStatistics s;
+  if (errors.empty()) return s;
+  const double n = static_cast<double>(errors.size());
+  for (double e : errors) {
+    s.mean += e;
+    s.squared_mean += e * e;
+  }
+  s.mean /= n;
+  s.squared_mean /= n;
+  double var = 0.0, squared_var = 0.0;
+  for (double e : errors) {
+    var += (e - s.mean) * (e - s.mean);
+    squared_var += (e * e - s.squared_mean) * (e * e - s.squared_mean);
+  }
+  s.std_dev = std::sqrt(var / n);
+  s.squared_std_dev = std::sqrt(squared_var / n);
+  return s;
+}
+
+nlohmann::json StatisticsJson(const ErrorStatistics& s) {
+  return {{"mean", s.mean},
+          {"std", s.std_dev},
+          {"squared_mean", s.squared_mean},
+          {"squared_std", s.squared_std_dev}};
+}
+
+}  // namespace
+
+Result<std::vector<Relation>> ParseRelations(std::string_view text, const std::string& source) {
+  std::vector<Relation> relations;
+  ConfigErrors errors;
+  const auto fail = [&](size_t line_number, const std::string& detail) {
+    if (errors.size() < kMaxErrors) {
+      errors.push_back({"", source + ":" + std::to_string(line_number) + ": " + detail});
+    }
+  };
+  io::ForEachLine(text, [&](size_t line_number, std::string_view line) {
+    const auto fields = io::SplitFields(line);
+    if (fields.empty() || fields[0].front() == '#') return;
+    if (fields.size() != 8) {
+      fail(line_number, "expected 8 fields \"t1 t2 x y z roll pitch yaw\", found " +
+                            std::to_string(fields.size()));
+      return;
+    }
+    double v[8];
+    for (size_t i = 0; i < 8; ++i) {
+      if (!io::ParseFiniteDouble(fields[i], v[i])) {
+        fail(line_number, "field " + std::to_string(i + 1) + " \"" + std::string(fields[i]) +
+                              "\" is not a finite number");
+        return;
+      }
+    }
+    relations.push_back({v[0], v[1], Pose2{v[2], v[3], NormalizeAngle(v[7])}});
+  });
+  if (!errors.empty()) return Result<std::vector<Relation>>(std::move(errors), source);
+  if (relations.empty()) return Error(source + ": no relation in the file");
+  return relations;
+}
+
+Result<std::vector<Relation>> LoadRelations(const std::string& path) {
+  Result<std::string> text = io::ReadTextFile(path);
+  if (!text.ok()) return {text.errors(), path};
+  return ParseRelations(text.value(), path);
+}
+
+RelationsScore ScoreRelations(const std::vector<TimedPose>& trajectory,
+                              const std::vector<Relation>& relations, double time_tolerance_s) {
+  RelationsScore score;
+  score.relations = relations.size();
+  std::vector<double> translation, rotation;
+  for (const Relation& relation : relations) {
+    const std::optional<Pose2> first = NearestPose(trajectory, relation.t1, time_tolerance_s);
+    const std::optional<Pose2> second = NearestPose(trajectory, relation.t2, time_tolerance_s);
+    if (!first || !second) continue;
+    const Pose2 motion = Between(*first, *second);
+    translation.push_back(std::hypot(motion.x - relation.motion.x, motion.y - relation.motion.y));
+    rotation.push_back(RadToDeg(std::abs(NormalizeAngle(motion.theta - relation.motion.theta))));
+  }
+  score.used = translation.size();
+  score.translation_m = Statistics(translation);
+  score.rotation_deg = Statistics(rotation);
+  return score;
+}
+
+nlohmann::json RelationsToJson(const RelationsScore& score, double time_tolerance_s) {
+  return {{"count", score.used},
+          {"relations", score.relations},
+          {"time_tolerance_s", time_tolerance_s},
+          {"translational_m", StatisticsJson(score.translation_m)},
+          {"rotational_deg", StatisticsJson(score.rotation_deg)}};
+}
+
+}  // namespace slam::offline

@@ -1,0 +1,179 @@
+// Range scanners end to end: CARMEN logs as experiments, the simulated lidar, and the SLAM on it.
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "engine/io/robot_json.hpp"
+#include "engine/sensor_model.hpp"
+#include "offline/experiment_reader.hpp"
+#include "offline/replay.hpp"
+#include "sim/experiment_writer.hpp"
+#include "sim/world.hpp"
+#include "tests/test_support.hpp"
+
+namespace slam {
+namespace {
+
+namespace fs = std::filesystem;
+
+RobotDescription LidarRobot() {
+  const auto robot = io::LoadRobot(std::string(SLAM_SOURCE_DIR) + "/config/lidar.robot.json");
+  if (!robot.ok()) ADD_FAILURE() << robot.Message();
+  return robot.ok() ? robot.value() : RobotDescription{};
+}
+
+TEST(LaserTest, ACarmenLogBecomesScansWithTheirOdometryAndBeams) {
+  const testing::TempDir dir("carmen_experiment");
+  const std::string path = dir.File("run.clf");
+  std::ofstream(path) << "# hand-made\n"
+                         "ODOM 0 0 0 0 0 0 10.0 h 10.0\n"
+                         // No pose of its own: odometry halfway between 10 s and 11 s.
+                         "FLASER 3 1.0 2.0 81.83 10.5 h 10.5\n"
+                         "ODOM 1 0 0.5 0 0 0 11.0 h 11.0\n"
+                         "FLASER 3 1.5 81.83 0.5 0 0 0 2 1 0.25 11.5 h 11.5\n"
+                         "FLASER 3 1.5 1.5 1.5 11.2 h 11.2\n"  // back in time: left out
+                         "FLASER 2 1.5 1.5 2 1 0.25 2 1 0.25 11.8 h 11.8\n"  // 2 beams, not 3
+                         "FLASER 3 0.9 1.1 81.83 3 1 0.5 3 1 0.5 12.5 h 12.5\n";
+  const Result<offline::Experiment> load = offline::LoadExperiment(path);
+  ASSERT_TRUE(load.ok()) << load.Message();
+  const offline::Experiment& e = load.value();
+  EXPECT_EQ(e.meta.name, "run");
+  EXPECT_TRUE(e.ground_truth.empty());
+
+  // The derived robot: one range sensor, 3 beams over 180 degrees, 81.83 taken for no return.
+  ASSERT_EQ(e.robot.scanner.sensors.size(), 1u);
+  const SensorTypeDescription& laser = e.robot.sensor_types.at(e.robot.scanner.sensors[0].type);
+  EXPECT_EQ(laser.kind, SensorKind::kRange);
+  EXPECT_EQ(laser.beams.count, 3);
+  EXPECT_DOUBLE_EQ(laser.beams.first_deg, -90.0);
+  EXPECT_DOUBLE_EQ(laser.beams.increment_deg, 90.0);
+  EXPECT_FLOAT_EQ(static_cast<float>(laser.no_return_m), 81.83f);
+  EXPECT_LT(laser.use_max_m, laser.no_return_m);
+  EXPECT_GE(laser.use_max_m, 2.0);
+
+  ASSERT_EQ(e.scans.size(), 3u);
+  EXPECT_EQ(e.counters.scans_out_of_order, 1u);
+  EXPECT_EQ(e.counters.bad_lines, 1u);
+  ASSERT_EQ(e.problems.size(), 1u);
+  EXPECT_NE(e.problems[0].find("run.clf:7: FLASER has 2 readings"), std::string::npos)
+      << e.problems[0];
+
+  const Scan& first = e.scans[0];
+  EXPECT_DOUBLE_EQ(first.t_end, 10.5);
+  EXPECT_DOUBLE_EQ(first.t_begin, 9.5);  // as long as the gap to the next record
+  EXPECT_NEAR(first.odom_end.x, 0.5, 1e-12);
+  EXPECT_NEAR(first.odom_end.theta, 0.25, 1e-12);
+  ASSERT_EQ(first.samples.size(), 3u);
+  EXPECT_NEAR(first.samples[0].platform_angle_rad, -kPi / 2, 1e-12);
+  EXPECT_NEAR(first.samples[2].platform_angle_rad, kPi / 2, 1e-12);
+  EXPECT_EQ(first.samples[0].raw[0], 1000);  // millimetres
+  EXPECT_EQ(first.samples[1].raw[0], 2000);
+  EXPECT_EQ(first.samples[2].raw[0], 0);  // no return: no reading
+  for (const ScanSample& s : first.samples) EXPECT_DOUBLE_EQ(s.t, 10.5);
+
+  const Scan& second = e.scans[1];  // its own odometry pose (the last three pose numbers)
+  EXPECT_DOUBLE_EQ(second.t_begin, 10.5);
+  EXPECT_DOUBLE_EQ(second.odom_end.x, 2.0);
+  EXPECT_DOUBLE_EQ(second.odom_end.theta, 0.25);
+  EXPECT_DOUBLE_EQ(second.odom_begin.x, first.odom_end.x);
+  EXPECT_DOUBLE_EQ(e.scans[2].t_begin, 11.5);  // after the records left out
+
+  // The sensor model reads the millimetres back inside the use window.
+  const SensorModel model(laser, {}, 0.05);
+  EXPECT_NEAR(*model.Distance(first.samples[0].raw[0]), 1.0, 1e-12);
+  EXPECT_FALSE(model.Distance(0));
+  EXPECT_FALSE(model.Distance(RangeToRaw(laser.use_min_m / 2)));
+  const std::optional<UpdateProfile> update = model.Update(first.samples[1].raw[0]);
+  ASSERT_TRUE(update.has_value());
+  EXPECT_NEAR(update->free_bins * update->step_m, 2.0, update->step_m);
+}
+
+TEST(LaserTest, RangesTravelAsMillimetres) {
+  EXPECT_EQ(RangeToRaw(1.2345), 1235);  // rounded: 1234.5 mm -> 1235
+  EXPECT_EQ(RangeToRaw(65.535), 65535);
+  EXPECT_EQ(RangeToRaw(65.6), 0);
+  EXPECT_EQ(RangeToRaw(0.0), 0);
+  EXPECT_EQ(RangeToRaw(-1.0), 0);
+  EXPECT_EQ(RangeToRaw(std::nan("")), 0);
+  EXPECT_EQ(RangeToRaw(std::numeric_limits<double>::infinity()), 0);
+}
+
+TEST(LaserTest, ARangeSensorDescriptionIsCheckedAndRoundTrips) {
+  const RobotDescription lidar = LidarRobot();
+  EXPECT_TRUE(Validate(lidar).empty());
+  const auto back = io::RobotFromJson(io::RobotToJson(lidar));
+  ASSERT_TRUE(back.ok()) << back.Message();
+  EXPECT_EQ(io::RobotToJson(back.value()), io::RobotToJson(lidar));
+  EXPECT_DOUBLE_EQ(back.value().scanner.offset_x_m, 0.02);
+
+  RobotDescription bad = lidar;
+  SensorTypeDescription& type = bad.sensor_types.at("lidar");
+  type.beams.count = 0;
+  type.no_return_m = 5.0;   // inside the use window
+  type.range_max_m = 80.0;  // beyond what millimetres in 16 bits carry
+  type.use_min_m = 0.0;
+  type.calibration = {{900, 0.1}, {100, 1.0}};
+  const ConfigErrors errors = Validate(bad);
+  std::string all;
+  for (const ConfigError& e : errors) all += e.pointer + ": " + e.detail + "\n";
+  for (const char* pointer : {"/sensor_types/lidar/beams/count", "/sensor_types/lidar/no_return_m",
+                              "/sensor_types/lidar/range_m/1", "/sensor_types/lidar/use_m/0",
+                              "/sensor_types/lidar/calibration"}) {
+    EXPECT_NE(all.find(std::string(pointer) + ":"), std::string::npos) << pointer << "\n" << all;
+  }
+  // An unknown kind is refused by the reader.
+  nlohmann::json json = io::RobotToJson(lidar);
+  json["sensor_types"]["lidar"]["kind"] = "sonar";
+  const auto sonar = io::RobotFromJson(json);
+  ASSERT_FALSE(sonar.ok());
+  EXPECT_NE(sonar.Message().find("/sensor_types/lidar/kind"), std::string::npos) << sonar.Message();
+}
+
+TEST(LaserTest, TheSimulatedLidarIsRecordedAsACarmenLogAndMappedBetterThanOdometry) {
+  const testing::TempDir dir("lidar_experiment");
+  sim::ScenarioConfig config = sim::WithOdometryProfile({}, sim::OdometryProfile::kTracked);
+  config.duration_s = 60.0;
+  config.scans_per_s = 2.0;
+  config.seed = 7;
+  const RobotDescription robot = LidarRobot();
+  const std::string out = dir.File("rooms");
+  const Result<void> written =
+      sim::WriteSimulatedExperiment(out, *sim::BuiltinWorld("rooms"), "rooms", robot, config);
+  ASSERT_TRUE(written.ok()) << written.Message();
+  EXPECT_TRUE(fs::exists(out + "/log.clf"));
+  EXPECT_FALSE(fs::exists(out + "/can.log"));
+
+  const Result<offline::Experiment> load = offline::LoadExperiment(out);
+  ASSERT_TRUE(load.ok()) << load.Message();
+  const offline::Experiment& e = load.value();
+  EXPECT_EQ(e.meta.source, "sim");
+  EXPECT_EQ(e.robot.name, "marxbot-lidar");  // robot.json's, not one derived from the log
+  EXPECT_EQ(e.counters.bad_lines, 0u);
+  EXPECT_NEAR(static_cast<double>(e.scans.size()), 60.0 * 2.0, 2.0);
+  EXPECT_FALSE(e.ground_truth.empty());
+  ASSERT_FALSE(e.scans.empty());
+  EXPECT_EQ(e.scans.back().samples.size(), 360u);
+  size_t readings = 0;
+  for (const ScanSample& s : e.scans.back().samples) readings += s.raw[0] != 0;
+  EXPECT_GT(readings, 300u);  // a room: most beams see a wall within 12 m
+
+  offline::ReplayOptions options;
+  options.budget.rays_per_scan = 32500;
+  options.config.seed = 1;
+  const offline::ReplayResult slam = offline::Replay(e.robot, e.scans, e.ground_truth, options);
+  options.refine = false;
+  const offline::ReplayResult odometry = offline::Replay(e.robot, e.scans, e.ground_truth, options);
+  ASSERT_TRUE(slam.quality && odometry.quality);
+  EXPECT_LE(slam.rays_per_scan_max, 32500);
+  EXPECT_LT(slam.quality->ate_rmse_m, odometry.quality->ate_rmse_m);
+  EXPECT_LT(slam.quality->ate_rmse_m, 0.05);
+}
+
+}  // namespace
+}  // namespace slam
