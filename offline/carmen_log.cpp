@@ -1,7 +1,9 @@
 #include "offline/carmen_log.hpp"
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 
 #include "engine/io/text_fields.hpp"
 
@@ -33,7 +35,8 @@ class FieldReader {
   bool Count(size_t& value, const char* what) {
     double v = 0.0;
     if (!Number(v, what)) return false;
-    if (v < 0.0 || v != static_cast<double>(static_cast<size_t>(v)) || v > kMaxReadings) {
+    // The range first: converting a double beyond size_t's range is undefined.
+    if (!(v >= 0.0 && v <= static_cast<double>(kMaxReadings)) || v != std::floor(v)) {
       problem_ = std::string(what) + " " + std::string(fields_[next_ - 1]) + " is not a count";
       return false;
     }
@@ -48,6 +51,10 @@ class FieldReader {
     for (size_t i = 0; i < n; ++i) {
       double v = 0.0;
       if (!Number(v, what)) return false;
+      if (!(std::abs(v) <= std::numeric_limits<float>::max())) {  // would become infinite
+        problem_ = std::string(what) + " " + std::string(fields_[next_ - 1]) + " is out of range";
+        return false;
+      }
       values[i] = static_cast<float>(v);
     }
     return true;
@@ -117,6 +124,10 @@ bool ParseNewLaserHead(FieldReader& in, CarmenLaser& laser) {
       !in.Number(remission_mode, "remission_mode") || !in.Count(n, "the number of readings") ||
       !in.Readings(laser.ranges, n, "a range") ||
       !in.Count(remissions, "the number of remissions") || !in.Skip(remissions, "the remissions")) {
+    return false;
+  }
+  if (!(type >= 0.0 && type <= 1000.0) || type != std::floor(type)) {
+    in.Fail("the laser type is not a CARMEN laser type number");
     return false;
   }
   beams.laser_type = static_cast<int>(type);

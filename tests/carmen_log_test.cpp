@@ -80,7 +80,7 @@ TEST(CarmenLogTest, MalformedLinesAreCountedSkippedAndNamedByLine) {
       "FLASER 2 1.0 2.0 10 host 10\n"
       "FLASER 5 1.0 2.0 11 host 11\n"             // fewer readings than announced
       "FLASER 2 1.0 nan 12 host 12\n"             // not finite
-      "FLASER -2 1.0 2.0 13 host 13\n"            // not a count
+      "FLASER 1e20 1.0 2.0 13 host 13\n"          // not a count (beyond any size_t)
       "ODOM 1 2 3 0 0 0 14\n"                     // truncated
       "ODOM 1 2 x 0 0 0 15 host 15\n"             // not a number
       "RAWLASER1 0 -1 2 0 5 0.01 0 2 1 2 0 16\n"  // no host name, no logger time
@@ -105,7 +105,7 @@ TEST(CarmenLogTest, MalformedLinesAreCountedSkippedAndNamedByLine) {
   }
   EXPECT_NE(log.problems[1].find("\"nan\" is not a finite number"), std::string::npos)
       << log.problems[1];
-  EXPECT_NE(log.problems[2].find("-2 is not a count"), std::string::npos) << log.problems[2];
+  EXPECT_NE(log.problems[2].find("1e20 is not a count"), std::string::npos) << log.problems[2];
   EXPECT_NE(log.problems[4].find("ODOM: the pose \"x\""), std::string::npos) << log.problems[4];
 }
 
