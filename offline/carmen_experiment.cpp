@@ -6,6 +6,7 @@
 #include <limits>
 #include <map>
 
+#include "engine/io/text_fields.hpp"
 #include "engine/sensor_model.hpp"
 #include "offline/experiment_reader.hpp"
 
@@ -35,9 +36,8 @@ std::string FrontMessage(const CarmenLog& log) {
 std::optional<double> ParamNumber(const CarmenLog& log, const std::string& key) {
   const auto it = log.params.find(key);
   if (it == log.params.end()) return std::nullopt;
-  char* end = nullptr;
-  const double value = std::strtod(it->second.c_str(), &end);
-  if (end == it->second.c_str() || *end != '\0' || !std::isfinite(value)) return std::nullopt;
+  double value = 0.0;
+  if (!io::ParseFiniteDouble(it->second, value)) return std::nullopt;
   return value;
 }
 
