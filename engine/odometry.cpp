@@ -32,9 +32,10 @@ Pose2 OdometryIntegrator::Add(const OdometryReading& reading) {
     const double trans = 0.5 * (left + right) / base_.ticks_per_m;
     // Trapezoidal integration of the gyro's rate; out-of-order readings add no rotation. Across
     // a gap (lost readings, or a log's clock jump, whose length is made up) two rates say nothing
-    // of the turn between them: the treels' ticks do, slip included.
+    // of the turn between them: the treels' ticks do, slip included. A robot without a gyro
+    // (BaseDescription::heading_from_gyro) always turns by its encoders.
     double dtheta = 0.0;
-    if (dt > kMaxGyroStepS) {
+    if (!base_.heading_from_gyro || dt > kMaxGyroStepS) {
       dtheta = (right - left) / base_.ticks_per_m / base_.track_width_m;
     } else if (dt > 0) {
       const double rate_dps = 0.5 * (reading.gyro_raw + last_->gyro_raw) * base_.gyro_unit_dps;

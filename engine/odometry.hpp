@@ -19,7 +19,8 @@ class OdometryIntegrator {
 
   /// Integrates one reading (in time order) and returns the dead-reckoned pose at its time.
   /// The first reading only sets the reference. Encoder counters may wrap. Translation comes
-  /// from the encoders, rotation from the gyro (from the encoders across a gap).
+  /// from the encoders, rotation from the gyro (from the encoders across a gap, or always for a
+  /// robot without a gyro).
   Pose2 Add(const OdometryReading& reading);
 
   /// Whether `reading` (after the last one in time) moves each treel no further than the

@@ -260,4 +260,16 @@ ConfigErrors Validate(const RobotDescription& robot) {
   return errors;
 }
 
+bool HasRangeScanner(const RobotDescription& robot) {
+  for (const ScannerSensor& sensor : robot.scanner.sensors) {
+    const auto type = robot.sensor_types.find(sensor.type);
+    if (type != robot.sensor_types.end() && type->second.kind == SensorKind::kRange) return true;
+  }
+  return false;
+}
+
+double DefaultResolution(const RobotDescription& robot) {
+  return HasRangeScanner(robot) ? 0.05 : 0.01;
+}
+
 }  // namespace slam

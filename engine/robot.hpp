@@ -22,6 +22,10 @@ struct BaseDescription {
   double track_width_m = 0.15;
   double ticks_per_m = 11375.0;
   double gyro_unit_dps = 0.01;  // degrees per second per gyro unit
+  /// Where dead reckoning takes its heading from: the gyro (the marXbot's), or the encoders alone
+  /// (a robot without one, such as the Pioneers of many recorded logs; the event's gyro word is
+  /// then ignored).
+  bool heading_from_gyro = true;
   /// The fastest either treel can move. Odometry implying more (a spoofed or corrupted
   /// message, encoder counters that restarted) is refused by the scan assembler; generous by
   /// default, since it only has to tell the impossible from the possible.
@@ -91,6 +95,15 @@ struct RobotDescription {
 
 /// Checks a description for consistency; empty when valid.
 ConfigErrors Validate(const RobotDescription& robot);
+
+/// Whether the robot's scanner reports ranges (a laser or time-of-flight scanner) rather than
+/// the marXbot's infrared readings. Precondition: Validate(robot) is empty.
+bool HasRangeScanner(const RobotDescription& robot);
+
+/// The grid cell size that suits the robot's scanner when none is given: 1 cm for the
+/// marXbot's infrared scanner (its readings end within 1.5 m), 5 cm for a range scanner (tens of
+/// metres in a building, as laser SLAM maps usually are).
+double DefaultResolution(const RobotDescription& robot);
 
 /// Odometry event of the base: cumulative treel encoder counts (wrapping int32) and gyro rate.
 struct OdometryReading {

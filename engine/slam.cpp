@@ -331,6 +331,9 @@ ConfigErrors SlamConfig::Validate() const {
         "must be in (0, 1)");
   check(std::isfinite(match_range_sigmas) && match_range_sigmas >= 1 && match_range_sigmas <= 10,
         "/match_range_sigmas", "must be in [1, 10]");
+  check(std::isfinite(range_sigma_min_cells) && range_sigma_min_cells >= 0 &&
+            range_sigma_min_cells <= 10,
+        "/range_sigma_min_cells", "must be in [0, 10]");
   return errors;
 }
 
@@ -400,6 +403,9 @@ std::vector<Slam::Measurement> Slam::CollectMeasurements(const Scan& scan) const
       // Reading noise plus the grid's quantisation of where a surface lies (uniform in a cell).
       m.sigma_m = std::sqrt(model.Sigma(*d) * model.Sigma(*d) +
                             config_.resolution_m * config_.resolution_m / 12.0);
+      if (model.description().kind == SensorKind::kRange) {
+        m.sigma_m = std::max(m.sigma_m, config_.range_sigma_min_cells * config_.resolution_m);
+      }
       m.local_angle = sample.platform_angle_rad +
                       DegToRad(robot_.scanner.sensors[static_cast<size_t>(k)].angle_deg);
       m.local_direction = Vec2(std::cos(m.local_angle), std::sin(m.local_angle));

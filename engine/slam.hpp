@@ -31,6 +31,13 @@ struct SlamConfig {
   double match_floor = 0.05;
   /// Matching rays stop this many sigmas beyond the measured distance.
   double match_range_sigmas = 3.0;
+  /// A range scanner's readings are matched with a deviation of at least this many cells: a
+  /// laser's own noise (a centimetre) is far below what a grid of 5 cm cells, built from poses
+  /// that err by about a cell, can tell; matched that sharply, the likelihood has a narrow peak
+  /// that the candidates miss and a map that is off by a cell rejects good poses (grid matchers
+  /// use about one cell: GMapping's sigma of 5 cm at 5 cm cells). Chosen among 0 and 1 on the
+  /// simulated laser experiments (docs/laser.md). The infrared sensors keep their calibrated noise.
+  double range_sigma_min_cells = 1.0;
   /// Phase B's estimate: the peak of the log-likelihood fitted over the candidates, with the
   /// motion prior (true), or the best candidate alone (false, the paper's). docs/design.md,
   /// phase B.

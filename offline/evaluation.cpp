@@ -162,6 +162,7 @@ std::vector<EvaluationRun> Evaluate(
             options.params = tuned != plan.params_by_budget.end() ? tuned->second : plan.params;
             options.config.seed = plan.seed;
             options.config.parallel = false;  // one thread per run; runs are the parallelism
+            options.config.resolution_m = plan.resolution_m;
             options.budget.rays_per_scan = run.budget;
             options.budget.policy = plan.policy;
             options.budget.max_particles = plan.max_particles;
@@ -169,6 +170,10 @@ std::vector<EvaluationRun> Evaluate(
             const ReplayResult result =
                 Replay(experiment.robot, experiment.scans, experiment.ground_truth, options);
             run.summary = ReplaySummary(experiment, result, options);
+            if (!plan.relations.empty()) {
+              run.summary["relations"] =
+                  RelationsToJson(ScoreRelations(result.trajectory, plan.relations));
+            }
             if (!plan.outputs_dir.empty()) {
               const std::filesystem::path dir =
                   std::filesystem::path(plan.outputs_dir) / experiment.meta.name /

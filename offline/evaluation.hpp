@@ -13,6 +13,7 @@
 #include "engine/params.hpp"
 #include "engine/result.hpp"
 #include "offline/experiment_reader.hpp"
+#include "offline/relations.hpp"
 #include "scheduler/params_catalog.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 
@@ -32,8 +33,12 @@ struct EvaluationPlan {
   BudgetPolicy policy = BudgetPolicy::kFixed;
   int max_particles = BudgetSettings{}.max_particles;
   uint64_t seed = 1;
-  int jobs = 0;             // concurrent replays; 0: one per core
-  std::string outputs_dir;  // when set: each run's map and trajectory in a subdirectory
+  int jobs = 0;               // concurrent replays; 0: one per core
+  std::string outputs_dir;    // when set: each run's map and trajectory in a subdirectory
+  double resolution_m = 0.0;  // the grid's cell size; 0: each experiment's robot's
+  /// Benchmark relations (slam-evaluate --relations): when given, every run's summary gains a
+  /// `relations` object, as slam-replay's.
+  std::vector<Relation> relations;
 };
 
 struct EvaluationRun {

@@ -108,17 +108,28 @@ Result<Experiment> LoadExperiment(const std::string& dir,
   experiment.dir = dir;
   std::vector<std::string> errors;
 
-  auto robot = io::LoadRobot(file("robot.json"));
-  if (!robot.ok()) {
-    errors.push_back(robot.Message());
-  } else {
-    experiment.robot = robot.value();
+  // A robot with a laser is recorded as a CARMEN log (log.clf) instead of can.log; beside it
+  // robot.json and meta.json are optional (the robot is then derived from the log, and the
+  // directory names the experiment).
+  const bool carmen =
+      !std::filesystem::exists(file("can.log"), ec) && std::filesystem::exists(file("log.clf"), ec);
+  const bool has_robot = !carmen || std::filesystem::exists(file("robot.json"), ec);
+  const bool has_meta = !carmen || std::filesystem::exists(file("meta.json"), ec);
+  if (has_robot) {
+    auto robot = io::LoadRobot(file("robot.json"));
+    if (!robot.ok()) {
+      errors.push_back(robot.Message());
+    } else {
+      experiment.robot = robot.value();
+    }
   }
-  auto meta = io::LoadExperimentMeta(file("meta.json"));
-  if (!meta.ok()) {
-    errors.push_back(meta.Message());
-  } else {
-    experiment.meta = std::move(meta).value();
+  if (has_meta) {
+    auto meta = io::LoadExperimentMeta(file("meta.json"));
+    if (!meta.ok()) {
+      errors.push_back(meta.Message());
+    } else {
+      experiment.meta = std::move(meta).value();
+    }
   }
   if (std::filesystem::exists(file("groundtruth.tum"), ec)) {
     auto truth = io::LoadTum(file("groundtruth.tum"));
@@ -136,9 +147,6 @@ Result<Experiment> LoadExperiment(const std::string& dir,
       experiment.world = std::move(world).value();
     }
   }
-  // A robot with a laser is recorded as a CARMEN log (log.clf) instead of can.log.
-  const bool carmen =
-      !std::filesystem::exists(file("can.log"), ec) && std::filesystem::exists(file("log.clf"), ec);
   if (!carmen && !std::filesystem::exists(file("can.log"), ec)) {
     errors.push_back(file("can.log") + ": cannot open (No such file or directory)");
   }
@@ -150,12 +158,18 @@ Result<Experiment> LoadExperiment(const std::string& dir,
 
   if (carmen) {
     CarmenOptions options;
-    options.robot = experiment.robot;
+    if (has_robot) options.robot = experiment.robot;
     Result<Experiment> log = LoadCarmenExperiment(file("log.clf"), options);
     if (!log.ok()) return log;
     Experiment& read = log.value();
     read.dir = dir;
-    read.meta = std::move(experiment.meta);
+    if (has_meta) {
+      read.meta = std::move(experiment.meta);
+    } else {
+      std::filesystem::path named = std::filesystem::absolute(base, ec).lexically_normal();
+      if (!named.has_filename()) named = named.parent_path();  // "dir/"
+      if (!named.filename().empty()) read.meta.name = named.filename().string();
+    }
     read.ground_truth = std::move(experiment.ground_truth);
     read.world = std::move(experiment.world);
     return log;

@@ -51,9 +51,12 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   RayBudgetScheduler scheduler(options.budget, options.scheduler);
   // The set of the first scan's quota builds the engine; later scans switch sets when their quota
   // (a CPU share's) calls for another one.
-  const ParamsSet* in_use = &options.params.For(
+  const ParamsChoice params = options.params.ForRobot(robot);  // a laser's shipped family
+  const ParamsSet* in_use = &params.For(
       scheduler.Quota(scans.empty() ? 0.0 : scans.front().t_end - scans.front().t_begin));
-  Slam engine(robot, in_use->params, options.config);
+  SlamConfig config = options.config;
+  if (config.resolution_m == 0.0) config.resolution_m = DefaultResolution(robot);
+  Slam engine(robot, in_use->params, config);
   engine.set_interrupt(options.cancel);  // a scan of a huge budget ends soon after a cancel
   int64_t rays_total = 0, rays_max = 0, resamplings = 0, switches = 0;
   std::vector<PlanRecord> plans;
@@ -73,7 +76,7 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
     }
     const Scan& scan = scans[k];
     const double scan_cpu_start = CpuSeconds(options.config.parallel);
-    const ParamsSet& set = options.params.For(scheduler.Quota(scan.t_end - scan.t_begin));
+    const ParamsSet& set = params.For(scheduler.Quota(scan.t_end - scan.t_begin));
     if (set.name != in_use->name) {
       engine.SetParams(set.params);
       in_use = &set;

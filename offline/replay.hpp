@@ -25,11 +25,20 @@
 
 namespace slam::offline {
 
+/// The engine's defaults, but resolution_m 0: the robot's cell size (DefaultResolution).
+inline SlamConfig RobotResolutionConfig() {
+  SlamConfig config;
+  config.resolution_m = 0.0;
+  return config;
+}
+
 struct ReplayOptions {
   /// The parameters: one set (here the paper's untuned Table II defaults), or the shipped sets
   /// chosen by each scan's quota (ParamsChoice{}: what the tools do without --params).
   ParamsChoice params{"table-ii", SlamParams{}};
-  SlamConfig config;      // seed and parallel among others
+  /// Seed and parallel among others. Its resolution_m of 0 (the default here) means the robot's
+  /// cell size (DefaultResolution: 1 cm for the marXbot's scanner, 5 cm for a laser).
+  SlamConfig config = RobotResolutionConfig();
   BudgetSettings budget;  // rays per scan or CPU share, fixed or adaptive policy
   SchedulerConfig scheduler;
   bool refine = true;  // false: phase B off, odometry-only mapping

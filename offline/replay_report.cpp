@@ -94,6 +94,7 @@ nlohmann::json ReplaySummary(const offline::Experiment& experiment, const Replay
   j["params_set"] = run.params_set.name;
   if (options.params.follows_quota()) j["params_switches"] = run.params_switches;
   j["seed"] = options.config.seed;
+  j["resolution_m"] = run.map.geometry().resolution();
   if (run.quality) {
     j["q"] = run.quality->q_cm2;
     j["e"] = run.quality->e;

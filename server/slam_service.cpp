@@ -92,7 +92,7 @@ SlamService::SlamService(hw::Link& link, const sim::VirtualMarxbotSource* truth_
       options_(options),
       scheduler_(options.budget, options.scheduler),
       assembler_(options.robot, options.assembler),
-      params_(options.params) {
+      params_(options.params.ForRobot(options.robot)) {
   options_.config.parallel = false;
   {
     MutexLock lock(mutex_);
@@ -162,7 +162,7 @@ ParamsSet SlamService::Params() const {
 
 ParamsSet SlamService::ShippedParamsNow() const {
   MutexLock lock(mutex_);
-  return ShippedParamsFor(scheduler_.Quota(last_period_s_));
+  return ShippedParamsFor(scheduler_.Quota(last_period_s_), FamilyOf(options_.robot));
 }
 
 bool SlamService::ParamsFollowQuota() const {
@@ -184,7 +184,7 @@ void SlamService::SetParams(const std::string& name, const SlamParams& params) {
 
 void SlamService::UseShippedParams() {
   MutexLock lock(mutex_);
-  params_ = ParamsChoice{};
+  params_ = ParamsChoice(FamilyOf(options_.robot));
   params_changed_ = true;
   ReviseParams();
 }

@@ -177,6 +177,7 @@ int main(int argc, char** argv) {
   service_options.params = params;
   service_options.budget = budget;
   service_options.config.seed = seed;
+  service_options.config.resolution_m = slam::DefaultResolution(robot.value());
   service_options.resume_at_origin = source.rfind("sim:", 0) == 0;
   // Held until slamd exits: a second slamd on the same directory would race its saves.
   std::optional<slam::server::StateDirLock> state_lock;
@@ -191,7 +192,7 @@ int main(int argc, char** argv) {
     }
     if (std::optional<slam::server::SavedState>& saved = loaded.value(); saved) {
       if (std::abs(saved->resolution_m - service_options.config.resolution_m) > 1e-12) {
-        return Fail(state_dir + ": the saved map's resolution differs from this build's");
+        return Fail(state_dir + ": the saved map's resolution differs from this robot's");
       }
       service_options.resume = std::move(saved);
     }

@@ -130,15 +130,17 @@ TEST(ShippedConfig, EveryJsonFileUnderConfigLoads) {
       const Result<RobotDescription> robot = LoadRobot(path);
       EXPECT_TRUE(robot.ok()) << robot.Message();
       ++robots;
-    } else if (name.rfind("params", 0) == 0 || entry.path().parent_path().filename() == "params") {
-      // params*.json, and the shipped sets config/params/<budget>.json (ParamsCatalogTest
-      // checks that the compiled-in copies are these files).
+    } else if (name.rfind("params", 0) == 0 || entry.path().parent_path().filename() == "params" ||
+               entry.path().parent_path() == kConfigDir / "params" / "laser") {
+      // params*.json, and the shipped sets config/params/<budget>.json and
+      // config/params/laser/<budget>.json (ParamsCatalogTest checks that the compiled-in copies
+      // are these files).
       const Result<SlamParams> loaded = LoadParams(path);
       EXPECT_TRUE(loaded.ok()) << loaded.Message();
       ++params;
     } else {
-      ADD_FAILURE() << "unknown kind of config file (expected *.robot.json, params*.json or "
-                       "params/<budget>.json)";
+      ADD_FAILURE() << "unknown kind of config file (expected *.robot.json, params*.json, "
+                       "params/<budget>.json or params/laser/<budget>.json)";
     }
   }
   EXPECT_GE(robots, 1);

@@ -10,9 +10,12 @@
 #include <string>
 
 #include "engine/io/robot_json.hpp"
+#include "engine/odometry.hpp"
 #include "engine/sensor_model.hpp"
 #include "offline/experiment_reader.hpp"
 #include "offline/replay.hpp"
+#include "offline/replay_report.hpp"
+#include "scheduler/params_catalog.hpp"
 #include "sim/experiment_writer.hpp"
 #include "sim/world.hpp"
 #include "tests/test_support.hpp"
@@ -133,6 +136,92 @@ TEST(LaserTest, ARangeSensorDescriptionIsCheckedAndRoundTrips) {
   const auto sonar = io::RobotFromJson(json);
   ASSERT_FALSE(sonar.ok());
   EXPECT_NE(sonar.Message().find("/sensor_types/lidar/kind"), std::string::npos) << sonar.Message();
+}
+
+TEST(LaserTest, ARobotWithoutAGyroTurnsByItsEncoders) {
+  RobotDescription robot = LidarRobot();
+  robot.base.heading_from_gyro = false;
+  const auto back = io::RobotFromJson(io::RobotToJson(robot));
+  ASSERT_TRUE(back.ok()) << back.Message();
+  EXPECT_FALSE(back.value().base.heading_from_gyro);
+  EXPECT_EQ(io::RobotToJson(robot)["base"]["heading"], "encoders");
+  EXPECT_FALSE(io::RobotToJson(LidarRobot())["base"].contains("heading"));  // the default: gyro
+
+  nlohmann::json json = io::RobotToJson(robot);
+  json["base"]["heading"] = "compass";
+  const auto bad = io::RobotFromJson(json);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.Message().find("/base/heading"), std::string::npos) << bad.Message();
+
+  // 20 ms apart, the gyro claiming 90 deg/s: the encoders alone turn a robot without one.
+  const BaseDescription& base = robot.base;
+  const auto ticks = [&](double metres) { return static_cast<int32_t>(metres * base.ticks_per_m); };
+  const int16_t gyro = static_cast<int16_t>(90.0 / base.gyro_unit_dps);
+  for (const bool from_gyro : {true, false}) {
+    BaseDescription b = base;
+    b.heading_from_gyro = from_gyro;
+    OdometryIntegrator odometry(b);
+    odometry.Add({0.0, 0, 0, 0, gyro});
+    // The right treel 1 cm ahead of the left one: 0.01 / track_width radians.
+    const Pose2 p = odometry.Add({0.02, 1, ticks(0.0), ticks(0.01), gyro});
+    const double expected = from_gyro ? DegToRad(90.0) * 0.02 : 0.01 / b.track_width_m;
+    EXPECT_NEAR(p.theta, expected, 1e-3) << (from_gyro ? "gyro" : "encoders");
+  }
+}
+
+TEST(LaserTest, ALaserRobotGetsFiveCentimetreCellsAndTheLaserParameters) {
+  const RobotDescription lidar = LidarRobot();
+  const RobotDescription marxbot = testing::ShippedRobot();
+  EXPECT_TRUE(HasRangeScanner(lidar));
+  EXPECT_FALSE(HasRangeScanner(marxbot));
+  EXPECT_DOUBLE_EQ(DefaultResolution(lidar), 0.05);
+  EXPECT_DOUBLE_EQ(DefaultResolution(marxbot), 0.01);
+  EXPECT_EQ(FamilyOf(lidar), ParamsFamily::kRange);
+  EXPECT_EQ(FamilyOf(marxbot), ParamsFamily::kInfrared);
+  const ParamsChoice shipped;
+  EXPECT_EQ(shipped.ForRobot(lidar).For(8125).name, "shipped-laser-8125");
+  EXPECT_EQ(shipped.ForRobot(marxbot).For(8125).name, "shipped-8125");
+  const ParamsChoice given("mine.json", SlamParams{});
+  EXPECT_EQ(given.ForRobot(lidar).For(8125).name, "mine.json");
+
+  // A replay of a laser robot without a resolution or parameters of its own takes both.
+  const testing::TempDir dir("lidar_defaults");
+  sim::ScenarioConfig config = sim::WithOdometryProfile({}, sim::OdometryProfile::kTracked);
+  config.duration_s = 10.0;
+  config.scans_per_s = 1.0;
+  const std::string out = dir.File("rooms");
+  ASSERT_TRUE(
+      sim::WriteSimulatedExperiment(out, *sim::BuiltinWorld("rooms"), "rooms", lidar, config).ok());
+  const Result<offline::Experiment> load = offline::LoadExperiment(out);
+  ASSERT_TRUE(load.ok()) << load.Message();
+  offline::ReplayOptions options;
+  options.params = ParamsChoice{};
+  options.budget.rays_per_scan = 16250;
+  const offline::ReplayResult run =
+      offline::Replay(load.value().robot, load.value().scans, load.value().ground_truth, options);
+  EXPECT_DOUBLE_EQ(run.map.geometry().resolution(), 0.05);
+  EXPECT_EQ(run.params_set.name, "shipped-laser-16250");
+  const nlohmann::json summary = offline::ReplaySummary(load.value(), run, options);
+  EXPECT_DOUBLE_EQ(summary["resolution_m"].get<double>(), 0.05);
+}
+
+TEST(LaserTest, ALogDirectoryNeedsNoMetaAndIsNamedAfterItself) {
+  const testing::TempDir dir("carmen_dir");
+  const std::string exp = dir.File("hallway-run");
+  fs::create_directories(exp);
+  std::ofstream(exp + "/log.clf") << "ODOM 0 0 0 0 0 0 10.0 h 10.0\n"
+                                     "FLASER 3 1.0 2.0 1.5 0 0 0 0 0 0 10.0 h 10.0\n"
+                                     "ODOM 0.1 0 0 0 0 0 11.0 h 11.0\n"
+                                     "FLASER 3 1.0 2.0 1.5 0.1 0 0 0.1 0 0 11.0 h 11.0\n";
+  const Result<offline::Experiment> load = offline::LoadExperiment(exp + "/");
+  ASSERT_TRUE(load.ok()) << load.Message();
+  EXPECT_EQ(load.value().meta.name, "hallway-run");
+  EXPECT_EQ(load.value().scans.size(), 2u);
+  // A meta.json that is there must be valid.
+  std::ofstream(exp + "/meta.json") << "{\"name\": 3}";
+  const Result<offline::Experiment> bad = offline::LoadExperiment(exp);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.Message().find("meta.json"), std::string::npos) << bad.Message();
 }
 
 TEST(LaserTest, TheSimulatedLidarIsRecordedAsACarmenLogAndMappedBetterThanOdometry) {

@@ -632,6 +632,22 @@ TEST_F(ReplayTest, RelationsScoreTheTrajectoryAndOdometryOnTheBenchmarkMetric) {
   EXPECT_NEAR(r["translational_m"]["squared_mean"].get<double>(),
               std::pow(slam_m, 2) + std::pow(r["translational_m"]["std"].get<double>(), 2), 1e-12);
 
+  // slam-evaluate --relations scores each of its runs the same way.
+  const auto loaded = offline::LoadRelations(relations);
+  ASSERT_TRUE(loaded.ok()) << loaded.Message();
+  offline::EvaluationPlan plan;
+  plan.budgets = {65000};
+  plan.odometry_only = false;
+  plan.relations = loaded.value();
+  const auto evaluated = offline::Evaluate(std::vector<offline::Experiment>{e}, plan);
+  ASSERT_EQ(evaluated.size(), 1u);
+  ASSERT_TRUE(evaluated[0].summary.contains("relations"));
+  const Json& scored = evaluated[0].summary["relations"];
+  EXPECT_EQ(scored["count"], written);
+  EXPECT_NEAR(scored["translational_m"]["mean"].get<double>(), slam_m, 1e-9);
+  EXPECT_NEAR(scored["rotational_deg"]["mean"].get<double>(),
+              r["rotational_deg"]["mean"].get<double>(), 1e-9);
+
   // A bad relations file is refused before the replay, naming its line.
   std::ofstream(relations, std::ios::app) << "1 2 3\n";
   const CommandResult bad = RunCommand(tool + " --relations " + relations, scratch);

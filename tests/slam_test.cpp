@@ -7,6 +7,7 @@
 
 #include "engine/cell_encoding.hpp"
 #include "engine/grid_traversal.hpp"
+#include "engine/io/robot_json.hpp"
 #include "engine/quality.hpp"
 #include "engine/sensor_model.hpp"
 #include "scheduler/fixed_plan.hpp"
@@ -187,6 +188,59 @@ TEST(Matching, RefinementRecoversAWrongPoseWithinOneCellAndHalfADegree) {
       blind.ProcessScan(ScanAt(robot, room, truth, 0, truth, wrong), plan);
   EXPECT_EQ(blind_report.rays.matching, 0);
   EXPECT_NEAR(blind.Best().pose.x, wrong.x, 1e-12);
+}
+
+// A laser's readings are matched with at least a cell's deviation (SlamConfig::
+// range_sigma_min_cells): a pose off by about a cell loses little likelihood, where matched at
+// the laser's own centimetre it loses most. The infrared scanner's matching does not change.
+TEST(Matching, ALasersReadingsAreMatchedWithAtLeastACellsDeviation) {
+  const auto lidar = io::LoadRobot(std::string(SLAM_SOURCE_DIR) + "/config/lidar.robot.json");
+  ASSERT_TRUE(lidar.ok()) << lidar.Message();
+  const RobotDescription& robot = lidar.value();
+  const SensorTypeDescription& type = robot.sensor_types.at(robot.scanner.sensors[0].type);
+  sim::World room = TestArena();
+  const Pose2 truth{0.0213, -0.0117, DegToRad(7.0)};
+  // One sweep at rest: every beam a sample at the same pose.
+  Scan scan;
+  scan.t_begin = 0.0;
+  scan.t_end = 0.5;
+  scan.odom_begin = scan.odom_end = truth;
+  for (int beam = 0; beam < type.beams.count; ++beam) {
+    ScanSample s;
+    s.t = scan.t_end;
+    s.odom = truth;
+    s.platform_angle_rad = DegToRad(type.beams.AngleDeg(beam));
+    const Vec2 origin = truth.Transform({robot.scanner.offset_x_m, robot.scanner.offset_y_m});
+    const auto d = sim::RayDistance(room, origin, truth.theta + s.platform_angle_rad, 12.0);
+    s.raw[0] = d ? RangeToRaw(*d) : 0;
+    scan.samples.push_back(s);
+  }
+  const Pose2 off{truth.x + 0.03, truth.y - 0.02, truth.theta + DegToRad(1.0)};
+  const auto loss = [&](double min_cells) {
+    SlamConfig config;
+    config.resolution_m = 0.05;
+    config.range_sigma_min_cells = min_cells;
+    Slam slam(robot, SlamParams{}, config);
+    slam.Restore(DrawMap(room, config.resolution_m), truth);
+    const double at_truth = slam.ScoreScan(scan, truth), at_off = slam.ScoreScan(scan, off);
+    EXPECT_GT(at_truth, at_off);  // the true pose wins either way
+    return at_truth - at_off;
+  };
+  const double sharp = loss(0.0), floored = loss(1.0);
+  EXPECT_GT(sharp, 2.0 * floored) << sharp << " vs " << floored;
+  EXPECT_GT(floored, 0.0);
+  // The marXbot's infrared readings keep their calibrated deviation whatever the floor.
+  const RobotDescription marxbot = testing::ShippedRobot();
+  const Scan ir = ScanAt(marxbot, room, truth, 0, truth, truth);
+  double scores[2];
+  for (const int cells : {0, 1}) {
+    SlamConfig config;
+    config.range_sigma_min_cells = cells;
+    Slam slam(marxbot, SlamParams{}, config);
+    slam.Restore(DrawMap(room, config.resolution_m), truth);
+    scores[cells] = slam.ScoreScan(ir, off);
+  }
+  EXPECT_EQ(scores[0], scores[1]);
 }
 
 TEST(Matching, WhereTheReadingsCannotTellPosesApartTheOdometryWins) {

@@ -41,8 +41,10 @@ int main(int argc, char** argv) {
   bool maps = false;
   bool require = false;
   std::string policy_name = "fixed";
+  double plan_resolution = 0.0;  // each experiment's robot's
   int max_particles = slam::BudgetSettings{}.max_particles;
-  app.add_option("DIRS", inputs, "experiment directories, or datasets of them")->required();
+  app.add_option("DIRS", inputs, "experiment directories (or CARMEN logs), or datasets of them")
+      ->required();
   app.add_option("--out", out_dir, "output directory, created if needed")->required();
   app.add_option("--budgets", budgets, "rays per scan")
       ->delimiter(',')
@@ -68,12 +70,26 @@ int main(int argc, char** argv) {
       ->capture_default_str()
       ->check(CLI::Range(0, 256));
   app.add_flag("--maps", maps, "also write each run's map and trajectory under OUT/runs/");
+  std::string relations_path;
+  app.add_option("--relations", relations_path,
+                 "benchmark relations (Freiburg format) scoring every run, as slam-replay's "
+                 "--relations (for one log, or experiments sharing a clock)");
+  app.add_option("--resolution", plan_resolution,
+                 "grid cell size in metres [each robot's: 0.01 for the marXbot's infrared "
+                 "scanner, 0.05 for a laser]")
+      ->check(CLI::Range(0.002, 1.0));
   app.add_flag("--require-checks", require,
                "exit with status 3 unless SLAM beats odometry-only on every experiment at the "
                "largest budget, halves its mean ATE, and mean q improves with the budget");
   CLI11_PARSE(app, argc, argv);
 
   slam::offline::EvaluationPlan plan;
+  plan.resolution_m = plan_resolution;
+  if (!relations_path.empty()) {
+    auto loaded = slam::offline::LoadRelations(relations_path);
+    if (!loaded.ok()) return Fail(loaded.Message());
+    plan.relations = std::move(loaded).value();
+  }
   plan.budgets = budgets;
   std::sort(plan.budgets.begin(), plan.budgets.end());
   plan.budgets.erase(std::unique(plan.budgets.begin(), plan.budgets.end()), plan.budgets.end());

@@ -83,13 +83,19 @@ int main(int argc, char** argv) {
   uint64_t seed = 1;
   int threads = 0;
   bool quiet = false;
-  double resolution = slam::SlamConfig{}.resolution_m;
+  double resolution = 0.0;  // the robot's
   app.add_option("EXP_DIR", experiment_dir, "recorded experiment directory, or a CARMEN log")
       ->required();
   app.add_option("--resolution", resolution,
-                 "grid cell size in metres (5 cm suits a laser in a building)")
-      ->capture_default_str()
+                 "grid cell size in metres [the robot's: 0.01 for the marXbot's infrared "
+                 "scanner, 0.05 for a laser]")
       ->check(CLI::Range(0.002, 1.0));
+  double range_sigma_min_cells = slam::SlamConfig{}.range_sigma_min_cells;
+  app.add_option("--range-sigma-cells", range_sigma_min_cells,
+                 "a range scanner's readings are matched with a deviation of at least this many "
+                 "cells (0: the sensor's own noise)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 10.0));
   app.add_option("--params", params_path,
                  "SLAM parameters (JSON, Table II keys) [the shipped set of the budget, "
                  "config/params/]");
@@ -169,6 +175,7 @@ int main(int argc, char** argv) {
   options.params = params;
   options.config.seed = seed;
   options.config.resolution_m = resolution;
+  options.config.range_sigma_min_cells = range_sigma_min_cells;
   options.budget.rays_per_scan = budget;
   options.budget.policy = *slam::ParseBudgetPolicy(policy_name);
   options.budget.max_particles = max_particles;

@@ -57,13 +57,16 @@ bool ResolveWorld(const std::string& spec, slam::sim::World& world, std::string&
 
 int main(int argc, char** argv) {
   CLI::App app{
-      "Writes recorded experiments of the virtual marXbot: robot.json, can.log (candump -l), "
-      "groundtruth.tum, meta.json and world.json per experiment."};
+      "Writes recorded experiments of the virtual marXbot: robot.json, can.log (candump -l; "
+      "log.clf, a CARMEN log, for a robot whose scanner is a laser), groundtruth.tum, meta.json "
+      "and world.json per experiment."};
   std::string world_spec, out_dir;
   std::string robot_path = std::string(SLAM_SOURCE_DIR) + "/config/marxbot.robot.json";
   double duration_s = 300.0;
   uint64_t seed = 1;
   double scans_per_s = 1.5;
+  double speed_m_s = slam::sim::ScenarioConfig{}.speed_m_s;
+  double turn_rate_rad_s = slam::sim::ScenarioConfig{}.turn_rate_rad_s;
   std::string odometry = "tracked";
   app.add_option(
       "--world", world_spec,
@@ -77,6 +80,14 @@ int main(int argc, char** argv) {
   app.add_option("--scans-per-s", scans_per_s, "half turns of the scanner per second")
       ->capture_default_str()
       ->check(CLI::Range(0.1, 5.0));
+  app.add_option("--speed", speed_m_s,
+                 "cruising speed in m/s (the marXbot's 0.12; a Pioneer "
+                 "with a laser, 0.3 to 0.5)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.01, 2.0));
+  app.add_option("--turn-rate", turn_rate_rad_s, "turning rate in place, rad/s")
+      ->capture_default_str()
+      ->check(CLI::Range(0.05, 5.0));
   app.add_option("--odometry", odometry,
                  "how the odometry errs: tracked (a tracked robot with a MEMS gyro: dead "
                  "reckoning drifts decimetres to metres in 300 s) or gentle (the original "
@@ -110,6 +121,8 @@ int main(int argc, char** argv) {
   slam::sim::ScenarioConfig base;
   base.duration_s = duration_s;
   base.scans_per_s = scans_per_s;
+  base.speed_m_s = speed_m_s;
+  base.turn_rate_rad_s = turn_rate_rad_s;
 
   std::vector<Job> jobs;
   // Each set's directory and the jobs of its index.json.

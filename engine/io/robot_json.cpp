@@ -34,6 +34,14 @@ void ReadBase(const Json& json, const std::string& pointer, BaseDescription& bas
   object.Read("ticks_per_m", base.ticks_per_m, true);
   object.Read("gyro_unit_dps", base.gyro_unit_dps, true);
   object.Read("max_speed_m_s", base.max_speed_m_s, false);
+  std::string heading = "gyro";
+  object.Read("heading", heading, false);
+  if (heading == "encoders") {
+    base.heading_from_gyro = false;
+  } else if (heading != "gyro") {
+    errors.push_back(
+        {object.Member("heading"), "\"" + heading + "\" is not a heading source (gyro, encoders)"});
+  }
   object.Finish();
 }
 
@@ -196,6 +204,7 @@ nlohmann::json RobotToJson(const RobotDescription& robot) {
   if (base.max_speed_m_s != BaseDescription{}.max_speed_m_s) {
     json["base"]["max_speed_m_s"] = base.max_speed_m_s;
   }
+  if (!base.heading_from_gyro) json["base"]["heading"] = "encoders";
   if (scanner.offset_x_m != 0.0 || scanner.offset_y_m != 0.0) {
     json["scanner"]["offset_m"] = Json::array({scanner.offset_x_m, scanner.offset_y_m});
   }
