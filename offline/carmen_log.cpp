@@ -10,7 +10,6 @@
 namespace slam::offline {
 namespace {
 
-constexpr size_t kMaxProblems = 20;      // a garbled file should not produce megabytes of messages
 constexpr size_t kMaxReadings = 100000;  // far beyond any scanner: a count beyond it is garbage
 
 /// Reads the fields of one record in order; the first failure is kept as the record's problem.
@@ -161,6 +160,7 @@ Result<CarmenLog> ParseCarmenLog(std::string_view text, const std::string& sourc
   CarmenLog log;
   log.source = source;
   CarmenCounters& counters = log.counters;
+  io::LineProblems problems(source);
   io::ForEachLine(text, [&](size_t line_number, std::string_view line) {
     ++counters.lines;
     const auto fields = io::SplitFields(line);
@@ -204,12 +204,10 @@ Result<CarmenLog> ParseCarmenLog(std::string_view text, const std::string& sourc
     }
     if (!ok) {
       ++counters.bad_lines;
-      if (log.problems.size() < kMaxProblems) {
-        log.problems.push_back(source + ":" + std::to_string(line_number) + ": " +
-                               std::string(name.substr(0, 32)) + ": " + in.problem());
-      }
+      problems.Add(line_number, std::string(name.substr(0, 32)) + ": " + in.problem());
     }
   });
+  log.problems = problems.kept();
   if (log.lasers.empty()) {
     ConfigErrors errors{{"", source +
                                  ": no laser record (FLASER, RLASER, RAWLASER1-4, "

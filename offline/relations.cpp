@@ -9,8 +9,6 @@
 namespace slam::offline {
 namespace {
 
-constexpr size_t kMaxErrors = 20;  // a garbled file should not produce megabytes of errors
-
 /// The trajectory's pose nearest in time to `t` when within `tolerance`.
 std::optional<Pose2> NearestPose(const std::vector<TimedPose>& trajectory, double t,
                                  double tolerance) {
@@ -57,11 +55,9 @@ nlohmann::json StatisticsJson(const ErrorStatistics& s) {
 
 Result<std::vector<Relation>> ParseRelations(std::string_view text, const std::string& source) {
   std::vector<Relation> relations;
-  ConfigErrors errors;
+  io::LineProblems problems(source);
   const auto fail = [&](size_t line_number, const std::string& detail) {
-    if (errors.size() < kMaxErrors) {
-      errors.push_back({"", source + ":" + std::to_string(line_number) + ": " + detail});
-    }
+    problems.Add(line_number, detail);
   };
   io::ForEachLine(text, [&](size_t line_number, std::string_view line) {
     const auto fields = io::SplitFields(line);
@@ -81,7 +77,7 @@ Result<std::vector<Relation>> ParseRelations(std::string_view text, const std::s
     }
     relations.push_back({v[0], v[1], Pose2{v[2], v[3], NormalizeAngle(v[7])}});
   });
-  if (!errors.empty()) return Result<std::vector<Relation>>(std::move(errors), source);
+  if (!problems.empty()) return Result<std::vector<Relation>>(problems.Errors(), source);
   if (relations.empty()) return Error(source + ": no relation in the file");
   return relations;
 }

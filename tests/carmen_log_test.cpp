@@ -109,6 +109,17 @@ TEST(CarmenLogTest, MalformedLinesAreCountedSkippedAndNamedByLine) {
   EXPECT_NE(log.problems[4].find("ODOM: the pose \"x\""), std::string::npos) << log.problems[4];
 }
 
+TEST(CarmenLogTest, AGarbledLogCountsEveryBadLineAndNamesTheFirstTwenty) {
+  std::string text = "FLASER 3 1 2 3 10 host 10\n";
+  for (int i = 0; i < 25; ++i) text += "ODOM 1 2 x 0 0 0 11 host 11\n";
+  const auto parsed = ParseCarmenLog(text, "garbled.clf");
+  ASSERT_TRUE(parsed.ok()) << parsed.Message();
+  EXPECT_EQ(parsed.value().counters.bad_lines, 25u);
+  ASSERT_EQ(parsed.value().problems.size(), 20u);
+  EXPECT_EQ(parsed.value().problems.front().rfind("garbled.clf:2: ODOM: ", 0), 0u);
+  EXPECT_EQ(parsed.value().problems.back().rfind("garbled.clf:21: ODOM: ", 0), 0u);
+}
+
 TEST(CarmenLogTest, ALogWithoutLaserIsAnErrorThatSaysWhy) {
   const auto parsed = ParseCarmenLog("ODOM 0 0 0 0 0 0 1 host 1\nFLASER 3 1 2\n", "empty.clf");
   ASSERT_FALSE(parsed.ok());

@@ -13,6 +13,7 @@
 #include <sstream>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "engine/result.hpp"
@@ -55,6 +56,32 @@ void ForEachLine(std::string_view text, F&& line) {
     pos = end + 1;
   }
 }
+
+/// What is wrong with a text file's lines, as "file:line: detail" messages: the first
+/// `kept_at_most` of them (a garbled file should not produce megabytes of messages).
+class LineProblems {
+ public:
+  explicit LineProblems(std::string source, size_t kept_at_most = 20)
+      : source_(std::move(source)), kept_at_most_(kept_at_most) {}
+
+  void Add(size_t line_number, std::string_view detail) {
+    if (kept_.size() >= kept_at_most_) return;
+    kept_.push_back(source_ + ":" + std::to_string(line_number) + ": " + std::string(detail));
+  }
+  bool empty() const { return kept_.empty(); }
+  const std::vector<std::string>& kept() const { return kept_; }
+  /// The kept messages as errors (without a JSON pointer).
+  ConfigErrors Errors() const {
+    ConfigErrors errors;
+    for (const std::string& message : kept_) errors.push_back({"", message});
+    return errors;
+  }
+
+ private:
+  std::string source_;
+  size_t kept_at_most_;
+  std::vector<std::string> kept_;
+};
 
 /// The bytes of a file; errors name the path.
 inline Result<std::string> ReadTextFile(const std::string& path) {

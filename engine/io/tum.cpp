@@ -8,11 +8,6 @@
 #include "engine/io/text_fields.hpp"
 
 namespace slam::io {
-namespace {
-
-constexpr int kMaxErrors = 20;  // a garbled file should not produce megabytes of errors
-
-}  // namespace
 
 std::string FormatTum(const std::vector<TimedPose>& trajectory) {
   std::string text;
@@ -27,11 +22,9 @@ std::string FormatTum(const std::vector<TimedPose>& trajectory) {
 
 Result<std::vector<TimedPose>> ParseTum(std::string_view text, const std::string& source) {
   std::vector<TimedPose> poses;
-  ConfigErrors errors;
+  LineProblems problems(source);
   const auto fail = [&](size_t line_number, const std::string& detail) {
-    if (errors.size() < kMaxErrors) {
-      errors.push_back({"", source + ":" + std::to_string(line_number) + ": " + detail});
-    }
+    problems.Add(line_number, detail);
   };
   ForEachLine(text, [&](size_t line_number, std::string_view line) {
     const auto fields = SplitFields(line);
@@ -60,7 +53,7 @@ Result<std::vector<TimedPose>> ParseTum(std::string_view text, const std::string
     // Planar: the rotation about z (qx, qy are expected to be 0 and are ignored).
     poses.push_back({v[0], Pose2{v[1], v[2], NormalizeAngle(2.0 * std::atan2(v[6], v[7]))}});
   });
-  if (!errors.empty()) return Result<std::vector<TimedPose>>(std::move(errors), source);
+  if (!problems.empty()) return Result<std::vector<TimedPose>>(problems.Errors(), source);
   return poses;
 }
 
