@@ -56,22 +56,19 @@ nlohmann::json StatisticsJson(const ErrorStatistics& s) {
 Result<std::vector<Relation>> ParseRelations(std::string_view text, const std::string& source) {
   std::vector<Relation> relations;
   io::LineProblems problems(source);
-  const auto fail = [&](size_t line_number, const std::string& detail) {
-    problems.Add(line_number, detail);
-  };
   io::ForEachLine(text, [&](size_t line_number, std::string_view line) {
     const auto fields = io::SplitFields(line);
     if (fields.empty() || fields[0].front() == '#') return;
     if (fields.size() != 8) {
-      fail(line_number, "expected 8 fields \"t1 t2 x y z roll pitch yaw\", found " +
-                            std::to_string(fields.size()));
+      problems.Add(line_number, "expected 8 fields \"t1 t2 x y z roll pitch yaw\", found " +
+                                    std::to_string(fields.size()));
       return;
     }
     double v[8];
     for (size_t i = 0; i < 8; ++i) {
       if (!io::ParseFiniteDouble(fields[i], v[i])) {
-        fail(line_number, "field " + std::to_string(i + 1) + " \"" + std::string(fields[i]) +
-                              "\" is not a finite number");
+        problems.Add(line_number, "field " + std::to_string(i + 1) + " \"" +
+                                      std::string(fields[i]) + "\" is not a finite number");
         return;
       }
     }

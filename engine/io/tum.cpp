@@ -23,31 +23,29 @@ std::string FormatTum(const std::vector<TimedPose>& trajectory) {
 Result<std::vector<TimedPose>> ParseTum(std::string_view text, const std::string& source) {
   std::vector<TimedPose> poses;
   LineProblems problems(source);
-  const auto fail = [&](size_t line_number, const std::string& detail) {
-    problems.Add(line_number, detail);
-  };
   ForEachLine(text, [&](size_t line_number, std::string_view line) {
     const auto fields = SplitFields(line);
     if (fields.empty() || fields[0].front() == '#') return;
     if (fields.size() != 8) {
-      fail(line_number,
-           "expected 8 fields \"t x y z qx qy qz qw\", found " + std::to_string(fields.size()));
+      problems.Add(line_number, "expected 8 fields \"t x y z qx qy qz qw\", found " +
+                                    std::to_string(fields.size()));
       return;
     }
     double v[8];
     bool numbers = true;
     for (size_t i = 0; i < 8; ++i) numbers = numbers && ParseFiniteDouble(fields[i], v[i]);
     if (!numbers) {
-      fail(line_number, "not a finite number");
+      problems.Add(line_number, "not a finite number");
       return;
     }
     const double norm = std::sqrt(v[4] * v[4] + v[5] * v[5] + v[6] * v[6] + v[7] * v[7]);
     if (std::abs(norm - 1.0) > 1e-3) {
-      fail(line_number, "quaternion is not of unit length");
+      problems.Add(line_number, "quaternion is not of unit length");
       return;
     }
     if (!poses.empty() && !(v[0] > poses.back().t)) {
-      fail(line_number, "time " + std::string(fields[0]) + " is not after the previous line's");
+      problems.Add(line_number,
+                   "time " + std::string(fields[0]) + " is not after the previous line's");
       return;
     }
     // Planar: the rotation about z (qx, qy are expected to be 0 and are ignored).
