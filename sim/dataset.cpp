@@ -50,7 +50,10 @@ DatasetPlan PlanDataset(DatasetKind kind, int runs_per_world) {
       first_seed = 2001;
       break;
     case DatasetKind::kReference:
+      // Every built-in world but the building, which is sized for a laser's loops (20 x 14 m:
+      // scripts/tune-laser runs it for 600 s); the marXbot at 0.12 m/s would see a corner of it.
       worlds = BuiltinWorldNames();
+      std::erase(worlds, "building");
       runs = 3;
       first_seed = 3001;
       break;

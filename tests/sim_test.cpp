@@ -132,14 +132,13 @@ TEST(ArenaTest, BuiltinsAreValidNamedAndAboutTwoMetres) {
 }
 
 TEST(ArenaTest, RealSizeWorldsAreBuiltInValidAndOfRealSize) {
-  EXPECT_EQ(BuiltinWorldNames(), (std::vector<std::string>{"box", "rooms", "cluttered", "flat",
-                                                           "corridor", "office", "studio", "lab"}));
+  EXPECT_EQ(BuiltinWorldNames(),
+            (std::vector<std::string>{"box", "rooms", "cluttered", "flat", "corridor", "office",
+                                      "studio", "lab", "building"}));
   // Free floor area of at least this many square metres, and the longest side.
-  const std::map<std::string, std::pair<double, double>> expected = {{"flat", {20.0, 6.0}},
-                                                                     {"corridor", {12.0, 10.0}},
-                                                                     {"office", {30.0, 7.0}},
-                                                                     {"studio", {15.0, 5.0}},
-                                                                     {"lab", {20.0, 6.0}}};
+  const std::map<std::string, std::pair<double, double>> expected = {
+      {"flat", {20.0, 6.0}},   {"corridor", {12.0, 10.0}}, {"office", {30.0, 7.0}},
+      {"studio", {15.0, 5.0}}, {"lab", {20.0, 6.0}},       {"building", {150.0, 20.0}}};
   for (const auto& [name, size] : expected) {
     SCOPED_TRACE(name);
     const std::optional<World> world = BuiltinWorld(name);
@@ -768,6 +767,8 @@ TEST(DatasetTest, SetsAreDisjointAndHoldTheirWorlds) {
     EXPECT_EQ(worlds.count("studio"),
               kind == DatasetKind::kValidation || kind == DatasetKind::kReference ? 1u : 0u);
     EXPECT_EQ(worlds.count("lab"), kind == DatasetKind::kReference ? 1u : 0u);
+    // The building is for the laser family's tuning (scripts/tune-laser), not the infrared sets.
+    EXPECT_EQ(worlds.count("building"), 0u);
   }
   // More runs per world extend the same seed series.
   const DatasetPlan more = PlanDataset(DatasetKind::kTraining, 3);
