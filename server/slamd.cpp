@@ -21,6 +21,7 @@
 
 #include "engine/io/params_json.hpp"
 #include "engine/io/robot_json.hpp"
+#include "engine/robot.hpp"
 #include "hw_link/link.hpp"
 #include "server/http_server.hpp"
 #include "server/request_guard.hpp"
@@ -122,6 +123,15 @@ int main(int argc, char** argv) {
 
   const auto robot = slam::io::LoadRobot(robot_path);
   if (!robot.ok()) return Fail(robot.Message());
+  if (slam::HasRangeScanner(robot.value())) {
+    // Every source below carries the marXbot's Aseba CAN events, which have no message for a
+    // laser's sweep: such a robot would run without a scan ever arriving.
+    return Fail(
+        robot_path +
+        ": the scanner is a range sensor (laser, time-of-flight); slamd's sources carry the "
+        "marXbot's infrared scanner over CAN only. Map a laser's CARMEN log with "
+        "slam-replay LOG.clf or slam-evaluate.");
+  }
   slam::ParamsChoice params;  // the shipped set of each scan's quota
   if (!params_path.empty()) {
     const auto loaded = slam::io::LoadParams(params_path);

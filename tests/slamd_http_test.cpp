@@ -892,6 +892,22 @@ TEST(SlamdProcessTest, NonLoopbackBindWithoutTokenExits2WithAMessage) {
   EXPECT_EQ(slamd.Stdout().find("slamd: serving"), std::string::npos) << slamd.Stdout();
 }
 
+TEST(SlamdProcessTest, ARobotWithALaserIsRefusedAtStartNamingTheFile) {
+  // slamd's sources carry the marXbot's CAN events; a laser robot would get no scan at all.
+  const std::string robot = std::string(SLAM_SOURCE_DIR) + "/config/pioneer-lms.robot.json";
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Spawn({"--robot", robot}, &error)) << error;
+  const auto code = slamd.WaitExit(10.0);
+  ASSERT_TRUE(code.has_value()) << "slamd kept running";
+  EXPECT_EQ(*code, 2);
+  const std::string message = slamd.Stderr();
+  EXPECT_NE(message.find("pioneer-lms.robot.json"), std::string::npos) << message;
+  EXPECT_NE(message.find("range sensor"), std::string::npos) << message;
+  EXPECT_NE(message.find("slam-replay"), std::string::npos) << message;
+  EXPECT_EQ(slamd.Stdout().find("slamd: serving"), std::string::npos) << slamd.Stdout();
+}
+
 TEST(SlamdProcessTest, SigtermStopsCleanlyWithExitCode0) {
   SlamdProcess slamd;
   std::string error;
