@@ -7,6 +7,7 @@
 #include <fstream>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 
 #include "engine/io/robot_json.hpp"
@@ -262,6 +263,43 @@ TEST(LaserTest, TheSimulatedLidarIsRecordedAsACarmenLogAndMappedBetterThanOdomet
   EXPECT_LE(slam.rays_per_scan_max, 32500);
   EXPECT_LT(slam.quality->ate_rmse_m, odometry.quality->ate_rmse_m);
   EXPECT_LT(slam.quality->ate_rmse_m, 0.05);
+}
+
+TEST(LaserTest, InTheBuildingTheShippedLaserSetMapsFarBetterThanOdometry) {
+  // The world the laser family is tuned in for its loops (scripts/tune-laser): 20 x 14 m, a
+  // corridor ring around four rooms. A Pioneer-like robot without a gyro, as there.
+  const testing::TempDir dir("building_experiment");
+  sim::ScenarioConfig config = sim::WithOdometryProfile({}, sim::OdometryProfile::kTracked);
+  config.duration_s = 180.0;
+  config.scans_per_s = 1.0;
+  config.speed_m_s = 0.4;
+  config.turn_rate_rad_s = 0.5;
+  config.seed = 3;
+  const auto robot = io::LoadRobot(std::string(SLAM_SOURCE_DIR) + "/config/pioneer-lms.robot.json");
+  ASSERT_TRUE(robot.ok()) << robot.Message();
+  const std::optional<sim::World> building = sim::BuiltinWorld("building");
+  ASSERT_TRUE(building);
+  const std::string out = dir.File("building");
+  const Result<void> written =
+      sim::WriteSimulatedExperiment(out, *building, "building", robot.value(), config);
+  ASSERT_TRUE(written.ok()) << written.Message();
+  const Result<offline::Experiment> load = offline::LoadExperiment(out);
+  ASSERT_TRUE(load.ok()) << load.Message();
+  const offline::Experiment& e = load.value();
+
+  offline::ReplayOptions options;
+  options.params = ParamsChoice{};  // the shipped set of the robot's family, as the tools pick
+  options.budget.rays_per_scan = 65000;
+  options.config.seed = 1;
+  const offline::ReplayResult slam = offline::Replay(e.robot, e.scans, e.ground_truth, options);
+  options.refine = false;
+  const offline::ReplayResult odometry = offline::Replay(e.robot, e.scans, e.ground_truth, options);
+  ASSERT_TRUE(slam.quality && odometry.quality);
+  EXPECT_EQ(slam.params_set.name, "shipped-laser-65000");
+  EXPECT_LE(slam.rays_per_scan_max, 65000);
+  EXPECT_GT(odometry.quality->ate_rmse_m, 0.3);  // the heading from the wheels drifts
+  EXPECT_LT(slam.quality->ate_rmse_m, odometry.quality->ate_rmse_m / 3.0);
+  EXPECT_LT(slam.quality->ate_rmse_m, 0.15);
 }
 
 }  // namespace
