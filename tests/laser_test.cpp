@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <utility>
 
 #include "engine/io/robot_json.hpp"
 #include "engine/odometry.hpp"
@@ -30,6 +31,16 @@ RobotDescription LidarRobot() {
   const auto robot = io::LoadRobot(std::string(SLAM_SOURCE_DIR) + "/config/lidar.robot.json");
   if (!robot.ok()) ADD_FAILURE() << robot.Message();
   return robot.ok() ? robot.value() : RobotDescription{};
+}
+
+/// A replay of `e` with `options`, and the same with phase B off (dead reckoning's map).
+struct SlamAndOdometry {
+  offline::ReplayResult slam, odometry;
+};
+SlamAndOdometry ReplayBoth(const offline::Experiment& e, offline::ReplayOptions options) {
+  offline::ReplayResult slam = offline::Replay(e.robot, e.scans, e.ground_truth, options);
+  options.refine = false;
+  return {std::move(slam), offline::Replay(e.robot, e.scans, e.ground_truth, options)};
 }
 
 TEST(LaserTest, ACarmenLogBecomesScansWithTheirOdometryAndBeams) {
@@ -256,9 +267,7 @@ TEST(LaserTest, TheSimulatedLidarIsRecordedAsACarmenLogAndMappedBetterThanOdomet
   offline::ReplayOptions options;
   options.budget.rays_per_scan = 32500;
   options.config.seed = 1;
-  const offline::ReplayResult slam = offline::Replay(e.robot, e.scans, e.ground_truth, options);
-  options.refine = false;
-  const offline::ReplayResult odometry = offline::Replay(e.robot, e.scans, e.ground_truth, options);
+  const auto [slam, odometry] = ReplayBoth(e, options);
   ASSERT_TRUE(slam.quality && odometry.quality);
   EXPECT_LE(slam.rays_per_scan_max, 32500);
   EXPECT_LT(slam.quality->ate_rmse_m, odometry.quality->ate_rmse_m);
@@ -291,9 +300,7 @@ TEST(LaserTest, InTheBuildingTheShippedLaserSetMapsFarBetterThanOdometry) {
   options.params = ParamsChoice{};  // the shipped set of the robot's family, as the tools pick
   options.budget.rays_per_scan = 65000;
   options.config.seed = 1;
-  const offline::ReplayResult slam = offline::Replay(e.robot, e.scans, e.ground_truth, options);
-  options.refine = false;
-  const offline::ReplayResult odometry = offline::Replay(e.robot, e.scans, e.ground_truth, options);
+  const auto [slam, odometry] = ReplayBoth(e, options);
   ASSERT_TRUE(slam.quality && odometry.quality);
   EXPECT_EQ(slam.params_set.name, "shipped-laser-65000");
   EXPECT_LE(slam.rays_per_scan_max, 65000);
