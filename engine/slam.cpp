@@ -417,6 +417,15 @@ std::vector<Slam::Measurement> Slam::CollectMeasurements(const Scan& scan) const
   return measurements;
 }
 
+std::vector<Vec2> Slam::ReadingPoints(const Scan& scan) const {
+  std::vector<Vec2> points;
+  for (const Measurement& m : CollectMeasurements(scan)) {
+    const Pose2 sample = Between(scan.odom_end, scan.samples[m.sample].odom);
+    points.push_back(sample.Transform(m.local_origin + m.local_direction * m.distance_m));
+  }
+  return points;
+}
+
 std::vector<size_t> Slam::ThinByAngle(const Scan& scan,
                                       const std::vector<Measurement>& usable) const {
   std::vector<size_t> kept;

@@ -137,6 +137,11 @@ class Slam {
   /// Counts what a scan offers, for the scheduler to plan with.
   ScanSummary Summarize(const Scan& scan) const;
 
+  /// Where the scan's readings (those inside their sensor's use window) lie in the robot's
+  /// frame at the scan's end, each placed by the odometry from its sample to the end: the scan
+  /// as a viewer draws it around the robot.
+  std::vector<Vec2> ReadingPoints(const Scan& scan) const;
+
   /// While `flag` (may be null) is true, a scan evaluates each particle's first candidate only
   /// and skips the rest: a scan of a huge budget (seconds of work) then ends within
   /// milliseconds of a stop or cancel request, the engine consistent. The flag must outlive

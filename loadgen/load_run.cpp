@@ -13,6 +13,7 @@
 #include <utility>
 #include <vector>
 
+#include "loadgen/foxglove_viewer.hpp"
 #include "loadgen/rest_mix.hpp"
 #include "loadgen/viewer.hpp"
 
@@ -134,6 +135,12 @@ Result<json> RunLoad(const LoadOptions& options) {
     viewers.push_back(std::make_unique<Viewer>(options.target, stop, viewer_stats, tiles));
   }
   for (auto& viewer : viewers) viewer_threads.emplace_back([&viewer] { viewer->Run(); });
+  FoxgloveStats foxglove_stats;
+  for (int i = 0; i < options.foxglove_clients; ++i) {
+    viewer_threads.emplace_back([&] {
+      RunFoxgloveViewer(options.foxglove, options.token, stop, foxglove_stats);
+    });
+  }
 
   RestConfig config;
   config.target = options.target;
@@ -159,6 +166,7 @@ Result<json> RunLoad(const LoadOptions& options) {
   const auto rest_end =
       std::max(Clock::now(), *std::max_element(last_done.begin(), last_done.end()));
   const int viewers_connected = viewer_stats.connected.load();
+  const int foxglove_connected = foxglove_stats.connected.load();
   stop = true;
   for (auto& thread : viewer_threads) thread.join();
   rss.Stop();
@@ -212,6 +220,20 @@ Result<json> RunLoad(const LoadOptions& options) {
       {"tile_errors", tile_fetches.errors},
       {"tile_latency_ms",
        {{"p50", tile_latency.p50}, {"p99", tile_latency.p99}, {"max", tile_latency.max}}},
+      {"foxglove",
+       {{"clients", options.foxglove_clients},
+        {"connected", foxglove_connected},
+        {"connects", foxglove_stats.connects.load()},
+        {"refused", foxglove_stats.refused.load()},
+        {"disconnects", foxglove_stats.disconnects.load()},
+        {"messages", foxglove_stats.messages.load()},
+        {"bytes", foxglove_stats.bytes.load()},
+        {"maps", foxglove_stats.maps.load()},
+        {"poses", foxglove_stats.poses.load()},
+        {"status_messages", foxglove_stats.statuses.load()},
+        {"first_map_ms", foxglove_stats.first_map_ms.load()},
+        {"first_pose_ms", foxglove_stats.first_pose_ms.load()},
+        {"dropped_by_slamd", OptionalJson(delta("slamd_foxglove_messages_dropped_total"))}}},
       {"scans", OptionalJson(delta("slamd_scans_total"))},
       {"late_scans", OptionalJson(delta("slamd_late_scans_total"))},
       {"link_queue_drops", OptionalJson(delta("slamd_link_queue_drops_total"))},
@@ -250,6 +272,12 @@ void PrintTable(const json& report, std::ostream& out) {
       << " disconnects\n"
       << "  tile fetches       " << report["tile_fetches"] << ", errors " << report["tile_errors"]
       << ", p99 " << number(report["tile_latency_ms"]["p99"], 2) << " ms\n"
+      << "  Foxglove clients   " << report["foxglove"]["connected"] << "/"
+      << report["foxglove"]["clients"] << " connected, " << report["foxglove"]["messages"]
+      << " messages (" << report["foxglove"]["maps"] << " maps, " << report["foxglove"]["poses"]
+      << " poses), first map after " << report["foxglove"]["first_map_ms"] << " ms, "
+      << report["foxglove"]["disconnects"] << " disconnects, "
+      << number(report["foxglove"]["dropped_by_slamd"], 0) << " dropped by slamd\n"
       << "  scans              " << number(report["scans"], 0) << ", late "
       << number(report["late_scans"], 0) << ", missed " << number(report["missed_scans"], 0)
       << ", link queue drops " << number(report["link_queue_drops"], 0) << "\n"

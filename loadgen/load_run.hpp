@@ -22,6 +22,9 @@ struct LoadOptions {
   int connections = 4;  // keep-alive connections for the REST requests
   std::string token;    // bearer token for the PATCHes; empty for none
   int pid = 0;          // slamd's process id for the RSS samples; 0 for none
+  /// slamd's Foxglove WebSocket server, and how many Foxglove clients subscribe to everything.
+  Target foxglove;
+  int foxglove_clients = 0;
 };
 
 /// Runs the load and returns its report (the JSON of `slamd-load --json`), or why it could not

@@ -12,8 +12,7 @@ double SecondsBetween(Clock::time_point from, Clock::time_point to) {
   return std::chrono::duration<double>(to - from).count();
 }
 
-std::optional<Target> ParseUrl(const std::string& url) {
-  const std::string scheme = "http://";
+std::optional<Target> ParseUrl(const std::string& url, const std::string& scheme) {
   if (url.compare(0, scheme.size(), scheme) != 0) return std::nullopt;
   const std::string rest = url.substr(scheme.size());
   const size_t slash = rest.find('/');

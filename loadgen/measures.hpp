@@ -25,7 +25,8 @@ struct Target {
 };
 
 /// "http://HOST[:PORT][/...]" -> host and port (80 by default); nullopt for anything else.
-std::optional<Target> ParseUrl(const std::string& url);
+/// Another `scheme` ("ws://") likewise.
+std::optional<Target> ParseUrl(const std::string& url, const std::string& scheme = "http://");
 
 /// Every request's latency and outcome; one per thread, merged at the end (no contention).
 struct Record {

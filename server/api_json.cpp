@@ -47,6 +47,20 @@ json PoseJson(const TimedPose& p) {
   return {{"t", p.t}, {"x", p.pose.x}, {"y", p.pose.y}, {"theta", p.pose.theta}};
 }
 
+Result<json> ParseJsonBounded(std::string_view text, int max_depth) {
+  bool too_deep = false;
+  json out = json::parse(
+      text,
+      [&](int depth, json::parse_event_t, json&) {
+        if (depth > max_depth) too_deep = true;
+        return !too_deep;
+      },
+      false);
+  if (too_deep) return Error("JSON nesting deeper than " + std::to_string(max_depth) + " levels");
+  if (out.is_discarded()) return Error("not valid JSON");
+  return out;
+}
+
 json BudgetJson(const BudgetSettings& b) {
   return {{"mode", ToString(b.mode)},
           {"rays_per_scan", b.rays_per_scan},

@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <string_view>
 
 #include "engine/config_error.hpp"
 #include "engine/pose.hpp"
@@ -23,6 +24,11 @@ std::string Lower(std::string s);
 
 /// The media type of a Content-Type header, lower case, without parameters.
 std::string MediaType(const std::string& content_type);
+
+/// Parses JSON text that nests at most `max_depth` levels (copying and comparing nested values
+/// recurse in nlohmann-json: 64 KiB of brackets would nest 32 000 deep). The error says whether
+/// it is not JSON or nests too deep.
+Result<nlohmann::json> ParseJsonBounded(std::string_view text, int max_depth = 32);
 
 /// JSON text of `body`; bytes that are not UTF-8 (a client's path or parameter echoed in an
 /// error, say) become U+FFFD instead of throwing.

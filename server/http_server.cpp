@@ -43,28 +43,14 @@ bool HttpServer::Impl::ParseBody(const httplib::Request& req, httplib::Response&
                     (type.empty() ? std::string(" (no Content-Type given)") : ", not " + type));
     return false;
   }
-  // Parsing is iterative, but copying and comparing nested values recurse in nlohmann-json: a
-  // 64 KiB body of brackets nests 32 000 deep, one stack frame (or more) per level. No body of
-  // slamd's nests deeper than a few levels.
-  constexpr int kMaxDepth = 32;
-  bool too_deep = false;
-  out = json::parse(
-      req.body,
-      [&](int depth, json::parse_event_t, json&) {
-        if (depth > kMaxDepth) too_deep = true;
-        return !too_deep;
-      },
-      false);
-  if (too_deep) {
+  // No body of slamd's nests deeper than a few levels (ParseJsonBounded says why it matters).
+  Result<json> parsed = ParseJsonBounded(req.body);
+  if (!parsed.ok()) {
     out = json();
-    SendProblem(res, 400, "Bad Request",
-                "the body nests deeper than " + std::to_string(kMaxDepth) + " levels");
+    SendProblem(res, 400, "Bad Request", "the body is " + parsed.Message());
     return false;
   }
-  if (out.is_discarded()) {
-    SendProblem(res, 400, "Bad Request", "the body is not valid JSON");
-    return false;
-  }
+  out = std::move(parsed).value();
   return true;
 }
 
@@ -82,13 +68,19 @@ void HttpServer::Impl::HandleBudgetChange(const httplib::Request& req, httplib::
                 "the budget changed since " + if_match + "; it is now " + BudgetEtag());
     return;
   }
+  const Result<BudgetSettings> changed = ChangeBudget(body, patch);
+  if (!changed.ok()) {
+    SendProblem(res, 422, "Invalid budget", "the budget was not changed", changed.errors());
+    return;
+  }
+  res.set_header("ETag", BudgetEtag());
+  SendJson(res, BudgetJson(changed.value()));
+}
+
+Result<BudgetSettings> HttpServer::Impl::ChangeBudget(const json& body, bool patch) {
   json target = body;
   if (patch) {
-    if (!body.is_object()) {
-      SendProblem(res, 422, "Invalid budget", "a merge patch of the budget must be an object",
-                  {{"", "must be a JSON object", 0}});
-      return;
-    }
+    if (!body.is_object()) return ConfigErrors{{"", "must be a JSON object", 0}};
     target = BudgetJson(service.Budget());
     // RFC 7396: null removes a member; a removed member takes its default.
     target.merge_patch(body);
@@ -97,18 +89,12 @@ void HttpServer::Impl::HandleBudgetChange(const httplib::Request& req, httplib::
       if (!target.contains(key)) target[key] = value;
     }
   }
-  const Result<BudgetSettings> parsed = BudgetFromJson(target);
-  if (!parsed.ok()) {
-    SendProblem(res, 422, "Invalid budget", "the budget was not changed", parsed.errors());
-    return;
-  }
-  const BudgetSettings& settings = parsed.value();
-  if (!(settings == service.Budget())) {
-    service.SetBudget(settings);
+  Result<BudgetSettings> parsed = BudgetFromJson(target);
+  if (parsed.ok() && !(parsed.value() == service.Budget())) {
+    service.SetBudget(parsed.value());
     ++budget_revision;
   }
-  res.set_header("ETag", BudgetEtag());
-  SendJson(res, BudgetJson(settings));
+  return parsed;
 }
 
 void HttpServer::Impl::HandleParamsPatch(const httplib::Request& req, httplib::Response& res) {
@@ -413,6 +399,8 @@ std::string HttpServer::Impl::MetricsText() {
   for (const auto& [kind, e] : exports) {
     o << "slamd_exports_made_total{kind=\"" << kind << "\"} " << e.renders.load() << '\n';
   }
+  MutexLock lock(extra_metrics_mutex);
+  for (const auto& extra : extra_metrics) o << extra();
   return o.str();
 }
 
@@ -711,6 +699,16 @@ void HttpServer::Run() {
   impl_->server.StartServing(static_cast<size_t>(impl_->options.max_streams) + 8);
   impl_->server.listen_after_bind();
   impl_->server.Shutdown();
+}
+
+Result<BudgetSettings> HttpServer::PatchBudget(const json& patch) {
+  MutexLock lock(impl_->revision_mutex);
+  return impl_->ChangeBudget(patch, true);
+}
+
+void HttpServer::AddMetrics(std::function<std::string()> metrics) {
+  MutexLock lock(impl_->extra_metrics_mutex);
+  impl_->extra_metrics.push_back(std::move(metrics));
 }
 
 std::string HttpServer::HandleInMemory(std::string_view request, size_t max_response_bytes) {

@@ -8,7 +8,9 @@
 
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <memory>
+#include <nlohmann/json_fwd.hpp>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -52,6 +54,15 @@ class HttpServer {
   /// Saves the newest snapshot into --state-dir as POST /api/v1/map/save does (one save at a
   /// time): for the save at a clean stop.
   Result<SaveReport> SaveMap();
+
+  /// Changes the budget by a merge patch (RFC 7396) as PATCH /api/v1/budget does: validated,
+  /// the ETag's revision bumped, the page's event stream told. The new budget, or what is wrong
+  /// with the patch (then nothing changed). Thread-safe: for slamd's other front ends.
+  Result<BudgetSettings> PatchBudget(const nlohmann::json& patch);
+
+  /// Adds text (Prometheus exposition format, whole metric families) that /metrics appends to
+  /// its own: another front end's metrics. Call before Run.
+  void AddMetrics(std::function<std::string()> metrics);
 
   /// Serves one raw HTTP/1.1 request held in memory, exactly as one arriving on a connection
   /// that closes after it (parser, limits, token, routes, handlers), and returns the raw

@@ -6,11 +6,13 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "engine/thread_safety.hpp"
 #include "server/bounded_server.hpp"
@@ -104,6 +106,9 @@ struct HttpServer::Impl {
   httplib::Server::HandlerResponse Guard(httplib::Request& req, httplib::Response& res);
   bool ParseBody(const httplib::Request& req, httplib::Response& res, const char* media, json& out);
   void HandleBudgetChange(const httplib::Request& req, httplib::Response& res, bool patch);
+  /// Validates and applies a whole budget object or (`patch`) a merge patch of it; bumps the
+  /// revision when the budget changed. The new budget, or what is wrong (nothing changed).
+  Result<BudgetSettings> ChangeBudget(const json& body, bool patch) SLAM_REQUIRES(revision_mutex);
   void HandleParamsPatch(const httplib::Request& req, httplib::Response& res);
   void HandleTile(const httplib::Request& req, httplib::Response& res);
   void HandleEvents(const httplib::Request& req, httplib::Response& res);
@@ -118,6 +123,8 @@ struct HttpServer::Impl {
             {"simulated", service.simulated()}};
   }
   std::string MetricsText();
+  Mutex extra_metrics_mutex;
+  std::vector<std::function<std::string()>> extra_metrics SLAM_GUARDED_BY(extra_metrics_mutex);
 };
 
 }  // namespace slam::server

@@ -261,6 +261,7 @@ void SlamService::ApplyCommands() {
     ++epoch_;
     options_.resume.reset();
     resumed_.reset();
+    scan_points_.reset();
     world_to_map_.reset();
     BuildEngine();
     Publish(std::nullopt);
@@ -320,6 +321,8 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
   const ScanPlan plan = scheduler_.Plan(summary, period, engine_->params());
   const ScanReport report = engine_->ProcessScan(scan, plan);
   const double cpu_s = ThreadCpuSeconds() - cpu_start;
+  // For viewers (Foxglove's /scan): a few hundred points, outside the scan's CPU account.
+  scan_points_ = std::make_shared<const std::vector<Vec2>>(engine_->ReadingPoints(scan));
   const PlanRecord record = scheduler_.Record(report, cpu_s);
   const int64_t now = SteadyNs();
 
@@ -411,6 +414,7 @@ void SlamService::Publish(const std::optional<ScanMetrics>& metrics) {
   s->map_version = version_base_ + best.map.Version();
   s->history = best.history;
   s->resumed = resumed_;
+  s->scan_points = scan_points_;
   s->time_offset_s = time_offset_s_;
   if (best.history && !best.history->poses.empty()) {
     s->has_pose = true;

@@ -68,6 +68,9 @@ struct SlamSnapshot {
   double time_offset_s = 0.0;  // added to engine times (continues a resumed trajectory)
   std::optional<ScanMetrics> last;
   std::optional<Pose2> truth;  // ground truth at `pose.t`, map frame (simulated sources)
+  /// The latest scan's readings in the robot's frame at `pose` (Slam::ReadingPoints); null
+  /// before the first scan and after a reset.
+  std::shared_ptr<const std::vector<Vec2>> scan_points;
 
   /// Tile version as reported (0 for a missing tile).
   uint64_t ReportedVersion(const Tile& tile) const { return version_base + tile.version; }
@@ -192,6 +195,7 @@ class SlamService {
   uint64_t epoch_ = 0;
   uint64_t sequence_ = 0;
   std::shared_ptr<const std::vector<TimedPose>> resumed_;
+  std::shared_ptr<const std::vector<Vec2>> scan_points_;  // the latest scan's, for snapshots
   double time_offset_s_ = 0.0;
   size_t truth_read_ = 0;                        // ground-truth poses taken from the source
   std::vector<TimedPose> truth_world_;           // since the last reset, world frame, 10 Hz

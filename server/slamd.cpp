@@ -14,6 +14,8 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -23,6 +25,7 @@
 #include "engine/io/robot_json.hpp"
 #include "engine/robot.hpp"
 #include "hw_link/link.hpp"
+#include "server/foxglove_server.hpp"
 #include "server/http_server.hpp"
 #include "server/request_guard.hpp"
 #include "server/slam_service.hpp"
@@ -62,6 +65,9 @@ int main(int argc, char** argv) {
   std::string params_path;
   std::string bind = "127.0.0.1";
   int port = 8080;
+  int foxglove_port = slam::server::FoxgloveOptions{}.port;
+  int foxglove_buffer_kb =
+      static_cast<int>(slam::server::FoxgloveOptions{}.max_queued_bytes / 1024);
   int64_t budget_rays = 0;
   double cpu_share = 0.0;
   std::string policy = "fixed";
@@ -86,6 +92,16 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--port", port, "TCP port (0: any free port, printed at start)")
       ->check(CLI::Range(0, 65535))
+      ->capture_default_str();
+  app.add_option("--foxglove-port", foxglove_port,
+                 "TCP port of the Foxglove WebSocket server (foxglove.websocket.v1) on the "
+                 "--bind address, with the same token and host rules as HTTP (0: off)")
+      ->check(CLI::Range(0, 65535))
+      ->capture_default_str();
+  app.add_option("--foxglove-buffer-kb", foxglove_buffer_kb,
+                 "send buffer of each Foxglove client, KiB: a client that reads more slowly "
+                 "loses messages beyond it (counted in /metrics)")
+      ->check(CLI::Range(16, 1 << 20))
       ->capture_default_str();
   auto* budget_opt = app.add_option("--budget", budget_rays, "ray budget per scan (default 65000)")
                          ->check(CLI::Range(int64_t{1}, int64_t{100000000}));
@@ -236,11 +252,30 @@ int main(int argc, char** argv) {
   const slam::Result<int> bound_port = server.Bind();
   if (!bound_port.ok()) return Fail(bound_port.Message(), 1);
   const int bound = bound_port.value();
+  std::optional<slam::server::FoxgloveServer> foxglove;
+  int foxglove_bound = 0;
+  if (foxglove_port != 0) {
+    slam::server::FoxgloveOptions fox;
+    fox.bind = bind;
+    fox.port = foxglove_port;
+    fox.max_queued_bytes = static_cast<size_t>(foxglove_buffer_kb) * 1024;
+    fox.token = http.token;
+    fox.allowed_hosts = http.allowed_hosts;
+    foxglove.emplace(
+        service, [&server](const nlohmann::json& patch) { return server.PatchBudget(patch); }, fox);
+    const slam::Result<int> fox_port = foxglove->Bind();
+    if (!fox_port.ok()) return Fail(fox_port.Message(), 1);
+    foxglove_bound = fox_port.value();
+    server.AddMetrics([&foxglove] { return foxglove->MetricsText(); });
+  }
 
   link.Start();
   service.Start();
+  if (foxglove) foxglove->Start();
   const std::string host = bind.find(':') != std::string::npos ? "[" + bind + "]" : bind;
   std::printf("slamd: serving http://%s:%d/ (source %s)\n", host.c_str(), bound, source.c_str());
+  if (foxglove)
+    std::printf("slamd: Foxglove WebSocket on ws://%s:%d\n", host.c_str(), foxglove_bound);
   std::fflush(stdout);
   if (service_options.resume && !quiet) {
     std::fprintf(stderr, "slamd: resumed the map saved in %s (%zu tiles, version %llu)\n",
@@ -279,6 +314,7 @@ int main(int argc, char** argv) {
   pthread_kill(signal_thread.native_handle(), SIGTERM);  // wakes sigwait if no signal came
   signal_thread.join();
   if (status_thread.joinable()) status_thread.join();
+  if (foxglove) foxglove->Stop();
   service.Stop();
   link.Stop();
   // What was mapped since the last save is kept: a clean stop (systemd's SIGTERM) saves.

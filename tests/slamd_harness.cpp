@@ -82,6 +82,22 @@ ScratchDir::~ScratchDir() {
 // ---------------------------------------------------------------------------------------------
 // The slamd child process
 
+int FreeTcpPort() {
+  const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return 0;
+  sockaddr_in address{};
+  address.sin_family = AF_INET;
+  address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  socklen_t length = sizeof address;
+  int port = 0;
+  if (::bind(fd, reinterpret_cast<sockaddr*>(&address), sizeof address) == 0 &&
+      ::getsockname(fd, reinterpret_cast<sockaddr*>(&address), &length) == 0) {
+    port = ntohs(address.sin_port);
+  }
+  ::close(fd);
+  return port;
+}
+
 int SlamdProcess::spawn_counter_ = 0;
 
 SlamdProcess::~SlamdProcess() {
@@ -94,6 +110,11 @@ void SlamdProcess::set_speed(double speed) { speed_ = std::to_string(speed); }
 
 bool SlamdProcess::Spawn(const std::vector<std::string>& extra_args, std::string* error) {
   std::vector<std::string> args = {SlamdBinary(), "--port", "0", "--speed", speed_, "--quiet"};
+  // The Foxglove server's default port is fixed (8765): tests running side by side would take
+  // it from one another. Off unless a test asks for a port.
+  if (std::find(extra_args.begin(), extra_args.end(), "--foxglove-port") == extra_args.end()) {
+    args.insert(args.end(), {"--foxglove-port", "0"});
+  }
   args.insert(args.end(), extra_args.begin(), extra_args.end());
   command_line_.clear();
   for (const auto& arg : args) command_line_ += arg + " ";

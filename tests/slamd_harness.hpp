@@ -55,6 +55,9 @@ bool StartsWith(const std::string& text, const std::string& prefix);
 
 std::string ReadFile(const fs::path& path);
 
+/// A loopback TCP port free at the time of the call (for a server whose port 0 means "off").
+int FreeTcpPort();
+
 void WriteFile(const fs::path& path, const std::string& text);
 
 /// A fresh directory under the test temp dir, removed by the destructor.

@@ -34,22 +34,26 @@ class LoadSlamd : public SlamdSuite {
     WriteFile(dir_->path() / "token", "load-t0ken-0123456789\n");
     // A small budget keeps scans coming under the sanitizers too (TSan maps some 40 times
     // slower), so that a 3 s run counts some.
-    StartShared({"--token-file", (dir_->path() / "token").string(), "--budget", "2000"});
+    foxglove_port_ = FreeTcpPort();
+    StartShared({"--token-file", (dir_->path() / "token").string(), "--budget", "2000",
+                 "--foxglove-port", std::to_string(foxglove_port_)});
   }
   static void TearDownTestSuite() {
     StopShared();
     dir_.reset();
   }
   static inline std::unique_ptr<ScratchDir> dir_;
+  static inline int foxglove_port_ = 0;
 };
 
 TEST_F(LoadSlamd, ReportCountsEveryRequestViewerAndScan) {
   WaitForTiles(http(), 1);
-  const CommandResult run =
-      RunCommand(std::string(SLAMD_LOAD_BIN) + " --url " + slamd_->url() +
-                     " --duration 3 --rate 100 --viewers 2 --connections 2 --json --token-file " +
-                     (dir_->path() / "token").string() + " --pid " + std::to_string(slamd_->pid()),
-                 dir_->path());
+  const CommandResult run = RunCommand(
+      std::string(SLAMD_LOAD_BIN) + " --url " + slamd_->url() +
+          " --duration 3 --rate 100 --viewers 2 --connections 2 --json --token-file " +
+          (dir_->path() / "token").string() + " --pid " + std::to_string(slamd_->pid()) +
+          " --foxglove ws://127.0.0.1:" + std::to_string(foxglove_port_) + " --foxglove-clients 2",
+      dir_->path());
   ASSERT_EQ(run.status, 0) << run.err;
   const json report = json::parse(run.out, nullptr, false);
   ASSERT_TRUE(report.is_object()) << run.out;
@@ -63,6 +67,14 @@ TEST_F(LoadSlamd, ReportCountsEveryRequestViewerAndScan) {
   EXPECT_EQ(report["tile_errors"], 0) << run.out;
   EXPECT_GT(report["scans"].get<double>(), 0.0) << run.out;
   EXPECT_GT(report["rss_mib"]["start"].get<double>(), 0.0) << run.out;
+  // Two Foxglove clients (with the token), each with the map and poses.
+  const json& foxglove = report["foxglove"];
+  EXPECT_EQ(foxglove["connected"], 2) << run.out;
+  EXPECT_EQ(foxglove["disconnects"], 0) << run.out;
+  EXPECT_GE(foxglove["maps"].get<int>(), 2) << run.out;
+  EXPECT_GE(foxglove["poses"].get<int>(), 2) << run.out;
+  EXPECT_GE(foxglove["first_map_ms"].get<int>(), 0) << run.out;
+  EXPECT_EQ(foxglove["dropped_by_slamd"], 0) << run.out;
   const double p50 = report["latency_ms"]["p50"], p99 = report["latency_ms"]["p99"];
   EXPECT_LE(p50, p99) << run.out;
   // The table for people goes to stderr with --json.

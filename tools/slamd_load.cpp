@@ -10,9 +10,12 @@
 // every 50th request. /metrics is read before and after (scans, late scans, link queue drops), the
 // status too (scans the assembler had to abandon: missed scans), and the RSS of --pid is sampled
 // every second (its growth and slope over the run's second half say whether memory is flat).
+// With --foxglove, Foxglove clients subscribe to every channel of slamd's Foxglove server and
+// read every message meanwhile.
 //
 //   slamd-load --url http://127.0.0.1:8080/ [--viewers 8] [--rate 500] [--duration 60]
-//              [--token-file F] [--pid PID] [--json]
+//              [--token-file F] [--pid PID] [--foxglove ws://127.0.0.1:8765 [--foxglove-clients 4]]
+//              [--json]
 //
 // The table goes to stdout, or to stderr with --json, which prints one JSON object on stdout.
 
@@ -47,6 +50,8 @@ int main(int argc, char** argv) {
   int pid = 0;
   int connections = 4;
   bool as_json = false;
+  std::string foxglove_url;
+  int foxglove_clients = 4;
   app.add_option("--url", url, "slamd's base URL, e.g. http://127.0.0.1:8080/")->required();
   app.add_option("--viewers", viewers, "event-stream viewers (each fetches announced tiles)")
       ->capture_default_str()
@@ -64,6 +69,13 @@ int main(int argc, char** argv) {
   app.add_option("--connections", connections, "keep-alive connections for the REST requests")
       ->capture_default_str()
       ->check(CLI::Range(1, 256));
+  auto* foxglove_opt =
+      app.add_option("--foxglove", foxglove_url,
+                     "slamd's Foxglove WebSocket server, e.g. ws://127.0.0.1:8765: Foxglove "
+                     "clients subscribe to every channel and read every message");
+  app.add_option("--foxglove-clients", foxglove_clients, "Foxglove clients (with --foxglove)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100));
   app.add_flag("--json", as_json, "print one JSON object on stdout (the table goes to stderr)");
   CLI11_PARSE(app, argc, argv);
 
@@ -85,6 +97,16 @@ int main(int argc, char** argv) {
   }
 
   slam::loadgen::LoadOptions options;
+  if (*foxglove_opt) {
+    const auto foxglove = slam::loadgen::ParseUrl(foxglove_url, "ws://");
+    if (!foxglove) {
+      std::cerr << "slamd-load: --foxglove must look like ws://HOST:PORT, got '" << foxglove_url
+                << "'\n";
+      return 2;
+    }
+    options.foxglove = *foxglove;
+    options.foxglove_clients = foxglove_clients;
+  }
   options.url = url;
   options.target = *target;
   options.viewers = viewers;

@@ -34,7 +34,7 @@ artifact_dir=$(cd "$artifact_dir" && pwd)
 stdout_log=$artifact_dir/slamd.stdout
 stderr_log=$artifact_dir/slamd.stderr
 
-"$slamd_bin" --port 0 --speed 4 --quiet --web-root "$web_root" > "$stdout_log" 2> "$stderr_log" &
+"$slamd_bin" --port 0 --foxglove-port 0 --speed 4 --quiet --web-root "$web_root" > "$stdout_log" 2> "$stderr_log" &
 slamd_pid=$!
 
 stop_slamd() {

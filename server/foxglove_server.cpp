@@ -1,0 +1,747 @@
+#include "server/foxglove_server.hpp"
+
+// Boost.Beast (Debian's libboost-dev 1.74, header-only with Boost.Asio) rather than
+// websocketpp 0.8.2: Beast builds as C++20 with GCC 12 (websocketpp's headers do not), and its
+// explicit asynchronous writes are what a bounded per-client queue needs.
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/post.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
+#include <boost/beast/websocket.hpp>
+#include <chrono>
+#include <deque>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <utility>
+
+#include "server/api_json.hpp"
+#include "server/foxglove_messages.hpp"
+#include "server/request_guard.hpp"
+
+#ifndef SLAMD_VERSION
+#define SLAMD_VERSION "0"
+#endif
+
+namespace slam::server {
+
+namespace {
+
+namespace asio = boost::asio;
+namespace beast = boost::beast;
+namespace http = beast::http;
+namespace websocket = beast::websocket;
+using tcp = asio::ip::tcp;
+using json = nlohmann::json;
+using Clock = std::chrono::steady_clock;
+using foxglove::Channel;
+
+constexpr auto kTick = std::chrono::milliseconds(50);
+constexpr auto kHandshakeTimeout = std::chrono::seconds(10);
+constexpr double kDropWarningEverySeconds = 5.0;
+constexpr size_t kMaxClientMessageBytes = 64 * 1024;
+constexpr size_t kMaxTrajectoryPoses = 5000;
+/// The web app of Foxglove: a page of that origin may change the budget (without a token).
+constexpr std::string_view kFoxgloveAppOrigin = "https://app.foxglove.dev";
+
+double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+uint64_t Nanoseconds(double t_s) {
+  return t_s > 0.0 ? static_cast<uint64_t>(std::llround(t_s * 1e9)) : 0;
+}
+
+json Status(int level, const std::string& message) {
+  return {{"op", "status"}, {"level", level}, {"message", message}};
+}
+
+constexpr int kInfo = 0, kWarning = 1, kError = 2;
+
+/// The subprotocol to answer with: the newer name if the client offers it, else the first one.
+std::string ChooseSubprotocol(std::string_view offered) {
+  bool sdk = false, v1 = false;
+  std::string item;
+  std::istringstream list{std::string(offered)};
+  while (std::getline(list, item, ',')) {
+    item.erase(0, item.find_first_not_of(" \t"));
+    item.erase(item.find_last_not_of(" \t") + 1);
+    sdk = sdk || item == foxglove::kSubprotocolSdk;
+    v1 = v1 || item == foxglove::kSubprotocolV1;
+  }
+  if (sdk) return std::string(foxglove::kSubprotocolSdk);
+  if (v1) return std::string(foxglove::kSubprotocolV1);
+  return {};
+}
+
+}  // namespace
+
+struct FoxgloveServer::Impl {
+  struct Session;
+
+  SlamService& service;
+  PatchBudget patch_budget;
+  FoxgloveOptions options;
+  asio::io_context io{1};
+  tcp::acceptor acceptor{io};
+  asio::steady_timer ticker{io};
+  std::thread thread;
+  std::thread watcher;  // hands every published snapshot to the serving thread
+  std::atomic<bool> stopping{false};
+  bool started = false;
+
+  // The serving thread's own state.
+  std::vector<std::shared_ptr<Session>> sessions;
+  std::string server_info;  // the serverInfo and advertise messages, as sent
+  std::string advertise;
+  std::vector<foxglove::ChannelSpec> channels;
+  BudgetSettings last_budget;
+  // Payloads made once per snapshot (or map version) and shared by every subscriber.
+  struct Cached {
+    uint64_t key = 0;
+    bool valid = false;
+    std::shared_ptr<const std::string> payload;
+    double t_s = 0.0;
+  };
+  Cached map, trajectory;
+
+  // Counters (read by /metrics from other threads).
+  std::atomic<int64_t> clients{0};
+  std::atomic<uint64_t> connections{0}, refused{0}, messages_sent{0}, messages_dropped{0},
+      messages_replaced{0}, bytes_sent{0}, parameter_changes{0}, bad_requests{0};
+
+  Impl(SlamService& s, PatchBudget patch, const FoxgloveOptions& o)
+      : service(s), patch_budget(std::move(patch)), options(o) {
+    channels = foxglove::Channels(service.simulated());
+    server_info =
+        json{{"op", "serverInfo"},
+             {"name", std::string("slamd ") + SLAMD_VERSION},
+             {"capabilities", {"parameters", "parametersSubscribe"}},
+             {"supportedEncodings", json::array()},
+             {"metadata",
+              {{"map_frame", foxglove::kMapFrame}, {"robot_frame", foxglove::kRobotFrame}}},
+             {"sessionId",
+              std::to_string(std::chrono::system_clock::now().time_since_epoch().count())}}
+            .dump();
+    advertise = foxglove::Advertise(channels).dump();
+    last_budget = service.Budget();
+  }
+
+  void Accept();
+  void Tick();
+  void Publish(const std::shared_ptr<const SlamSnapshot>& snapshot, bool new_scan);
+  std::shared_ptr<const std::string> MapPayload(const SlamSnapshot& s);
+  std::shared_ptr<const std::string> TrajectoryPayload(const SlamSnapshot& s);
+  void CloseAll();
+  void Forget(const Session* session);
+};
+
+/// One client: the upgrade, then its subscriptions and its bounded send queue. Lives on the
+/// serving thread only.
+struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
+  Impl& server;
+  websocket::stream<beast::tcp_stream> ws;
+  beast::flat_buffer buffer;
+  http::request_parser<http::empty_body> parser;
+  bool writer = false;  // may change the budget
+  bool open = false;    // the WebSocket is up
+  bool closed = false;
+  std::map<uint32_t, Channel> subscriptions;  // subscription id -> channel
+  std::set<std::string> parameter_updates;    // parameter names the client follows
+
+  struct Outgoing {
+    std::shared_ptr<const std::string> bytes;
+    bool binary;
+    int64_t latest_only = -1;  // a subscription whose older queued message this one replaces
+  };
+  std::deque<Outgoing> queue;
+  size_t queued_bytes = 0;
+  bool writing = false;
+  uint64_t dropped_untold = 0;
+  Clock::time_point last_drop_warning{};
+  // Per subscription: what was last sent of the map and the trajectory, and when.
+  struct Sent {
+    uint64_t key = 0;
+    bool any = false;
+    Clock::time_point at{};
+  };
+  std::map<uint32_t, Sent> sent;
+
+  Session(Impl& s, tcp::socket socket) : server(s), ws(std::move(socket)) {}
+
+  void ReadRequest() {
+    parser.header_limit(16 * 1024);
+    beast::get_lowest_layer(ws).expires_after(kHandshakeTimeout);
+    http::async_read(ws.next_layer(), buffer, parser,
+                     [self = shared_from_this()](beast::error_code ec, size_t) {
+                       if (ec) return self->Close();
+                       self->OnRequest();
+                     });
+  }
+
+  void Refuse(http::status status, const std::string& why,
+              const std::vector<std::pair<std::string, std::string>>& headers = {}) {
+    server.refused.fetch_add(1);
+    auto res = std::make_shared<http::response<http::string_body>>(status, 11);
+    res->set(http::field::server, std::string("slamd/") + SLAMD_VERSION);
+    res->set(http::field::content_type, "text/plain; charset=utf-8");
+    for (const auto& [name, value] : headers) res->set(name, value);
+    res->body() = "slamd: " + why + "\n";
+    res->keep_alive(false);
+    res->prepare_payload();
+    http::async_write(
+        ws.next_layer(), *res, [self = shared_from_this(), res](beast::error_code, size_t) {
+          beast::error_code ignored;
+          self->ws.next_layer().socket().shutdown(tcp::socket::shutdown_both, ignored);
+          self->Close();
+        });
+  }
+
+  void OnRequest() {
+    const auto& req = parser.get();
+    if (!websocket::is_upgrade(req)) {
+      return Refuse(http::status::upgrade_required,
+                    "this port speaks the Foxglove WebSocket protocol (foxglove.websocket.v1); "
+                    "the web page and the REST API are on slamd's HTTP port",
+                    {{"Upgrade", "websocket"}});
+    }
+    // The same rules as the HTTP server's (request_guard.cpp): loopback names, IP addresses
+    // and --allow-host names only (DNS rebinding).
+    const std::string host = Lower(HostName(std::string(req[http::field::host])));
+    if (!IsLoopback(host) && !IsIpAddress(host) &&
+        std::find(server.options.allowed_hosts.begin(), server.options.allowed_hosts.end(), host) ==
+            server.options.allowed_hosts.end()) {
+      return Refuse(http::status::forbidden,
+                    "slamd answers only to loopback names, IP addresses and --allow-host names, "
+                    "not to '" +
+                        host + "'");
+    }
+    if (!server.options.token.empty()) {
+      const std::string auth(req[http::field::authorization]);
+      const std::string prefix = "bearer ";
+      if (auth.empty()) {
+        return Refuse(http::status::unauthorized,
+                      "a token is configured: connect with Authorization: Bearer <token>",
+                      {{"WWW-Authenticate", "Bearer realm=\"slamd\""}});
+      }
+      if (Lower(auth.substr(0, prefix.size())) != prefix ||
+          !ConstantTimeEquals(auth.substr(std::min(prefix.size(), auth.size())),
+                              server.options.token)) {
+        return Refuse(http::status::unauthorized, "wrong token",
+                      {{"WWW-Authenticate", "Bearer realm=\"slamd\", error=\"invalid_token\""}});
+      }
+      writer = true;
+    } else {
+      // Without a token: a page of another site (any page the user has open can open a
+      // WebSocket to 127.0.0.1) may watch but not change the budget; Foxglove's web app may.
+      const std::string origin(req[http::field::origin]);
+      std::string origin_host = origin;
+      if (const size_t scheme = origin.find("://"); scheme != std::string::npos) {
+        origin_host = origin.substr(scheme + 3);
+      }
+      writer = origin.empty() || origin == kFoxgloveAppOrigin ||
+               Lower(origin_host) == Lower(std::string(req[http::field::host]));
+    }
+    const std::string protocol =
+        ChooseSubprotocol(std::string(req[http::field::sec_websocket_protocol]));
+    if (protocol.empty()) {
+      return Refuse(http::status::bad_request,
+                    "no Foxglove subprotocol offered (Sec-WebSocket-Protocol: "
+                    "foxglove.websocket.v1 or foxglove.sdk.v1)");
+    }
+    if (server.clients.load() >= server.options.max_clients) {
+      return Refuse(
+          http::status::service_unavailable,
+          "too many Foxglove clients (" + std::to_string(server.options.max_clients) + ")",
+          {{"Retry-After", "5"}});
+    }
+    beast::get_lowest_layer(ws).expires_never();
+    websocket::stream_base::timeout timeouts{};
+    timeouts.handshake_timeout = kHandshakeTimeout;
+    timeouts.idle_timeout = std::chrono::seconds(30);  // pinged at half of it; closed unanswered
+    timeouts.keep_alive_pings = true;
+    ws.set_option(timeouts);
+    ws.set_option(websocket::stream_base::decorator([protocol](websocket::response_type& res) {
+      res.set(http::field::sec_websocket_protocol, protocol);
+      res.set(http::field::server, std::string("slamd/") + SLAMD_VERSION);
+    }));
+    ws.read_message_max(kMaxClientMessageBytes);
+    ws.async_accept(req, [self = shared_from_this()](beast::error_code ec) {
+      if (ec) return self->Close();
+      self->OnOpen();
+    });
+  }
+
+  void OnOpen() {
+    open = true;
+    server.sessions.push_back(shared_from_this());
+    server.clients.fetch_add(1);
+    server.connections.fetch_add(1);
+    buffer.clear();
+    SendText(server.server_info);
+    SendText(server.advertise);
+    if (!writer) {
+      SendJson(Status(kInfo,
+                      "this connection comes from a web page of another origin: it may watch "
+                      "but not change slamd's parameters"));
+    }
+    Read();
+  }
+
+  void Read() {
+    ws.async_read(buffer, [self = shared_from_this()](beast::error_code ec, size_t) {
+      if (ec) return self->Close();
+      if (!self->ws.got_text()) {
+        self->server.bad_requests.fetch_add(1);
+        self->SendJson(Status(kError, "slamd takes no binary messages (no client publishing)"));
+      } else {
+        self->OnText(beast::buffers_to_string(self->buffer.data()));
+      }
+      self->buffer.consume(self->buffer.size());
+      if (!self->closed) self->Read();
+    });
+  }
+
+  void Close() {
+    if (closed) return;
+    closed = true;
+    beast::error_code ignored;
+    beast::get_lowest_layer(ws).socket().close(ignored);
+    if (open) {
+      server.clients.fetch_sub(1);
+      server.Forget(this);
+    }
+  }
+
+  void SendText(const std::string& text) {
+    Enqueue(std::make_shared<const std::string>(text), false, false);
+  }
+  void SendJson(const json& message) { SendText(Dump(message)); }
+
+  /// Queues a message; a droppable one (message data) is dropped when the queue is full. One
+  /// `latest_only` (a subscription's id: the map, the trajectory, of which Foxglove keeps only
+  /// the last) replaces the subscription's message still waiting in the queue, if any.
+  void Enqueue(std::shared_ptr<const std::string> bytes, bool binary, bool droppable,
+               int64_t latest_only = -1) {
+    if (closed) return;
+    if (latest_only >= 0) {
+      // The front is being written when `writing`: only later entries may be replaced.
+      for (size_t i = writing ? 1 : 0; i < queue.size(); ++i) {
+        if (queue[i].latest_only != latest_only) continue;
+        queued_bytes = queued_bytes - queue[i].bytes->size() + bytes->size();
+        queue[i].bytes = std::move(bytes);
+        server.messages_replaced.fetch_add(1);
+        return;
+      }
+    }
+    const size_t limit = server.options.max_queued_bytes;
+    if (droppable && queued_bytes + bytes->size() > limit && !queue.empty()) {
+      server.messages_dropped.fetch_add(1);
+      ++dropped_untold;
+      const auto now = Clock::now();
+      if (Seconds(now - last_drop_warning) >= kDropWarningEverySeconds) {
+        last_drop_warning = now;
+        SendJson(Status(kWarning, "slamd dropped " + std::to_string(dropped_untold) +
+                                      " message(s) for this client: it reads more slowly than "
+                                      "slamd publishes"));
+        dropped_untold = 0;
+      }
+      return;
+    }
+    if (!droppable && queued_bytes > 2 * limit) {
+      // A client that reads nothing at all: let it go rather than hold its messages.
+      return Close();
+    }
+    if (binary) server.messages_sent.fetch_add(1);
+    queued_bytes += bytes->size();
+    queue.push_back({std::move(bytes), binary, latest_only});
+    Pump();
+  }
+
+  void Pump() {
+    if (writing || queue.empty() || closed) return;
+    writing = true;
+    ws.binary(queue.front().binary);
+    ws.async_write(asio::buffer(*queue.front().bytes),
+                   [self = shared_from_this()](beast::error_code ec, size_t n) {
+                     self->writing = false;
+                     if (ec) return self->Close();
+                     self->server.bytes_sent.fetch_add(n);
+                     self->queued_bytes -= self->queue.front().bytes->size();
+                     self->queue.pop_front();
+                     self->Pump();
+                   });
+  }
+
+  void SendData(uint32_t subscription, double t_s, const std::string& payload,
+                bool latest_only = false) {
+    Enqueue(std::make_shared<const std::string>(
+                foxglove::MessageData(subscription, Nanoseconds(t_s), payload)),
+            true, true, latest_only ? int64_t{subscription} : -1);
+  }
+
+  bool Subscribed(Channel channel) const {
+    return std::any_of(subscriptions.begin(), subscriptions.end(),
+                       [&](const auto& s) { return s.second == channel; });
+  }
+
+  void OnText(const std::string& text) {
+    const Result<json> parsed = ParseJsonBounded(text);
+    if (!parsed.ok()) {
+      server.bad_requests.fetch_add(1);
+      return SendJson(
+          Status(kError, "not a message of the Foxglove protocol: " + parsed.Message()));
+    }
+    const json& message = parsed.value();
+    const std::string op =
+        message.is_object() && message.contains("op") && message["op"].is_string()
+            ? message["op"].get<std::string>()
+            : std::string();
+    try {
+      if (op == "subscribe") return Subscribe(message.at("subscriptions"));
+      if (op == "unsubscribe") {
+        for (const json& id : message.at("subscriptionIds")) {
+          const auto sub = id.get<uint32_t>();
+          subscriptions.erase(sub);
+          sent.erase(sub);
+        }
+        return;
+      }
+      if (op == "getParameters") return GetParameters(message);
+      if (op == "setParameters") return SetParameters(message);
+      if (op == "subscribeParameterUpdates" || op == "unsubscribeParameterUpdates") {
+        for (const json& name : message.at("parameterNames")) {
+          const auto n = name.get<std::string>();
+          if (op == "subscribeParameterUpdates") {
+            if (foxglove::IsBudgetParameter(n)) parameter_updates.insert(n);
+          } else {
+            parameter_updates.erase(n);
+          }
+        }
+        return;
+      }
+    } catch (const json::exception& e) {
+      server.bad_requests.fetch_add(1);
+      return SendJson(Status(kError, "malformed " + op + " message: " + e.what()));
+    }
+    server.bad_requests.fetch_add(1);
+    if (op.empty()) return SendJson(Status(kError, "a message needs an \"op\""));
+    SendJson(Status(kError, "slamd does not support \"" + op +
+                                "\" (capabilities: parameters, parametersSubscribe)"));
+  }
+
+  void Subscribe(const json& list) {
+    for (const json& s : list) {
+      const auto id = s.at("id").get<uint32_t>();
+      const auto channel_id = s.at("channelId").get<uint32_t>();
+      const auto spec =
+          std::find_if(server.channels.begin(), server.channels.end(),
+                       [&](const auto& c) { return static_cast<uint32_t>(c.id) == channel_id; });
+      if (spec == server.channels.end()) {
+        server.bad_requests.fetch_add(1);
+        SendJson(Status(kError, "no channel " + std::to_string(channel_id)));
+        continue;
+      }
+      if (subscriptions.count(id) != 0) {
+        server.bad_requests.fetch_add(1);
+        SendJson(Status(kError, "subscription " + std::to_string(id) + " is already in use"));
+        continue;
+      }
+      subscriptions[id] = spec->id;
+      sent.erase(id);
+    }
+    // New subscribers get the latest of each channel at once.
+    server.Publish(server.service.Snapshot(), false);
+  }
+
+  void GetParameters(const json& message) {
+    const json& names = message.at("parameterNames");
+    json values = json::array();
+    for (const json& p : foxglove::BudgetParameters(server.service.Budget())) {
+      const bool wanted =
+          names.empty() || std::any_of(names.begin(), names.end(), [&](const json& n) {
+            return n.is_string() && n.get<std::string>() == p["name"];
+          });
+      if (wanted) values.push_back(p);
+    }
+    json reply = {{"op", "parameterValues"}, {"parameters", std::move(values)}};
+    if (message.contains("id") && message["id"].is_string()) reply["id"] = message["id"];
+    SendJson(reply);
+  }
+
+  void SetParameters(const json& message) {
+    if (!writer) {
+      server.bad_requests.fetch_add(1);
+      return SendJson(Status(kError,
+                             "the budget was not changed: this connection comes from a web page "
+                             "of another origin (give slamd a --token-file and connect with it)"));
+    }
+    const Result<json> patch = foxglove::BudgetPatch(message.at("parameters"));
+    Result<BudgetSettings> changed =
+        patch.ok() ? server.patch_budget(patch.value()) : Result<BudgetSettings>(patch.errors());
+    if (!changed.ok()) {
+      server.bad_requests.fetch_add(1);
+      // Named as the client knows them: "/rays_per_scan" is budget.rays_per_scan.
+      std::string why;
+      for (const ConfigError& e : changed.errors()) {
+        const bool member = e.pointer.size() > 1 && !e.pointer.starts_with("/budget.");
+        why += (why.empty() ? "" : "; ") +
+               (member ? "budget." + e.pointer.substr(1)
+                       : e.pointer.substr(e.pointer.empty() ? 0 : 1)) +
+               (e.pointer.empty() ? "" : ": ") + e.detail;
+      }
+      return SendJson(Status(kError, "the budget was not changed: " + why));
+    }
+    server.parameter_changes.fetch_add(1);
+    if (message.contains("id") && message["id"].is_string()) {
+      // The answer to a request with an id: the values of the parameters it set.
+      json values = json::array();
+      for (const json& p : foxglove::BudgetParameters(changed.value())) {
+        for (const json& q : message["parameters"]) {
+          if (q.is_object() && q.contains("name") && q["name"] == p["name"]) {
+            values.push_back(p);
+            break;
+          }
+        }
+      }
+      SendJson({{"op", "parameterValues"}, {"parameters", values}, {"id", message["id"]}});
+    }
+    server.Tick();  // followers of the parameters hear of the change now
+  }
+};
+
+void FoxgloveServer::Impl::Forget(const Session* session) {
+  std::erase_if(sessions, [&](const auto& s) { return s.get() == session; });
+}
+
+void FoxgloveServer::Impl::Accept() {
+  acceptor.async_accept([this](beast::error_code ec, tcp::socket socket) {
+    if (ec || stopping) return;  // the acceptor was closed (stopping), or a transient error
+    std::make_shared<Session>(*this, std::move(socket))->ReadRequest();
+    Accept();
+  });
+}
+
+std::shared_ptr<const std::string> FoxgloveServer::Impl::MapPayload(const SlamSnapshot& s) {
+  if (!map.valid || map.key != s.map_version) {
+    map.payload = std::make_shared<const std::string>(
+        Dump(foxglove::Grid(s, options.max_grid_cells, s.has_pose ? s.pose.t : 0.0)));
+    map.key = s.map_version;
+    map.valid = true;
+    map.t_s = s.has_pose ? s.pose.t : 0.0;
+  }
+  return map.payload;
+}
+
+std::shared_ptr<const std::string> FoxgloveServer::Impl::TrajectoryPayload(const SlamSnapshot& s) {
+  if (!trajectory.valid || trajectory.key != s.sequence) {
+    trajectory.payload = std::make_shared<const std::string>(
+        Dump(foxglove::PosesInFrame(ScanEndTrajectory(s), kMaxTrajectoryPoses)));
+    trajectory.key = s.sequence;
+    trajectory.valid = true;
+    trajectory.t_s = s.has_pose ? s.pose.t : 0.0;
+  }
+  return trajectory.payload;
+}
+
+void FoxgloveServer::Impl::Publish(const std::shared_ptr<const SlamSnapshot>& snapshot,
+                                   bool new_scan) {
+  const SlamSnapshot& s = *snapshot;
+  const auto now = Clock::now();
+  // Payloads of this snapshot, made when a subscriber first needs them.
+  std::shared_ptr<const std::string> pose, tf, scan, truth;
+  for (const std::shared_ptr<Session>& session : std::vector(sessions)) {
+    for (const auto& [id, channel] : session->subscriptions) {
+      Session::Sent& sent = session->sent[id];
+      const bool first = !sent.any;
+      switch (channel) {
+        case Channel::kMap:
+        case Channel::kTrajectory: {
+          const bool is_map = channel == Channel::kMap;
+          const uint64_t key = is_map ? s.map_version : s.sequence;
+          const double period = is_map ? options.map_period_s : options.trajectory_period_s;
+          if (!first && (sent.key == key || Seconds(now - sent.at) < period)) break;
+          if (!is_map && !s.has_pose) break;
+          const auto payload = is_map ? MapPayload(s) : TrajectoryPayload(s);
+          session->SendData(id, is_map ? map.t_s : trajectory.t_s, *payload, true);
+          sent = {key, true, now};
+          break;
+        }
+        case Channel::kPose:
+        case Channel::kTransform:
+        case Channel::kScan:
+        case Channel::kGroundTruth: {
+          if (!s.has_pose || !(new_scan || first)) break;
+          std::shared_ptr<const std::string>* payload = nullptr;
+          json message;
+          if (channel == Channel::kPose) {
+            payload = &pose;
+            if (!*payload) message = foxglove::PoseInFrame(s.pose);
+          } else if (channel == Channel::kTransform) {
+            payload = &tf;
+            if (!*payload) message = foxglove::FrameTransform(s.pose);
+          } else if (channel == Channel::kScan) {
+            if (!s.scan_points) break;
+            payload = &scan;
+            if (!*payload) message = foxglove::PointCloud(*s.scan_points, s.pose.t);
+          } else {
+            if (!s.truth) break;
+            payload = &truth;
+            if (!*payload) message = foxglove::PoseInFrame({s.pose.t, *s.truth});
+          }
+          if (!*payload) *payload = std::make_shared<const std::string>(Dump(message));
+          session->SendData(id, s.pose.t, **payload);
+          sent = {s.sequence, true, now};
+          break;
+        }
+      }
+    }
+  }
+}
+
+void FoxgloveServer::Impl::Tick() {
+  if (stopping) return;
+  // What the period of /map and /trajectory held back.
+  Publish(service.Snapshot(), false);
+  const BudgetSettings budget = service.Budget();
+  if (!(budget == last_budget)) {
+    last_budget = budget;
+    const json all = foxglove::BudgetParameters(budget);
+    for (const std::shared_ptr<Session>& session : std::vector(sessions)) {
+      json values = json::array();
+      for (const json& p : all) {
+        if (session->parameter_updates.count(p["name"].get<std::string>()) != 0)
+          values.push_back(p);
+      }
+      if (!values.empty()) session->SendJson({{"op", "parameterValues"}, {"parameters", values}});
+    }
+  }
+}
+
+void FoxgloveServer::Impl::CloseAll() {
+  beast::error_code ignored;
+  acceptor.close(ignored);
+  ticker.cancel();
+  for (const std::shared_ptr<Session>& session : std::vector(sessions)) session->Close();
+}
+
+FoxgloveServer::FoxgloveServer(SlamService& service, PatchBudget patch_budget,
+                               const FoxgloveOptions& options)
+    : impl_(std::make_unique<Impl>(service, std::move(patch_budget), options)) {}
+
+FoxgloveServer::~FoxgloveServer() { Stop(); }
+
+Result<int> FoxgloveServer::Bind() {
+  Impl& s = *impl_;
+  const std::string where = s.options.bind + ":" + std::to_string(s.options.port);
+  beast::error_code ec;
+  tcp::resolver resolver(s.io);
+  const auto endpoints = resolver.resolve(s.options.bind, std::to_string(s.options.port),
+                                          tcp::resolver::numeric_service, ec);
+  if (ec || endpoints.empty()) {
+    return Error("Foxglove server: cannot resolve " + s.options.bind + ": " + ec.message());
+  }
+  const tcp::endpoint endpoint = endpoints.begin()->endpoint();
+  s.acceptor.open(endpoint.protocol(), ec);
+  if (!ec) s.acceptor.set_option(asio::socket_base::reuse_address(true), ec);
+  if (!ec) s.acceptor.bind(endpoint, ec);
+  if (!ec) s.acceptor.listen(asio::socket_base::max_listen_connections, ec);
+  if (ec) {
+    return Error("Foxglove server: cannot listen on " + where + " (" + ec.message() +
+                 "; --foxglove-port 0 turns it off)");
+  }
+  return static_cast<int>(s.acceptor.local_endpoint().port());
+}
+
+void FoxgloveServer::Start() {
+  Impl& s = *impl_;
+  if (s.started) return;
+  s.started = true;
+  s.Accept();
+  // The publishing tick: new snapshots, map and trajectory periods, parameter changes.
+  struct Ticker {
+    Impl& s;
+    void operator()(beast::error_code ec) const {
+      if (ec || s.stopping) return;
+      s.Tick();
+      s.ticker.expires_after(kTick);
+      s.ticker.async_wait(*this);
+    }
+  };
+  s.ticker.expires_after(kTick);
+  s.ticker.async_wait(Ticker{s});
+  s.thread = std::thread([&s] { s.io.run(); });
+  // Every snapshot (one per scan) to the serving thread, which sends each scan's pose,
+  // transform and readings; the SLAM thread only notifies.
+  s.watcher = std::thread([&s] {
+    uint64_t sequence = s.service.Snapshot()->sequence;
+    while (!s.stopping) {
+      auto snapshot = s.service.WaitNewer(sequence, std::chrono::milliseconds(250));
+      if (snapshot->sequence == sequence) continue;
+      sequence = snapshot->sequence;
+      asio::post(s.io, [&s, snapshot = std::move(snapshot)] {
+        if (!s.stopping) s.Publish(snapshot, true);
+      });
+    }
+  });
+}
+
+void FoxgloveServer::Stop() {
+  Impl& s = *impl_;
+  if (s.stopping.exchange(true)) return;
+  if (!s.started) return;
+  if (s.watcher.joinable()) s.watcher.join();
+  asio::post(s.io, [&s] {
+    s.CloseAll();
+    s.io.stop();
+  });
+  if (s.thread.joinable()) s.thread.join();
+}
+
+FoxgloveCounters FoxgloveServer::Counters() const {
+  const Impl& s = *impl_;
+  FoxgloveCounters c;
+  c.clients = s.clients.load();
+  c.connections = s.connections.load();
+  c.refused = s.refused.load();
+  c.messages_sent = s.messages_sent.load();
+  c.messages_dropped = s.messages_dropped.load();
+  c.messages_replaced = s.messages_replaced.load();
+  c.bytes_sent = s.bytes_sent.load();
+  c.parameter_changes = s.parameter_changes.load();
+  c.bad_requests = s.bad_requests.load();
+  return c;
+}
+
+std::string FoxgloveServer::MetricsText() const {
+  const FoxgloveCounters c = Counters();
+  std::ostringstream o;
+  const auto metric = [&](const char* name, const char* type, const char* help, auto value) {
+    o << "# HELP slamd_foxglove_" << name << ' ' << help << "\n# TYPE slamd_foxglove_" << name
+      << ' ' << type << "\nslamd_foxglove_" << name << ' ' << value << '\n';
+  };
+  metric("clients", "gauge", "Foxglove WebSocket clients connected.", c.clients);
+  metric("connections_total", "counter", "Foxglove WebSocket connections accepted.", c.connections);
+  metric("refused_total", "counter",
+         "Foxglove WebSocket upgrades refused (not an upgrade, host, token, subprotocol, cap).",
+         c.refused);
+  metric("messages_sent_total", "counter", "Foxglove message-data frames queued for clients.",
+         c.messages_sent);
+  metric("messages_dropped_total", "counter",
+         "Foxglove message-data frames dropped because a client's send queue was full.",
+         c.messages_dropped);
+  metric("messages_replaced_total", "counter",
+         "Foxglove /map and /trajectory messages replaced by a newer one before they were sent.",
+         c.messages_replaced);
+  metric("sent_bytes_total", "counter", "Bytes written to Foxglove clients.", c.bytes_sent);
+  metric("parameter_changes_total", "counter", "Budget changes made through Foxglove parameters.",
+         c.parameter_changes);
+  metric("bad_requests_total", "counter",
+         "Foxglove client messages refused (not JSON, unknown op, invalid parameters).",
+         c.bad_requests);
+  return o.str();
+}
+
+}  // namespace slam::server

@@ -1,0 +1,77 @@
+#pragma once
+// slamd's Foxglove WebSocket server (docs/http-api.md, "Foxglove"): the map, pose, trajectory,
+// transform, scan and ground truth as channels of the Foxglove WebSocket protocol
+// (foxglove.websocket.v1, or foxglove.sdk.v1), JSON-encoded with the Foxglove schemas, and the
+// budget as parameters. One thread of its own serves every client (Boost.Beast on Boost.Asio):
+// it reads the SLAM's published snapshots and never makes the SLAM thread wait. Each client has
+// a bounded send queue: a slow or stuck client loses messages (counted, and told once in a
+// while with a status message), never delays anyone else.
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <nlohmann/json_fwd.hpp>
+#include <string>
+#include <vector>
+
+#include "engine/result.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
+#include "server/slam_service.hpp"
+
+namespace slam::server {
+
+struct FoxgloveOptions {
+  std::string bind = "127.0.0.1";
+  int port = 8765;    // 0: any free port
+  std::string token;  // when set, every connection must present it (Authorization: Bearer)
+  /// Besides loopback names and IP addresses, the Host names it answers (--allow-host).
+  std::vector<std::string> allowed_hosts;
+  int max_clients = 16;                       // connections beyond are refused (503)
+  size_t max_queued_bytes = size_t{8} << 20;  // per client: messages beyond are dropped
+  size_t max_grid_cells = size_t{1} << 20;    // /map is merged into larger cells beyond
+  double map_period_s = 1.0;                  // /map at most this often while it changes
+  double trajectory_period_s = 1.0;           // /trajectory likewise
+};
+
+/// What the server did, for /metrics.
+struct FoxgloveCounters {
+  int64_t clients = 0;             // connected now
+  uint64_t connections = 0;        // accepted since start
+  uint64_t refused = 0;            // upgrades refused (bad request, host, token, cap)
+  uint64_t messages_sent = 0;      // message-data frames queued for sending
+  uint64_t messages_dropped = 0;   // message-data frames dropped at a full queue
+  uint64_t messages_replaced = 0;  // /map, /trajectory replaced in the queue by a newer one
+  uint64_t bytes_sent = 0;         // written to the sockets
+  uint64_t parameter_changes = 0;  // setParameters requests that changed the budget
+  uint64_t bad_requests = 0;       // client messages refused (not JSON, unknown op, ...)
+};
+
+class FoxgloveServer {
+ public:
+  /// `patch_budget` applies a merge patch of the budget as the REST route does (validated,
+  /// the page told); the new budget, or what is wrong with it.
+  using PatchBudget = std::function<Result<BudgetSettings>(const nlohmann::json&)>;
+
+  FoxgloveServer(SlamService& service, PatchBudget patch_budget, const FoxgloveOptions& options);
+  ~FoxgloveServer();  // stops
+  FoxgloveServer(const FoxgloveServer&) = delete;
+  FoxgloveServer& operator=(const FoxgloveServer&) = delete;
+
+  /// Listens on the options' address and port; the port (useful with port 0).
+  Result<int> Bind();
+  /// Serves on a thread of its own until Stop (call Bind first).
+  void Start();
+  /// Closes every connection and joins the thread (from any thread; idempotent).
+  void Stop();
+
+  FoxgloveCounters Counters() const;
+  /// The counters in the Prometheus text format (slamd_foxglove_*), for /metrics.
+  std::string MetricsText() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace slam::server

@@ -1,0 +1,217 @@
+// The Foxglove protocol's messages as slamd builds them (server/foxglove_messages.hpp): base64,
+// the binary message-data frame, times, the map as a foxglove.Grid (cells, origin, merging of
+// large maps), poses, the trajectory's thinning, the budget as parameters and back. The official
+// client and schemas check the same messages end to end (tests/foxglove/).
+
+#include "server/foxglove_messages.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <memory>
+
+#include "engine/cell_encoding.hpp"
+#include "engine/occupancy_grid.hpp"
+
+namespace slam::server::foxglove {
+namespace {
+
+using json = nlohmann::json;
+
+std::string Decode64(const std::string& text) {
+  std::string out;
+  int bits = 0, value = 0;
+  for (const char c : text) {
+    if (c == '=') break;
+    const std::string alphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    value = (value << 6) | static_cast<int>(alphabet.find(c));
+    bits += 6;
+    if (bits >= 8) {
+      bits -= 8;
+      out.push_back(static_cast<char>((value >> bits) & 0xff));
+    }
+  }
+  return out;
+}
+
+TEST(FoxgloveMessagesTest, Base64MatchesRfc4648Vectors) {
+  EXPECT_EQ(Base64(""), "");
+  EXPECT_EQ(Base64("f"), "Zg==");
+  EXPECT_EQ(Base64("fo"), "Zm8=");
+  EXPECT_EQ(Base64("foo"), "Zm9v");
+  EXPECT_EQ(Base64("foob"), "Zm9vYg==");
+  EXPECT_EQ(Base64("fooba"), "Zm9vYmE=");
+  EXPECT_EQ(Base64("foobar"), "Zm9vYmFy");
+  const std::string bytes = {'\0', '\xff', '\x80', '\x7f', '\x01'};
+  EXPECT_EQ(Base64(bytes), "AP+AfwE=");
+}
+
+TEST(FoxgloveMessagesTest, MessageDataFrameIsOpcodeSubscriptionTimestampPayload) {
+  const std::string frame = MessageData(0x04030201u, 0x0c0b0a0908070605ull, "{}");
+  ASSERT_EQ(frame.size(), 1u + 4u + 8u + 2u);
+  const std::string expected = {'\x01', '\x01', '\x02', '\x03', '\x04', '\x05', '\x06', '\x07',
+                                '\x08', '\x09', '\x0a', '\x0b', '\x0c', '{',    '}'};
+  EXPECT_EQ(frame, expected);
+}
+
+TEST(FoxgloveMessagesTest, TimeSplitsSecondsAndClampsAtZero) {
+  EXPECT_EQ(Time(1.5), (json{{"sec", 1}, {"nsec", 500000000}}));
+  EXPECT_EQ(Time(-3.0), (json{{"sec", 0}, {"nsec", 0}}));
+  EXPECT_EQ(Time(std::nan("")), (json{{"sec", 0}, {"nsec", 0}}));
+  EXPECT_EQ(Time(2.9999999999), (json{{"sec", 3}, {"nsec", 0}}));  // rounding carries
+}
+
+TEST(FoxgloveMessagesTest, PoseIsARotationAboutZ) {
+  const json p = Pose({1.0, -2.0, kPi / 2});
+  EXPECT_DOUBLE_EQ(p["position"]["x"].get<double>(), 1.0);
+  EXPECT_DOUBLE_EQ(p["position"]["y"].get<double>(), -2.0);
+  EXPECT_DOUBLE_EQ(p["orientation"]["z"].get<double>(), std::sqrt(0.5));
+  EXPECT_DOUBLE_EQ(p["orientation"]["w"].get<double>(), std::sqrt(0.5));
+  const json tf = FrameTransform({4.0, {1.0, 2.0, 0.0}});
+  EXPECT_EQ(tf["parent_frame_id"], "map");
+  EXPECT_EQ(tf["child_frame_id"], "base_link");
+  EXPECT_EQ(tf["translation"], (json{{"x", 1.0}, {"y", 2.0}, {"z", 0.0}}));
+}
+
+/// A snapshot with one tile at `index`: the cell (x, y) of the tile holds `value`.
+SlamSnapshot OneTile(TileIndex index, std::vector<std::tuple<int, int, LogOdds>> cells) {
+  auto tile = std::make_shared<Tile>();
+  for (const auto& [x, y, value] : cells) {
+    tile->cells[static_cast<size_t>(y * kTileSize + x)] = value;
+  }
+  SlamSnapshot s;
+  s.resolution_m = 0.05;
+  s.tiles.push_back({index, tile});
+  return s;
+}
+
+TEST(FoxgloveMessagesTest, GridHoldsTheCellsAtTheTilesCorner) {
+  const SlamSnapshot s = OneTile(
+      {1, -1},
+      {{0, 0, EncodeLogOdds(3.0)}, {5, 2, EncodeLogOdds(-3.0)}, {63, 63, EncodeLogOdds(0.5)}});
+  const json grid = Grid(s, 1 << 20, 2.0);
+  EXPECT_EQ(grid["frame_id"], "map");
+  EXPECT_EQ(grid["column_count"], kTileSize);
+  EXPECT_EQ(grid["row_stride"], kTileSize);
+  EXPECT_EQ(grid["cell_stride"], 1);
+  EXPECT_DOUBLE_EQ(grid["cell_size"]["x"].get<double>(), 0.05);
+  EXPECT_DOUBLE_EQ(grid["pose"]["position"]["x"].get<double>(), kTileSize * 0.05);
+  EXPECT_DOUBLE_EQ(grid["pose"]["position"]["y"].get<double>(), -kTileSize * 0.05);
+  EXPECT_EQ(grid["fields"][0]["type"], 2);  // INT8
+  const std::string data = Decode64(grid["data"].get<std::string>());
+  ASSERT_EQ(data.size(), static_cast<size_t>(kTileSize * kTileSize));
+  const auto at = [&](int x, int y) {
+    return static_cast<int8_t>(data[static_cast<size_t>(y * kTileSize + x)]);
+  };
+  EXPECT_EQ(at(0, 0), 95);    // p = 1 / (1 + e^-3)
+  EXPECT_EQ(at(5, 2), 5);     // p = 1 / (1 + e^3)
+  EXPECT_EQ(at(63, 63), 62);  // p = 1 / (1 + e^-0.5)
+  EXPECT_EQ(at(1, 0), -1);    // never seen
+  EXPECT_EQ(grid["timestamp"], Time(2.0));
+}
+
+TEST(FoxgloveMessagesTest, LargeGridsMergeBlocksKeepingTheMostOccupiedKnownCell) {
+  const SlamSnapshot s = OneTile(
+      {0, 0},
+      {{0, 0, EncodeLogOdds(-3.0)}, {1, 1, EncodeLogOdds(3.0)}, {2, 0, EncodeLogOdds(-3.0)}});
+  const json grid = Grid(s, kTileSize * kTileSize / 4, 0.0);  // room for a quarter: 2 x 2 blocks
+  EXPECT_EQ(grid["column_count"], kTileSize / 2);
+  EXPECT_DOUBLE_EQ(grid["cell_size"]["x"].get<double>(), 0.1);
+  const std::string data = Decode64(grid["data"].get<std::string>());
+  ASSERT_EQ(data.size(), static_cast<size_t>(kTileSize * kTileSize / 4));
+  EXPECT_EQ(static_cast<int8_t>(data[0]), 95);  // free and occupied: occupied
+  EXPECT_EQ(static_cast<int8_t>(data[1]), 5);   // free only
+  EXPECT_EQ(static_cast<int8_t>(data[2]), -1);  // nothing known
+}
+
+TEST(FoxgloveMessagesTest, AnEmptyMapIsOneUnknownCell) {
+  const json grid = Grid(SlamSnapshot{}, 1 << 20, 0.0);
+  EXPECT_EQ(grid["column_count"], 1);
+  EXPECT_EQ(Decode64(grid["data"].get<std::string>()), std::string(1, '\xff'));
+}
+
+TEST(FoxgloveMessagesTest, TrajectoryIsThinnedEvenlyKeepingBothEnds) {
+  std::vector<TimedPose> poses;
+  for (int i = 0; i < 10; ++i) poses.push_back({i * 1.0, {i * 1.0, 0.0, 0.0}});
+  const json message = PosesInFrame(poses, 4);
+  ASSERT_EQ(message["poses"].size(), 4u);
+  for (const auto& [k, x] :
+       std::vector<std::pair<size_t, double>>{{0, 0}, {1, 3}, {2, 6}, {3, 9}}) {
+    EXPECT_DOUBLE_EQ(message["poses"][k]["position"]["x"].get<double>(), x);
+  }
+  EXPECT_EQ(message["timestamp"], Time(9.0));
+  EXPECT_EQ(PosesInFrame(poses, 100)["poses"].size(), 10u);
+}
+
+TEST(FoxgloveMessagesTest, ScanPointsArePackedFloat32) {
+  const json cloud = PointCloud({Vec2(1.0, -0.5), Vec2(0.25, 2.0)}, 1.0);
+  EXPECT_EQ(cloud["frame_id"], "base_link");
+  EXPECT_EQ(cloud["point_stride"], 12);
+  const std::string data = Decode64(cloud["data"].get<std::string>());
+  ASSERT_EQ(data.size(), 24u);
+  float values[6];
+  std::memcpy(values, data.data(), sizeof values);
+  EXPECT_EQ(values[0], 1.0f);
+  EXPECT_EQ(values[1], -0.5f);
+  EXPECT_EQ(values[2], 0.0f);
+  EXPECT_EQ(values[3], 0.25f);
+  EXPECT_EQ(values[4], 2.0f);
+}
+
+TEST(FoxgloveMessagesTest, ChannelsCarryTheOfficialSchemaNames) {
+  const auto channels = Channels(false);
+  ASSERT_EQ(channels.size(), 5u);
+  EXPECT_EQ(channels[0].topic, "/map");
+  EXPECT_EQ(channels[0].schema_name, "foxglove.Grid");
+  EXPECT_EQ(channels[4].schema_name, "foxglove.PointCloud");
+  const auto simulated = Channels(true);
+  ASSERT_EQ(simulated.size(), 6u);
+  EXPECT_EQ(simulated.back().topic, "/ground_truth");
+  const json advertise = Advertise(simulated);
+  EXPECT_EQ(advertise["op"], "advertise");
+  for (const json& c : advertise["channels"]) {
+    EXPECT_EQ(c["encoding"], "json");
+    EXPECT_EQ(c["schemaEncoding"], "jsonschema");
+    const json schema = json::parse(c["schema"].get<std::string>());
+    EXPECT_EQ(schema["title"], c["schemaName"]);
+  }
+}
+
+TEST(FoxgloveMessagesTest, BudgetParametersAreTheBudgetWithNumbersAsFloat64) {
+  BudgetSettings b;
+  b.rays_per_scan = 16250;
+  b.policy = BudgetPolicy::kAdaptive;
+  const json p = BudgetParameters(b);
+  ASSERT_EQ(p.size(), 5u);
+  EXPECT_EQ(p[0], (json{{"name", "budget.mode"}, {"value", "rays"}}));
+  EXPECT_EQ(p[1],
+            (json{{"name", "budget.rays_per_scan"}, {"value", 16250.0}, {"type", "float64"}}));
+  EXPECT_EQ(p[3], (json{{"name", "budget.policy"}, {"value", "adaptive"}}));
+  EXPECT_TRUE(IsBudgetParameter("budget.max_particles"));
+  EXPECT_FALSE(IsBudgetParameter("budget"));
+}
+
+TEST(FoxgloveMessagesTest, SetParametersBecomeAMergePatchOfTheBudget) {
+  const Result<json> patch = BudgetPatch(json::parse(R"([
+      {"name": "budget.rays_per_scan", "value": 32500.0, "type": "float64"},
+      {"name": "budget.cpu_share", "value": 0.5},
+      {"name": "budget.max_particles"}])"));
+  ASSERT_TRUE(patch.ok()) << patch.Message();
+  EXPECT_EQ(patch.value(), json::parse(R"({"rays_per_scan": 32500, "cpu_share": 0.5,
+                                           "max_particles": null})"));
+  EXPECT_TRUE(patch.value()["rays_per_scan"].is_number_integer());
+  // A fractional value stays fractional: the budget's validation refuses it.
+  EXPECT_TRUE(BudgetPatch(json::parse(R"([{"name": "budget.rays_per_scan", "value": 1000.5}])"))
+                  .value()["rays_per_scan"]
+                  .is_number_float());
+  const Result<json> unknown =
+      BudgetPatch(json::parse(R"([{"name": "budget.speed", "value": 1}])"));
+  ASSERT_FALSE(unknown.ok());
+  EXPECT_EQ(unknown.errors()[0].pointer, "/budget.speed");
+  EXPECT_FALSE(BudgetPatch(json::parse(R"({"name": "budget.mode"})")).ok());
+  EXPECT_FALSE(BudgetPatch(json::parse(R"([{"value": 3}])")).ok());
+}
+
+}  // namespace
+}  // namespace slam::server::foxglove
