@@ -337,7 +337,10 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
       }
     }
     const size_t limit = server.options.max_queued_bytes;
-    if (droppable && queued_bytes + bytes->size() > limit && !queue.empty()) {
+    // The message being written is the socket's already: the limit is on what waits behind it
+    // (a map larger than the buffer does not make the poses after it drop).
+    const size_t waiting = queued_bytes - (writing ? queue.front().bytes->size() : 0);
+    if (droppable && waiting + bytes->size() > limit && waiting > 0) {
       server.messages_dropped.fetch_add(1);
       ++dropped_untold;
       const auto now = Clock::now();
@@ -350,7 +353,7 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
       }
       return;
     }
-    if (!droppable && queued_bytes > 2 * limit) {
+    if (!droppable && waiting > 2 * limit) {
       // A client that reads nothing at all: let it go rather than hold its messages.
       return Close();
     }

@@ -10,7 +10,7 @@
 // read and set through parameters (then GET /api/v1/budget and the page's event stream show
 // it), invalid values refused with a status message and nothing changed, parameter updates
 // followed, and the upgrade's rules (Host names, subprotocol, plain HTTP, another site's page).
-// "token": a slamd with --token-file and a 256 KiB client buffer: no connection without the token
+// "token": a slamd with --token-file and a 64 KiB client buffer: no connection without the token
 // or with a wrong one; with it, parameters can be set; a client that stops reading loses
 // messages (counted in /metrics, told by a status message) while another client keeps getting
 // every scan and no scan is late. Exit 1 with a message on the first failure.
@@ -346,7 +346,7 @@ async function tokenChecks() {
   const lateBefore = await metric('slamd_late_scans_total');
   const scansBefore = await metric('slamd_scans_total');
   const posesBefore = count(good, '/pose');
-  await waitFor('messages dropped for the client that stopped reading', 40000, async () =>
+  await waitFor('messages dropped for the client that stopped reading', 60000, async () =>
     (await metric('slamd_foxglove_messages_dropped_total')) > 0,
   );
   await sleep(2000);

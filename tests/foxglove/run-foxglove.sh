@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # slamd's Foxglove WebSocket server with the official client: starts SLAMD_BIN twice on free
-# ports (on loopback without a token, then with a token file and a 256 KiB client buffer), runs
+# ports (on loopback without a token, then with a token file and a 64 KiB client buffer), runs
 # foxglove.mjs against each and always stops them.
 #
 #   tests/foxglove/run-foxglove.sh SLAMD_BIN WORK_DIR
@@ -91,7 +91,7 @@ run open "$http_url" "$ws_url"
 
 token=foxglove-test-token-$RANDOM$RANDOM
 printf '%s\n' "$token" > "$work_dir/token"
-start token --token-file "$work_dir/token" --foxglove-buffer-kb 256
+start token --token-file "$work_dir/token" --foxglove-buffer-kb 64
 echo "slamd (token) at $http_url, Foxglove at $ws_url"
 run token "$http_url" "$ws_url" "$token"
 
