@@ -3,17 +3,19 @@
 #
 #   tests/outside/run.sh python-can-log   SLAM_SIM SLAM_LINK WORK_DIR
 #                                         python-can's CanutilsLogReader on slam-sim's can.log
+#   tests/outside/run.sh python-can-slcan SLAMD SLAM_SIM WORK_DIR
+#                                         python-can's slcan bus feeding slamd's slcan source
 #   tests/outside/run.sh log2asc          SLAM_SIM WORK_DIR   can-utils' log2asc on can.log
 #
 # Exit 0 pass, 77 skip (only when the outside client is not installed: `scripts/deps --test`
-# installs python3-can and can-utils), anything else fail. The
+# installs python3-can, python3-serial and can-utils), anything else fail. The
 # checks are Python scripts beside this one, run by Debian's python3 (/usr/bin/python3), whose
 # dist-packages hold python3-can: another python3 first on PATH (pyenv, a venv) would not see it.
 set -euo pipefail
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 
 if [[ $# -lt 1 ]]; then
-  sed -n '4,7p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '4,9p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 test_name=$1
@@ -48,13 +50,19 @@ case "$test_name" in
     need_module can python3-can
     exec "$python" "$here/python_can_log.py" "$@"
     ;;
+  python-can-slcan)
+    [[ $# -eq 3 ]] || { echo "usage: $0 python-can-slcan SLAMD SLAM_SIM WORK_DIR" >&2; exit 2; }
+    need_module can python3-can
+    need_module serial python3-serial
+    exec "$python" "$here/python_can_slcan.py" "$@"
+    ;;
   log2asc)
     [[ $# -eq 2 ]] || { echo "usage: $0 log2asc SLAM_SIM WORK_DIR" >&2; exit 2; }
     need_tool log2asc can-utils
     exec "$python" "$here/log2asc_log.py" "$(command -v log2asc)" "$@"
     ;;
   *)
-    echo "$0: unknown test '$test_name' (python-can-log, log2asc)" >&2
+    echo "$0: unknown test '$test_name' (python-can-log, python-can-slcan, log2asc)" >&2
     exit 2
     ;;
 esac
