@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Outside clients in the tests (issue 26): programs somebody else wrote read what ours write.
 #
+#   tests/outside/run.sh promtool         SLAMD WORK_DIR      promtool check metrics on /metrics
 #   tests/outside/run.sh python-can-log   SLAM_SIM SLAM_LINK WORK_DIR
 #                                         python-can's CanutilsLogReader on slam-sim's can.log
 #   tests/outside/run.sh python-can-slcan SLAMD SLAM_SIM WORK_DIR
@@ -8,14 +9,14 @@
 #   tests/outside/run.sh log2asc          SLAM_SIM WORK_DIR   can-utils' log2asc on can.log
 #
 # Exit 0 pass, 77 skip (only when the outside client is not installed: `scripts/deps --test`
-# installs python3-can, python3-serial and can-utils), anything else fail. The
+# installs prometheus, python3-can, python3-serial and can-utils), anything else fail. The
 # checks are Python scripts beside this one, run by Debian's python3 (/usr/bin/python3), whose
 # dist-packages hold python3-can: another python3 first on PATH (pyenv, a venv) would not see it.
 set -euo pipefail
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 
 if [[ $# -lt 1 ]]; then
-  sed -n '4,9p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+  sed -n '4,10p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
   exit 2
 fi
 test_name=$1
@@ -45,6 +46,11 @@ need_module() {  # need_module MODULE PACKAGE
 }
 
 case "$test_name" in
+  promtool)
+    [[ $# -eq 2 ]] || { echo "usage: $0 promtool SLAMD WORK_DIR" >&2; exit 2; }
+    need_tool promtool prometheus
+    exec "$python" "$here/promtool_metrics.py" "$(command -v promtool)" "$@"
+    ;;
   python-can-log)
     [[ $# -eq 3 ]] || { echo "usage: $0 python-can-log SLAM_SIM SLAM_LINK WORK_DIR" >&2; exit 2; }
     need_module can python3-can
@@ -62,7 +68,7 @@ case "$test_name" in
     exec "$python" "$here/log2asc_log.py" "$(command -v log2asc)" "$@"
     ;;
   *)
-    echo "$0: unknown test '$test_name' (python-can-log, python-can-slcan, log2asc)" >&2
+    echo "$0: unknown test '$test_name' (promtool, python-can-log, python-can-slcan, log2asc)" >&2
     exit 2
     ;;
 esac
