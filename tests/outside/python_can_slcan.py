@@ -1,14 +1,15 @@
 """python-can's slcan bus feeds slamd's slcan source the frames of a slam-sim log.
 
-slamd and python-can each open a serial device by its path, as they would a USB-CAN adapter:
-two pseudo-terminals joined like a null-modem cable (what one program writes to its terminal,
-the other reads from its own). slamd gets `--source slcan:/dev/pts/A` and sends its open
-commands; python-can's `interface="slcan"` bus opens /dev/pts/B at 1 Mbit/s (sending its own
-open commands) and sends every frame of the log, read by python-can's CanutilsLogReader, at 4
-times the log's pace. Then slamd's /api/v1/status must show every frame read and decoded: its
-frame counters equal to the frames sent, no frame rejected by reassembly or decoding, the
-Aseba messages and robot events the frames hold (reassembled here independently), no event
-dropped, scans mapped, and no line of the stream unread but python-can's own commands.
+slamd and python-can each open a serial device by its path, as they would a USB-CAN adapter: two
+pseudo-terminals joined like a null-modem cable (what one program writes to its terminal, the
+other reads from its own). slamd gets `--source slcan:/dev/pts/A` and sends its open commands
+(close, 1 Mbit/s, open: checked); python-can's `interface="slcan"` bus opens /dev/pts/B at 1
+Mbit/s (sending its own open commands) and sends every frame of the log, read by python-can's
+CanutilsLogReader, at 4 times the log's pace. Then slamd's /api/v1/status must show every frame
+read and decoded: its frame counters equal to the frames sent, no frame rejected by reassembly
+or decoding, the Aseba messages and robot events the frames hold (reassembled here
+independently), no event dropped, scans mapped, and no line of the stream unread but
+python-can's own commands.
 
     python_can_slcan.py SLAMD SLAM_SIM WORK_DIR
 """
@@ -67,6 +68,10 @@ class NullModem:
         with self.lock:
             return bytes(self.b_to_a)
 
+    def carried_to_b(self):
+        with self.lock:
+            return bytes(self.a_to_b)
+
     def close(self):
         os.write(self.wake_write, b"x")
         self.thread.join(timeout=5)
@@ -122,6 +127,7 @@ def main():
                 sent_lines = modem.carried_to_a().split(b"\r")
                 commands = [line for line in sent_lines[:-1] if not line.startswith(b"t")]
                 frame_lines = len(sent_lines) - 1 - len(commands)
+                slamd_sent = modem.carried_to_b()
             finally:
                 bus.shutdown()
     finally:
@@ -129,6 +135,8 @@ def main():
 
     check(frame_lines == len(messages),
           f"python-can wrote {frame_lines} frame lines for {len(messages)} frames")
+    # slamd only opens the adapter at 1 Mbit/s (close, bit rate, open) and never sends a frame.
+    check(slamd_sent == b"C\rS8\rO\r", f"slamd sent {slamd_sent!r} to the adapter")
     link = status["link"]
     source = link["source_counters"]
     expected = {
