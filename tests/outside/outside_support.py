@@ -166,6 +166,13 @@ class Slamd:
     def __enter__(self):
         with open(self.stdout_path, "wb") as out, open(self.stderr_path, "wb") as err:
             self.process = subprocess.Popen([self.binary] + self.args, stdout=out, stderr=err)
+        try:
+            return self._wait_ready()
+        except BaseException:
+            self.__exit__()  # a with block whose __enter__ fails never calls __exit__
+            raise
+
+    def _wait_ready(self):
         deadline = time.monotonic() + 20
         while self.url is None:
             with open(self.stdout_path, encoding="utf-8", errors="replace") as out:

@@ -74,7 +74,7 @@ def main():
         "slamd_scans_total": lambda v: v >= 10,
         "slamd_scan_latency_seconds_count": lambda v: v >= 10,
         'slamd_scan_latency_seconds_bucket{le="+Inf"}': lambda v: v >= 10,
-        "slamd_link_frames_total": lambda v: v > 1000,
+        "slamd_link_frames_total": lambda v: v > 500,
         "slamd_link_up": lambda v: v == 1,
         'slamd_http_requests_total{method="GET",code="404"}': lambda v: v >= 1,
     }
