@@ -42,13 +42,12 @@ expected=(/etc/default/slamd /lib/systemd/system/slamd.service
 for program in slamd slam-sim slam-link slam-replay slam-evaluate slam-tune slamd-load; do
   expected+=("/usr/bin/$program" "/usr/share/man/man1/$program.1.gz")
 done
-for file in web/*.html web/*.js web/*.css web/*.svg; do
-  expected+=("/usr/share/slamd/$file")
-done
-# Every robot description and parameter set of config/, as the source tree holds them.
+# The page's files and every robot description and parameter set of config/, as the source tree
+# holds them.
 while IFS= read -r file; do
   expected+=("/usr/share/slamd/$file")
-done < <(cd "$source" && find config -name '*.json')
+done < <(cd "$source" && find web -maxdepth 1 -type f ! -name 'package*.json' &&
+  find config -name '*.json')
 for path in "${expected[@]}"; do
   grep -qxF "$path" "$work/files" || fail "the package lacks $path"
 done
