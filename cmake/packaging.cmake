@@ -111,8 +111,12 @@ set(CPACK_DEBIAN_FILE_NAME DEB-DEFAULT)
 set(CPACK_DEBIAN_COMPRESSION_TYPE xz)
 # dpkg-shlibdeps turns the programs' libraries into Depends on Debian's runtime packages.
 set(CPACK_DEBIAN_PACKAGE_SHLIBDEPS ON)
-# mpirun, for `mpirun -np N slam-tune`: the library alone comes through Depends.
-set(CPACK_DEBIAN_PACKAGE_SUGGESTS "openmpi-bin")
+# mpirun, for `mpirun -np N slam-tune` when slam-tune links OpenMPI (its library comes through
+# Depends); -DCMAKE_DISABLE_FIND_PACKAGE_MPI=ON makes a package without OpenMPI.
+get_target_property(tune_libraries slam-tune LINK_LIBRARIES)
+if("MPI::MPI_CXX" IN_LIST tune_libraries)
+  set(CPACK_DEBIAN_PACKAGE_SUGGESTS "openmpi-bin")
+endif()
 set(CPACK_DEBIAN_PACKAGE_CONTROL_EXTRA
     ${CMAKE_BINARY_DIR}/packaging/conffiles ${SLAM_DEB_DIR}/postinst ${SLAM_DEB_DIR}/prerm
     ${SLAM_DEB_DIR}/postrm)
