@@ -23,6 +23,7 @@
 
 #include "engine/io/params_json.hpp"
 #include "engine/io/robot_json.hpp"
+#include "engine/io/shipped_path.hpp"
 #include "engine/robot.hpp"
 #include "hw_link/link.hpp"
 #include "server/foxglove_server.hpp"
@@ -47,10 +48,10 @@ int Fail(const std::string& message, int code = 2) {
   return code;
 }
 
-/// The installed page, else the source tree's.
+/// The page installed beside the program, else the source tree's, else where `cmake --install`
+/// put it.
 std::string DefaultWebRoot() {
-  for (const std::string& candidate :
-       {std::string(SLAMD_WEB_ROOT), std::string(SLAM_SOURCE_DIR) + "/web"}) {
+  for (const std::string& candidate : {slam::io::ShippedPath("web"), std::string(SLAMD_WEB_ROOT)}) {
     if (!candidate.empty() && fs::exists(fs::path(candidate) / "index.html")) return candidate;
   }
   return {};
@@ -61,7 +62,7 @@ std::string DefaultWebRoot() {
 int main(int argc, char** argv) {
   CLI::App app{"slamd: real-time SLAM server for the marXbot (map in the browser, REST control)"};
   std::string source = "sim:rooms";
-  std::string robot_path = std::string(SLAM_SOURCE_DIR) + "/config/marxbot.robot.json";
+  std::string robot_path = slam::io::ShippedPath("config/marxbot.robot.json");
   std::string params_path;
   std::string bind = "127.0.0.1";
   int port = 8080;
@@ -135,6 +136,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 256))
       ->capture_default_str();
   app.add_flag("--quiet", quiet, "no periodic status line on stderr");
+  app.set_version_flag("--version", std::string("slamd ") + SLAMD_VERSION);
   CLI11_PARSE(app, argc, argv);
 
   const auto robot = slam::io::LoadRobot(robot_path);

@@ -81,6 +81,7 @@ int main(int argc, char** argv) {
   app.add_flag("--require-checks", require,
                "exit with status 3 unless SLAM beats odometry-only on every experiment at the "
                "largest budget, halves its mean ATE, and mean q improves with the budget");
+  app.set_version_flag("--version", std::string("slam-evaluate ") + SLAM_VERSION);
   CLI11_PARSE(app, argc, argv);
 
   slam::offline::EvaluationPlan plan;

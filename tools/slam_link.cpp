@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "engine/io/robot_json.hpp"
+#include "engine/io/shipped_path.hpp"
 #include "engine/scan_assembler.hpp"
 #include "hw_link/frame_decoder.hpp"
 #include "hw_link/link.hpp"
@@ -52,7 +53,7 @@ int main(int argc, char** argv) {
       "messages, robot events, every rejection, and the scans they assemble into. Ends when the "
       "source ends, after --seconds, or on Ctrl-C, printing all counters as JSON on stdout."};
   std::string spec;
-  std::string robot_path = std::string(SLAM_SOURCE_DIR) + "/config/marxbot.robot.json";
+  std::string robot_path = slam::io::ShippedPath("config/marxbot.robot.json");
   double seconds = 0.0;
   bool events = false;
   bool as_fast = false;
@@ -68,6 +69,7 @@ int main(int argc, char** argv) {
                "sim and candump: decode as fast as possible on one thread, losing nothing, "
                "instead of paced through the link thread (needs a source that ends: a log, or "
                "sim with --seconds)");
+  app.set_version_flag("--version", std::string("slam-link ") + SLAM_VERSION);
   CLI11_PARSE(app, argc, argv);
 
   const auto robot = slam::io::LoadRobot(robot_path);

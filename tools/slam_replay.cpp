@@ -126,6 +126,7 @@ int main(int argc, char** argv) {
                  "a \"relations\" object to the summary with the trajectory's relation errors, and "
                  "odometry's beside them");
   app.add_flag("--quiet", quiet, "no progress line on stderr");
+  app.set_version_flag("--version", std::string("slam-replay ") + SLAM_VERSION);
   CLI11_PARSE(app, argc, argv);
 
   slam::ParamsChoice params;  // the shipped set of the quota

@@ -19,6 +19,7 @@
 
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/robot_json.hpp"
+#include "engine/io/shipped_path.hpp"
 #include "sim/dataset.hpp"
 #include "sim/experiment_writer.hpp"
 #include "sim/scenario.hpp"
@@ -61,7 +62,7 @@ int main(int argc, char** argv) {
       "log.clf, a CARMEN log, for a robot whose scanner is a laser), groundtruth.tum, meta.json "
       "and world.json per experiment."};
   std::string world_spec, out_dir;
-  std::string robot_path = std::string(SLAM_SOURCE_DIR) + "/config/marxbot.robot.json";
+  std::string robot_path = slam::io::ShippedPath("config/marxbot.robot.json");
   double duration_s = 300.0;
   uint64_t seed = 1;
   double scans_per_s = 1.5;
@@ -111,6 +112,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 1000));
   dataset->add_option("--duration", duration_s, "simulated seconds per run instead of 300")
       ->check(CLI::Range(0.1, 86400.0));
+  app.set_version_flag("--version", std::string("slam-sim ") + SLAM_VERSION);
   CLI11_PARSE(app, argc, argv);
 
   auto robot = slam::io::LoadRobot(robot_path);

@@ -183,6 +183,7 @@ int Run(int argc, char** argv) {
       ->check(CLI::Range(0.0, 0.5));
   app.add_flag("--restart", restart, "discard a saved study in --out instead of resuming it");
   app.add_flag("--quiet", quiet, "no progress on stderr");
+  app.set_version_flag("--version", std::string("slam-tune ") + SLAM_VERSION);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -77,6 +77,7 @@ int main(int argc, char** argv) {
       ->capture_default_str()
       ->check(CLI::Range(1, 100));
   app.add_flag("--json", as_json, "print one JSON object on stdout (the table goes to stderr)");
+  app.set_version_flag("--version", std::string("slamd-load ") + SLAM_VERSION);
   CLI11_PARSE(app, argc, argv);
 
   const auto target = slam::loadgen::ParseUrl(url);
