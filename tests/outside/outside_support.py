@@ -157,7 +157,9 @@ class Slamd:
 
     def __init__(self, binary, args, work_dir):
         self.binary = binary
-        self.args = ["--port", "0", "--quiet"] + list(args)
+        # The Foxglove server's default port is fixed (8765): off unless a test gives a port.
+        foxglove = [] if "--foxglove-port" in args else ["--foxglove-port", "0"]
+        self.args = ["--port", "0", "--quiet"] + foxglove + list(args)
         self.stdout_path = os.path.join(work_dir, "slamd.stdout")
         self.stderr_path = os.path.join(work_dir, "slamd.stderr")
         self.process = None

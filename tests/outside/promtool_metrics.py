@@ -2,7 +2,7 @@
 
 slamd maps the virtual marXbot (sim:box, 8 times real time) so that every family has real
 values: scans and their latency histogram, link counters, HTTP requests of several codes and
-whole-map exports. The text is taken twice: at start and after at least 10 scans. promtool must
+whole-map exports; the Foxglove server on (its slamd_foxglove_* families). The text is taken twice: at start and after at least 10 scans. promtool must
 exit 0 and print nothing; the text must also hold what the test made happen (so an empty or
 truncated text cannot pass).
 
@@ -10,6 +10,7 @@ truncated text cannot pass).
 """
 
 import os
+import socket
 import subprocess
 import sys
 import urllib.error
@@ -55,7 +56,12 @@ def fetch_metrics(slamd):
 def main():
     promtool, slamd_bin, work = sys.argv[1:4]
     support.fresh_dir(work)
-    args = ["--source", "sim:box", "--speed", "8", "--budget", "8125"]
+    # The Foxglove server on a port free now (its port 0 means off), for its metric families.
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        foxglove_port = probe.getsockname()[1]
+    args = ["--source", "sim:box", "--speed", "8", "--budget", "8125",
+            "--foxglove-port", str(foxglove_port)]
     with support.Slamd(slamd_bin, args, work) as slamd:
         promtool_check(promtool, fetch_metrics(slamd), "at start", work)
 
@@ -76,6 +82,7 @@ def main():
         'slamd_scan_latency_seconds_bucket{le="+Inf"}': lambda v: v >= 10,
         "slamd_link_frames_total": lambda v: v > 500,
         "slamd_link_up": lambda v: v == 1,
+        "slamd_foxglove_clients": lambda v: v == 0,
         'slamd_http_requests_total{method="GET",code="404"}': lambda v: v >= 1,
     }
     for name, ok in wanted.items():

@@ -33,7 +33,7 @@ mkdir -p /tmp/state
 chown nobody:nogroup /tmp/state
 cd /tmp
 setpriv --reuid=nobody --regid=nogroup --clear-groups \
-  slamd --port 0 --state-dir /tmp/state > /tmp/slamd.out 2> /tmp/slamd.err &
+  slamd --port 0 --foxglove-port 0 --state-dir /tmp/state > /tmp/slamd.out 2> /tmp/slamd.err &
 slamd_pid=$!
 port=
 for _ in $(seq 100); do
