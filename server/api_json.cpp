@@ -135,6 +135,17 @@ Result<BudgetSettings> BudgetFromJson(const json& body) {
   return b;
 }
 
+Result<BudgetSettings> MergeBudget(const BudgetSettings& current, const json& patch) {
+  if (!patch.is_object()) return ConfigErrors{{"", "must be a JSON object", 0}};
+  json target = BudgetJson(current);
+  target.merge_patch(patch);
+  const json defaults = BudgetJson(BudgetSettings{});
+  for (const auto& [key, value] : defaults.items()) {
+    if (!target.contains(key)) target[key] = value;
+  }
+  return BudgetFromJson(target);
+}
+
 json MetricsEventJson(const SlamSnapshot& s) {
   const ScanMetrics& m = *s.last;
   return {{"scan", m.scan},

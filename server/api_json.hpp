@@ -51,6 +51,10 @@ nlohmann::json BudgetJson(const BudgetSettings& b);
 /// current object), no other key, right types; then the ranges of Validate.
 Result<BudgetSettings> BudgetFromJson(const nlohmann::json& body);
 
+/// `current` changed by a merge patch of its object (RFC 7396: null removes a member, and a
+/// removed member takes its default), then read as BudgetFromJson reads a whole object.
+Result<BudgetSettings> MergeBudget(const BudgetSettings& current, const nlohmann::json& patch);
+
 /// The data of the event stream's `metrics` and `pose` events for a snapshot.
 nlohmann::json MetricsEventJson(const SlamSnapshot& s);
 nlohmann::json PoseEventJson(const SlamSnapshot& s);

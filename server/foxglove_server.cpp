@@ -13,6 +13,7 @@
 #include <deque>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <string>
@@ -21,6 +22,7 @@
 
 #include "server/api_json.hpp"
 #include "server/foxglove_messages.hpp"
+#include "server/foxglove_protocol.hpp"
 #include "server/request_guard.hpp"
 
 #ifndef SLAMD_VERSION
@@ -39,6 +41,10 @@ using tcp = asio::ip::tcp;
 using json = nlohmann::json;
 using Clock = std::chrono::steady_clock;
 using foxglove::Channel;
+using foxglove::kError;
+using foxglove::kInfo;
+using foxglove::kWarning;
+using foxglove::Status;
 
 constexpr auto kTick = std::chrono::milliseconds(50);
 constexpr auto kHandshakeTimeout = std::chrono::seconds(10);
@@ -53,12 +59,6 @@ double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).coun
 uint64_t Nanoseconds(double t_s) {
   return t_s > 0.0 ? static_cast<uint64_t>(std::llround(t_s * 1e9)) : 0;
 }
-
-json Status(int level, const std::string& message) {
-  return {{"op", "status"}, {"level", level}, {"message", message}};
-}
-
-constexpr int kInfo = 0, kWarning = 1, kError = 2;
 
 /// The subprotocol to answer with: the newer name if the client offers it, else the first one.
 std::string ChooseSubprotocol(std::string_view offered) {
@@ -148,8 +148,7 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
   bool writer = false;  // may change the budget
   bool open = false;    // the WebSocket is up
   bool closed = false;
-  std::map<uint32_t, Channel> subscriptions;  // subscription id -> channel
-  std::set<std::string> parameter_updates;    // parameter names the client follows
+  std::optional<foxglove::ClientProtocol> protocol;  // once the WebSocket is up
 
   struct Outgoing {
     std::shared_ptr<const std::string> bytes;
@@ -244,9 +243,9 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
       writer = origin.empty() || origin == kFoxgloveAppOrigin ||
                Lower(origin_host) == Lower(std::string(req[http::field::host]));
     }
-    const std::string protocol =
+    const std::string subprotocol =
         ChooseSubprotocol(std::string(req[http::field::sec_websocket_protocol]));
-    if (protocol.empty()) {
+    if (subprotocol.empty()) {
       return Refuse(http::status::bad_request,
                     "no Foxglove subprotocol offered (Sec-WebSocket-Protocol: "
                     "foxglove.websocket.v1 or foxglove.sdk.v1)");
@@ -263,8 +262,8 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
     timeouts.idle_timeout = std::chrono::seconds(30);  // pinged at half of it; closed unanswered
     timeouts.keep_alive_pings = true;
     ws.set_option(timeouts);
-    ws.set_option(websocket::stream_base::decorator([protocol](websocket::response_type& res) {
-      res.set(http::field::sec_websocket_protocol, protocol);
+    ws.set_option(websocket::stream_base::decorator([subprotocol](websocket::response_type& res) {
+      res.set(http::field::sec_websocket_protocol, subprotocol);
       res.set(http::field::server, std::string("slamd/") + SLAMD_VERSION);
     }));
     ws.read_message_max(kMaxClientMessageBytes);
@@ -276,6 +275,9 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
 
   void OnOpen() {
     open = true;
+    protocol.emplace(
+        server.channels, writer,
+        foxglove::BudgetAccess{[this] { return server.service.Budget(); }, server.patch_budget});
     server.sessions.push_back(shared_from_this());
     server.clients.fetch_add(1);
     server.connections.fetch_add(1);
@@ -293,12 +295,9 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
   void Read() {
     ws.async_read(buffer, [self = shared_from_this()](beast::error_code ec, size_t) {
       if (ec) return self->Close();
-      if (!self->ws.got_text()) {
-        self->server.bad_requests.fetch_add(1);
-        self->SendJson(Status(kError, "slamd takes no binary messages (no client publishing)"));
-      } else {
-        self->OnText(beast::buffers_to_string(self->buffer.data()));
-      }
+      self->Apply(self->ws.got_text()
+                      ? self->protocol->OnText(beast::buffers_to_string(self->buffer.data()))
+                      : self->protocol->OnBinary());
       self->buffer.consume(self->buffer.size());
       if (!self->closed) self->Read();
     });
@@ -385,133 +384,16 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
             true, true, latest_only ? int64_t{subscription} : -1);
   }
 
-  bool Subscribed(Channel channel) const {
-    return std::any_of(subscriptions.begin(), subscriptions.end(),
-                       [&](const auto& s) { return s.second == channel; });
-  }
-
-  void OnText(const std::string& text) {
-    const Result<json> parsed = ParseJsonBounded(text);
-    if (!parsed.ok()) {
-      server.bad_requests.fetch_add(1);
-      return SendJson(
-          Status(kError, "not a message of the Foxglove protocol: " + parsed.Message()));
-    }
-    const json& message = parsed.value();
-    const std::string op =
-        message.is_object() && message.contains("op") && message["op"].is_string()
-            ? message["op"].get<std::string>()
-            : std::string();
-    try {
-      if (op == "subscribe") return Subscribe(message.at("subscriptions"));
-      if (op == "unsubscribe") {
-        for (const json& id : message.at("subscriptionIds")) {
-          const auto sub = id.get<uint32_t>();
-          subscriptions.erase(sub);
-          sent.erase(sub);
-        }
-        return;
-      }
-      if (op == "getParameters") return GetParameters(message);
-      if (op == "setParameters") return SetParameters(message);
-      if (op == "subscribeParameterUpdates" || op == "unsubscribeParameterUpdates") {
-        for (const json& name : message.at("parameterNames")) {
-          const auto n = name.get<std::string>();
-          if (op == "subscribeParameterUpdates") {
-            if (foxglove::IsBudgetParameter(n)) parameter_updates.insert(n);
-          } else {
-            parameter_updates.erase(n);
-          }
-        }
-        return;
-      }
-    } catch (const json::exception& e) {
-      server.bad_requests.fetch_add(1);
-      return SendJson(Status(kError, "malformed " + op + " message: " + e.what()));
-    }
-    server.bad_requests.fetch_add(1);
-    if (op.empty()) return SendJson(Status(kError, "a message needs an \"op\""));
-    SendJson(Status(kError, "slamd does not support \"" + op +
-                                "\" (capabilities: parameters, parametersSubscribe)"));
-  }
-
-  void Subscribe(const json& list) {
-    for (const json& s : list) {
-      const auto id = s.at("id").get<uint32_t>();
-      const auto channel_id = s.at("channelId").get<uint32_t>();
-      const auto spec =
-          std::find_if(server.channels.begin(), server.channels.end(),
-                       [&](const auto& c) { return static_cast<uint32_t>(c.id) == channel_id; });
-      if (spec == server.channels.end()) {
-        server.bad_requests.fetch_add(1);
-        SendJson(Status(kError, "no channel " + std::to_string(channel_id)));
-        continue;
-      }
-      if (subscriptions.count(id) != 0) {
-        server.bad_requests.fetch_add(1);
-        SendJson(Status(kError, "subscription " + std::to_string(id) + " is already in use"));
-        continue;
-      }
-      subscriptions[id] = spec->id;
-      sent.erase(id);
-    }
-    // New subscribers get the latest of each channel at once.
-    server.Publish(server.service.Snapshot(), false);
-  }
-
-  void GetParameters(const json& message) {
-    const json& names = message.at("parameterNames");
-    json values = json::array();
-    for (const json& p : foxglove::BudgetParameters(server.service.Budget())) {
-      const bool wanted =
-          names.empty() || std::any_of(names.begin(), names.end(), [&](const json& n) {
-            return n.is_string() && n.get<std::string>() == p["name"];
-          });
-      if (wanted) values.push_back(p);
-    }
-    json reply = {{"op", "parameterValues"}, {"parameters", std::move(values)}};
-    if (message.contains("id") && message["id"].is_string()) reply["id"] = message["id"];
-    SendJson(reply);
-  }
-
-  void SetParameters(const json& message) {
-    if (!writer) {
-      server.bad_requests.fetch_add(1);
-      return SendJson(Status(kError,
-                             "the budget was not changed: this connection comes from a web page "
-                             "of another origin (give slamd a --token-file and connect with it)"));
-    }
-    const Result<json> patch = foxglove::BudgetPatch(message.at("parameters"));
-    Result<BudgetSettings> changed =
-        patch.ok() ? server.patch_budget(patch.value()) : Result<BudgetSettings>(patch.errors());
-    if (!changed.ok()) {
-      server.bad_requests.fetch_add(1);
-      // Named as the client knows them: "/rays_per_scan" is budget.rays_per_scan.
-      std::string why;
-      for (const ConfigError& e : changed.errors()) {
-        const bool member = e.pointer.size() > 1 && !e.pointer.starts_with("/budget.");
-        why += (why.empty() ? "" : "; ") +
-               (member ? "budget." + e.pointer.substr(1)
-                       : e.pointer.substr(e.pointer.empty() ? 0 : 1)) +
-               (e.pointer.empty() ? "" : ": ") + e.detail;
-      }
-      return SendJson(Status(kError, "the budget was not changed: " + why));
-    }
-    server.parameter_changes.fetch_add(1);
-    if (message.contains("id") && message["id"].is_string()) {
-      // The answer to a request with an id: the values of the parameters it set.
-      json values = json::array();
-      for (const json& p : foxglove::BudgetParameters(changed.value())) {
-        for (const json& q : message["parameters"]) {
-          if (q.is_object() && q.contains("name") && q["name"] == p["name"]) {
-            values.push_back(p);
-            break;
-          }
-        }
-      }
-      SendJson({{"op", "parameterValues"}, {"parameters", values}, {"id", message["id"]}});
-    }
-    server.Tick();  // followers of the parameters hear of the change now
+  /// Does what a client message asked: the replies, and the latest of each new subscription's
+  /// channel at once.
+  void Apply(const foxglove::Effects& effects) {
+    if (effects.refused) server.bad_requests.fetch_add(1);
+    if (effects.budget_changed) server.parameter_changes.fetch_add(1);
+    for (const json& reply : effects.replies) SendJson(reply);
+    for (const uint32_t id : effects.unsubscribed) sent.erase(id);
+    for (const uint32_t id : effects.subscribed) sent.erase(id);
+    if (!effects.subscribed.empty()) server.Publish(server.service.Snapshot(), false);
+    if (effects.budget_changed) server.Tick();  // followers of the parameters hear of it now
   }
 };
 
@@ -556,7 +438,8 @@ void FoxgloveServer::Impl::Publish(const std::shared_ptr<const SlamSnapshot>& sn
   // Payloads of this snapshot, made when a subscriber first needs them.
   std::shared_ptr<const std::string> pose, tf, scan, truth;
   for (const std::shared_ptr<Session>& session : std::vector(sessions)) {
-    for (const auto& [id, channel] : session->subscriptions) {
+    if (!session->protocol) continue;
+    for (const auto& [id, channel] : session->protocol->subscriptions()) {
       Session::Sent& sent = session->sent[id];
       const bool first = !sent.any;
       switch (channel) {
@@ -615,7 +498,8 @@ void FoxgloveServer::Impl::Tick() {
     for (const std::shared_ptr<Session>& session : std::vector(sessions)) {
       json values = json::array();
       for (const json& p : all) {
-        if (session->parameter_updates.count(p["name"].get<std::string>()) != 0)
+        if (session->protocol &&
+            session->protocol->parameter_updates().count(p["name"].get<std::string>()) != 0)
           values.push_back(p);
       }
       if (!values.empty()) session->SendJson({{"op", "parameterValues"}, {"parameters", values}});

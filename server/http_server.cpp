@@ -78,18 +78,8 @@ void HttpServer::Impl::HandleBudgetChange(const httplib::Request& req, httplib::
 }
 
 Result<BudgetSettings> HttpServer::Impl::ChangeBudget(const json& body, bool patch) {
-  json target = body;
-  if (patch) {
-    if (!body.is_object()) return ConfigErrors{{"", "must be a JSON object", 0}};
-    target = BudgetJson(service.Budget());
-    // RFC 7396: null removes a member; a removed member takes its default.
-    target.merge_patch(body);
-    const json defaults = BudgetJson(BudgetSettings{});
-    for (const auto& [key, value] : defaults.items()) {
-      if (!target.contains(key)) target[key] = value;
-    }
-  }
-  Result<BudgetSettings> parsed = BudgetFromJson(target);
+  Result<BudgetSettings> parsed =
+      patch ? MergeBudget(service.Budget(), body) : BudgetFromJson(body);
   if (parsed.ok() && !(parsed.value() == service.Budget())) {
     service.SetBudget(parsed.value());
     ++budget_revision;

@@ -13,6 +13,8 @@
 
 #include "engine/cell_encoding.hpp"
 #include "engine/occupancy_grid.hpp"
+#include "server/api_json.hpp"
+#include "server/foxglove_protocol.hpp"
 
 namespace slam::server::foxglove {
 namespace {
@@ -211,6 +213,100 @@ TEST(FoxgloveMessagesTest, SetParametersBecomeAMergePatchOfTheBudget) {
   EXPECT_EQ(unknown.errors()[0].pointer, "/budget.speed");
   EXPECT_FALSE(BudgetPatch(json::parse(R"({"name": "budget.mode"})")).ok());
   EXPECT_FALSE(BudgetPatch(json::parse(R"([{"value": 3}])")).ok());
+}
+
+/// A client over a budget held here, changed as the REST route changes it.
+struct Budgeted {
+  BudgetSettings budget;
+  int patches = 0;
+  BudgetAccess Access() {
+    return {[this] { return budget; },
+            [this](const json& patch) {
+              ++patches;
+              Result<BudgetSettings> merged = MergeBudget(budget, patch);
+              if (merged.ok()) budget = merged.value();
+              return merged;
+            }};
+  }
+};
+
+TEST(FoxgloveProtocolTest, SubscriptionsAreReportedCheckedAndCapped) {
+  Budgeted b;
+  ClientProtocol client(Channels(false), true, b.Access());
+  Effects e = client.OnText(R"({"op": "subscribe", "subscriptions": [
+      {"id": 7, "channelId": 1}, {"id": 8, "channelId": 6}, {"id": 7, "channelId": 2}]})");
+  EXPECT_EQ(e.subscribed, std::vector<uint32_t>{7});  // no channel 6 unsimulated; 7 in use
+  EXPECT_TRUE(e.refused);
+  ASSERT_EQ(e.replies.size(), 2u);
+  EXPECT_EQ(e.replies[0]["message"], "no channel 6");
+  EXPECT_EQ(client.subscriptions().at(7), Channel::kMap);
+  e = client.OnText(R"({"op": "unsubscribe", "subscriptionIds": [7, 9]})");
+  EXPECT_EQ(e.unsubscribed, std::vector<uint32_t>{7});
+  EXPECT_TRUE(client.subscriptions().empty());
+  // A client cannot subscribe without end.
+  json many = json::array();
+  for (uint32_t id = 0; id < 100; ++id) many.push_back({{"id", id}, {"channelId", 2}});
+  e = client.OnText(json{{"op", "subscribe"}, {"subscriptions", many}}.dump());
+  EXPECT_EQ(e.subscribed.size(), kMaxSubscriptions);
+  EXPECT_EQ(client.subscriptions().size(), kMaxSubscriptions);
+  EXPECT_TRUE(e.refused);
+}
+
+TEST(FoxgloveProtocolTest, BadMessagesAreRefusedWithAStatusAndChangeNothing) {
+  Budgeted b;
+  ClientProtocol client(Channels(true), true, b.Access());
+  for (const char* text :
+       {"not json", "[]", R"({"op": 3})", R"({"op": "subscribe"})",
+        R"({"op": "subscribe", "subscriptions": 5})",
+        R"({"op": "subscribe", "subscriptions": [1]})", R"({"op": "advertise", "channels": []})",
+        R"({"op": "getParameters", "parameterNames": 1})",
+        R"({"op": "setParameters", "parameters": {"name": "budget.mode"}})",
+        "[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]"}) {
+    const Effects e = client.OnText(text);
+    EXPECT_TRUE(e.refused) << text;
+    ASSERT_EQ(e.replies.size(), 1u) << text;
+    EXPECT_EQ(e.replies[0]["op"], "status") << text;
+    EXPECT_EQ(e.replies[0]["level"], kError) << text;
+  }
+  EXPECT_TRUE(client.OnBinary().refused);
+  EXPECT_TRUE(client.subscriptions().empty());
+  EXPECT_EQ(b.budget, BudgetSettings{});
+}
+
+TEST(FoxgloveProtocolTest, ParametersReadSetAndFollowed) {
+  Budgeted b;
+  ClientProtocol client(Channels(false), true, b.Access());
+  Effects e = client.OnText(
+      R"({"op": "getParameters", "parameterNames": ["budget.policy", "x"], "id": "g"})");
+  ASSERT_EQ(e.replies.size(), 1u);
+  EXPECT_EQ(e.replies[0], json::parse(R"({"op": "parameterValues", "id": "g",
+      "parameters": [{"name": "budget.policy", "value": "fixed"}]})"));
+  e = client.OnText(R"({"op": "setParameters", "id": "s", "parameters": [
+      {"name": "budget.rays_per_scan", "value": 8125.0, "type": "float64"}]})");
+  EXPECT_TRUE(e.budget_changed);
+  EXPECT_EQ(b.budget.rays_per_scan, 8125);
+  ASSERT_EQ(e.replies.size(), 1u);
+  EXPECT_EQ(e.replies[0]["id"], "s");
+  EXPECT_EQ(e.replies[0]["parameters"][0]["value"], 8125.0);
+  e = client.OnText(R"({"op": "setParameters", "parameters": [
+      {"name": "budget.rays_per_scan", "value": 0}]})");
+  EXPECT_FALSE(e.budget_changed);
+  EXPECT_EQ(b.budget.rays_per_scan, 8125);
+  EXPECT_EQ(e.replies[0]["message"],
+            "the budget was not changed: budget.rays_per_scan: 0 is outside [1, 100000000]");
+  client.OnText(R"({"op": "subscribeParameterUpdates", "parameterNames":
+      ["budget.mode", "budget.speed"]})");
+  EXPECT_EQ(client.parameter_updates(), std::set<std::string>{"budget.mode"});
+}
+
+TEST(FoxgloveProtocolTest, AClientThatMayNotWriteNeverReachesTheBudget) {
+  Budgeted b;
+  ClientProtocol client(Channels(false), false, b.Access());
+  const Effects e = client.OnText(R"({"op": "setParameters", "parameters": [
+      {"name": "budget.rays_per_scan", "value": 8125}]})");
+  EXPECT_TRUE(e.refused);
+  EXPECT_EQ(b.patches, 0);
+  EXPECT_EQ(b.budget.rays_per_scan, 65000);
 }
 
 }  // namespace

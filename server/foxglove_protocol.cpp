@@ -1,0 +1,172 @@
+#include "server/foxglove_protocol.hpp"
+
+#include <algorithm>
+#include <utility>
+
+#include "server/api_json.hpp"
+
+namespace slam::server::foxglove {
+
+using json = nlohmann::json;
+
+json Status(int level, const std::string& message) {
+  return {{"op", "status"}, {"level", level}, {"message", message}};
+}
+
+ClientProtocol::ClientProtocol(std::vector<ChannelSpec> channels, bool writer, BudgetAccess budget)
+    : channels_(std::move(channels)), writer_(writer), budget_(std::move(budget)) {}
+
+Effects ClientProtocol::OnBinary() {
+  Effects out;
+  out.refused = true;
+  out.replies.push_back(Status(kError, "slamd takes no binary messages (no client publishing)"));
+  return out;
+}
+
+Effects ClientProtocol::OnText(std::string_view text) {
+  Effects out;
+  const Result<json> parsed = ParseJsonBounded(text);
+  if (!parsed.ok()) {
+    out.refused = true;
+    out.replies.push_back(
+        Status(kError, "not a message of the Foxglove protocol: " + parsed.Message()));
+    return out;
+  }
+  const json& message = parsed.value();
+  const std::string op = message.is_object() && message.contains("op") && message["op"].is_string()
+                             ? message["op"].get<std::string>()
+                             : std::string();
+  try {
+    if (op == "subscribe") {
+      Subscribe(message.at("subscriptions"), out);
+      return out;
+    }
+    if (op == "unsubscribe") {
+      for (const json& id : message.at("subscriptionIds")) {
+        const auto sub = id.get<uint32_t>();
+        if (subscriptions_.erase(sub) != 0) out.unsubscribed.push_back(sub);
+      }
+      return out;
+    }
+    if (op == "getParameters") {
+      GetParameters(message, out);
+      return out;
+    }
+    if (op == "setParameters") {
+      SetParameters(message, out);
+      return out;
+    }
+    if (op == "subscribeParameterUpdates" || op == "unsubscribeParameterUpdates") {
+      for (const json& name : message.at("parameterNames")) {
+        const auto n = name.get<std::string>();
+        if (op == "unsubscribeParameterUpdates") {
+          parameter_updates_.erase(n);
+        } else if (IsBudgetParameter(n)) {
+          parameter_updates_.insert(n);
+        }
+      }
+      return out;
+    }
+  } catch (const json::exception& e) {
+    out.refused = true;
+    out.replies.push_back(Status(kError, "malformed " + op + " message: " + e.what()));
+    return out;
+  }
+  out.refused = true;
+  out.replies.push_back(op.empty() ? Status(kError, "a message needs an \"op\"")
+                                   : Status(kError, "slamd does not support \"" + op +
+                                                        "\" (capabilities: parameters, "
+                                                        "parametersSubscribe)"));
+  return out;
+}
+
+void ClientProtocol::Subscribe(const json& list, Effects& out) {
+  if (!list.is_array())
+    throw json::type_error::create(302, "subscriptions must be an array", &list);
+  for (const json& s : list) {
+    const auto id = s.at("id").get<uint32_t>();
+    const auto channel_id = s.at("channelId").get<uint32_t>();
+    const auto spec = std::find_if(channels_.begin(), channels_.end(), [&](const auto& c) {
+      return static_cast<uint32_t>(c.id) == channel_id;
+    });
+    if (spec == channels_.end()) {
+      out.refused = true;
+      out.replies.push_back(Status(kError, "no channel " + std::to_string(channel_id)));
+      continue;
+    }
+    if (subscriptions_.count(id) != 0) {
+      out.refused = true;
+      out.replies.push_back(
+          Status(kError, "subscription " + std::to_string(id) + " is already in use"));
+      continue;
+    }
+    if (subscriptions_.size() >= kMaxSubscriptions) {
+      out.refused = true;
+      out.replies.push_back(Status(
+          kError, "at most " + std::to_string(kMaxSubscriptions) + " subscriptions per client"));
+      break;
+    }
+    subscriptions_[id] = spec->id;
+    out.subscribed.push_back(id);
+  }
+}
+
+void ClientProtocol::GetParameters(const json& message, Effects& out) const {
+  const json& names = message.at("parameterNames");
+  if (!names.is_array())
+    throw json::type_error::create(302, "parameterNames must be an array", &names);
+  json values = json::array();
+  for (const json& p : BudgetParameters(budget_.get())) {
+    const bool wanted = names.empty() ||
+                        std::any_of(names.begin(), names.end(),
+                                    [&](const json& n) { return n.is_string() && n == p["name"]; });
+    if (wanted) values.push_back(p);
+  }
+  json reply = {{"op", "parameterValues"}, {"parameters", std::move(values)}};
+  if (message.contains("id") && message["id"].is_string()) reply["id"] = message["id"];
+  out.replies.push_back(std::move(reply));
+}
+
+void ClientProtocol::SetParameters(const json& message, Effects& out) {
+  if (!writer_) {
+    out.refused = true;
+    out.replies.push_back(
+        Status(kError,
+               "the budget was not changed: this connection comes from a web page of another "
+               "origin (give slamd a --token-file and connect with it)"));
+    return;
+  }
+  const json& parameters = message.at("parameters");
+  const Result<json> patch = BudgetPatch(parameters);
+  const Result<BudgetSettings> changed =
+      patch.ok() ? budget_.patch(patch.value()) : Result<BudgetSettings>(patch.errors());
+  if (!changed.ok()) {
+    // Named as the client knows them: "/rays_per_scan" is budget.rays_per_scan.
+    std::string why;
+    for (const ConfigError& e : changed.errors()) {
+      std::string name = e.pointer.empty() ? std::string() : e.pointer.substr(1);
+      if (!name.empty() && name.rfind("budget.", 0) != 0 && name != "parameters") {
+        name = "budget." + name;
+      }
+      why += (why.empty() ? "" : "; ") + name + (name.empty() ? "" : ": ") + e.detail;
+    }
+    out.refused = true;
+    out.replies.push_back(Status(kError, "the budget was not changed: " + why));
+    return;
+  }
+  out.budget_changed = true;
+  if (message.contains("id") && message["id"].is_string()) {
+    // The answer to a request with an id: the values of the parameters it set.
+    json values = json::array();
+    for (const json& p : BudgetParameters(changed.value())) {
+      const bool named = std::any_of(parameters.begin(), parameters.end(), [&](const json& q) {
+        return q.is_object() && q.contains("name") && q["name"] == p["name"];
+      });
+      if (named) values.push_back(p);
+    }
+    out.replies.push_back(
+        {{"op", "parameterValues"}, {"parameters", std::move(values)}, {"id", message["id"]}});
+  }
+}
+
+}  // namespace slam::server::foxglove

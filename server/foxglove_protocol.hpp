@@ -1,0 +1,72 @@
+#pragma once
+// One Foxglove client's side of the protocol, without a socket: what its text messages ask
+// (subscriptions, parameters) and what slamd answers. The server (foxglove_server.cpp) moves the
+// bytes; this part is what a fuzzer can reach in memory (fuzz/fuzz_foxglove.cpp).
+
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "engine/result.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
+#include "server/foxglove_messages.hpp"
+
+namespace slam::server::foxglove {
+
+/// At most this many subscriptions per client (slamd has six channels; a client may subscribe
+/// to one more than once): a client cannot grow slamd's memory by subscribing without end.
+inline constexpr size_t kMaxSubscriptions = 64;
+
+/// How a client reaches the budget.
+struct BudgetAccess {
+  std::function<BudgetSettings()> get;
+  /// A merge patch of the budget object, validated; the new budget or what is wrong.
+  std::function<Result<BudgetSettings>(const nlohmann::json&)> patch;
+};
+
+/// What one client message did.
+struct Effects {
+  std::vector<nlohmann::json> replies;  // status and parameterValues messages, in order
+  std::vector<uint32_t> subscribed;     // new subscription ids
+  std::vector<uint32_t> unsubscribed;   // subscription ids removed
+  bool refused = false;                 // the message, or part of it, was refused
+  bool budget_changed = false;
+};
+
+class ClientProtocol {
+ public:
+  /// `writer`: whether this client may change the budget.
+  ClientProtocol(std::vector<ChannelSpec> channels, bool writer, BudgetAccess budget);
+
+  /// A text message from the client.
+  Effects OnText(std::string_view text);
+  /// A binary message from the client (slamd takes none: no client publishing).
+  Effects OnBinary();
+
+  const std::map<uint32_t, Channel>& subscriptions() const { return subscriptions_; }
+  /// The budget's parameters this client follows.
+  const std::set<std::string>& parameter_updates() const { return parameter_updates_; }
+  bool writer() const { return writer_; }
+
+ private:
+  void Subscribe(const nlohmann::json& list, Effects& out);
+  void GetParameters(const nlohmann::json& message, Effects& out) const;
+  void SetParameters(const nlohmann::json& message, Effects& out);
+
+  std::vector<ChannelSpec> channels_;
+  bool writer_;
+  BudgetAccess budget_;
+  std::map<uint32_t, Channel> subscriptions_;
+  std::set<std::string> parameter_updates_;
+};
+
+/// {"op": "status", "level": level (0 info, 1 warning, 2 error), "message": message}.
+nlohmann::json Status(int level, const std::string& message);
+inline constexpr int kInfo = 0, kWarning = 1, kError = 2;
+
+}  // namespace slam::server::foxglove
