@@ -334,6 +334,14 @@ ConfigErrors SlamConfig::Validate() const {
   check(std::isfinite(range_sigma_min_cells) && range_sigma_min_cells >= 0 &&
             range_sigma_min_cells <= 10,
         "/range_sigma_min_cells", "must be in [0, 10]");
+  check(std::isfinite(heading_sweep_turn_deg) && heading_sweep_turn_deg >= 0 &&
+            heading_sweep_turn_deg <= 360,
+        "/heading_sweep_turn_deg", "must be in [0, 360]");
+  check(std::isfinite(heading_sweep_share) && heading_sweep_share > 0 && heading_sweep_share <= 1,
+        "/heading_sweep_share", "must be in (0, 1]");
+  check(std::isfinite(heading_sweep_step_deg) && heading_sweep_step_deg >= 0.1 &&
+            heading_sweep_step_deg <= 30,
+        "/heading_sweep_step_deg", "must be in [0.1, 30]");
   return errors;
 }
 
@@ -541,6 +549,8 @@ struct Slam::Prediction {
   // Deviation of the motion prior in phase B's score: the same, but no less than a third of the
   // least search spread (the candidates explore about three prior deviations around it).
   double prior_pos = 0.0, prior_angle = 0.0;
+  // Half the width of the heading sweep (rad), 0 without one (SlamConfig::heading_sweep_*).
+  double sweep = 0.0;
 };
 
 struct Slam::MatchResult {
@@ -649,6 +659,11 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   out.search_angle = std::clamp(drift_angle, min_angle, DegToRad(kMaxSearchAngleDeg));
   out.prior_pos = std::max(drift_pos, params_.min_pos_uncertainty_m / 3.0);
   out.prior_angle = std::max(drift_angle, min_angle / 3.0);
+  const double turn = std::abs(NormalizeAngle(motion.rot1 + motion.rot2));
+  if (config_.heading_sweep_turn_deg > 0 && HasRangeScanner(robot_) &&
+      turn > DegToRad(config_.heading_sweep_turn_deg)) {
+    out.sweep = config_.heading_sweep_share * turn;
+  }
   out.predicted.resize(n_particles);
   out.nominal.resize(n_particles);
   out.paths.reserve(n_particles);
@@ -705,8 +720,8 @@ Slam::WindowPlan Slam::PlanWindows(const Prediction& prediction,
       const ScanPath::Frame frame = path.SampleFrame(m->sample, correction);
       const Vec2 origin = frame.Point(m->local_origin);
       const Vec2 end = frame.Point(m->local_origin + m->local_direction * m->match_range_m);
-      const double turn =
-          kWindowTurnSigmas * prediction.search_angle * (m->local_origin.norm() + m->match_range_m);
+      const double turn = std::max(kWindowTurnSigmas * prediction.search_angle, prediction.sweep) *
+                          (m->local_origin.norm() + m->match_range_m);
       box = {std::min({box[0], origin.x(), end.x() - turn}),
              std::min({box[1], origin.y(), end.y() - turn}),
              std::max({box[2], origin.x(), end.x() + turn}),
@@ -769,6 +784,15 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
                Square(prediction.prior_pos) -
            0.5 * Square(NormalizeAngle(c.theta - nominal.theta)) / Square(prediction.prior_angle);
   };
+  // The heading sweep (a large odometry turn): the first explore candidates after the
+  // prediction, evenly over +- sweep, at most half of them.
+  size_t sweep_count = 0;
+  if (prediction.sweep > 0 && explore >= 5) {
+    const auto wanted = static_cast<size_t>(
+        2 * std::floor(prediction.sweep / DegToRad(config_.heading_sweep_step_deg)) + 1);
+    sweep_count = std::min(wanted, (explore - 1) / 2);
+    if (sweep_count % 2 == 0) --sweep_count;  // odd: symmetric around the prediction
+  }
   size_t first = 0;
   for (int round = 0; first < n_candidates; ++round) {
     const size_t last = std::min(n_candidates, round == 0 ? explore : first + round_size);
@@ -789,7 +813,14 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
         return;
       }
       Pose2 end = centre[p];
-      if (c > 0) {
+      if (round == 0 && c >= 1 && c <= sweep_count) {
+        const double offset = sweep_count == 1
+                                  ? 0.0
+                                  : prediction.sweep * (2.0 * static_cast<double>(c - 1) /
+                                                            static_cast<double>(sweep_count - 1) -
+                                                        1.0);
+        end.theta = NormalizeAngle(end.theta + offset);
+      } else if (c > 0) {
         Rng rng = Rng::ForStream(config_.seed, step, p, kStreamCandidate + c);
         end.x += rng.Gaussian(scale * sigma_pos);
         end.y += rng.Gaussian(scale * sigma_pos);

@@ -38,6 +38,14 @@ struct SlamConfig {
   /// use about one cell: GMapping's sigma of 5 cm at 5 cm cells). Chosen among 0 and 1 on the
   /// simulated laser experiments (docs/laser.md). The infrared sensors keep their calibrated noise.
   double range_sigma_min_cells = 1.0;
+  /// A range scanner's heading sweep: when the odometry turned by more than this over a scan
+  /// (degrees; 0: never), phase B's first candidates are headings spread evenly, every
+  /// `heading_sweep_step_deg`, over +- `heading_sweep_share` of the turn around the prediction.
+  /// Wheels that skid while turning err by a share of the turn, beyond what a Gaussian spread
+  /// reaches. Not for the infrared scanner (the marXbot's gyro keeps its heading).
+  double heading_sweep_turn_deg = 0.0;
+  double heading_sweep_share = 0.6;
+  double heading_sweep_step_deg = 2.0;
   /// Phase B's estimate: the peak of the log-likelihood fitted over the candidates, with the
   /// motion prior (true), or the best candidate alone (false, the paper's). docs/design.md,
   /// phase B.

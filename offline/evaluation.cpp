@@ -163,6 +163,7 @@ std::vector<EvaluationRun> Evaluate(
             options.config.seed = plan.seed;
             options.config.parallel = false;  // one thread per run; runs are the parallelism
             options.config.resolution_m = plan.resolution_m;
+            options.config.heading_sweep_turn_deg = plan.heading_sweep_turn_deg;
             options.budget.rays_per_scan = run.budget;
             options.budget.policy = plan.policy;
             options.budget.max_particles = plan.max_particles;

@@ -36,6 +36,7 @@ struct EvaluationPlan {
   int jobs = 0;               // concurrent replays; 0: one per core
   std::string outputs_dir;    // when set: each run's map and trajectory in a subdirectory
   double resolution_m = 0.0;  // the grid's cell size; 0: each experiment's robot's
+  double heading_sweep_turn_deg = SlamConfig{}.heading_sweep_turn_deg;  // SlamConfig's
   /// Benchmark relations (slam-evaluate --relations): when given, every run's summary gains a
   /// `relations` object, as slam-replay's.
   std::vector<Relation> relations;

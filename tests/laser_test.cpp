@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -274,27 +275,34 @@ TEST(LaserTest, TheSimulatedLidarIsRecordedAsACarmenLogAndMappedBetterThanOdomet
   EXPECT_LT(slam.quality->ate_rmse_m, 0.05);
 }
 
+/// A simulated run of `seconds` in a built-in world by the robot of `robot_file` (config/), with
+/// a tracked robot's odometry errors, as scripts/tune-laser records them; written under `dir`.
+offline::Experiment SimulatedRun(const testing::TempDir& dir, const std::string& world,
+                                 const std::string& robot_file, double seconds, uint64_t seed) {
+  sim::ScenarioConfig config = sim::WithOdometryProfile({}, sim::OdometryProfile::kTracked);
+  config.duration_s = seconds;
+  config.scans_per_s = 1.0;
+  config.speed_m_s = 0.4;
+  config.turn_rate_rad_s = 0.5;
+  config.seed = seed;
+  const auto robot = io::LoadRobot(std::string(SLAM_SOURCE_DIR) + "/config/" + robot_file);
+  EXPECT_TRUE(robot.ok()) << robot.Message();
+  const std::optional<sim::World> w = sim::BuiltinWorld(world);
+  EXPECT_TRUE(w);
+  const std::string out = dir.File(world);
+  const Result<void> written = sim::WriteSimulatedExperiment(out, *w, world, robot.value(), config);
+  EXPECT_TRUE(written.ok()) << written.Message();
+  Result<offline::Experiment> load = offline::LoadExperiment(out);
+  EXPECT_TRUE(load.ok()) << load.Message();
+  return load.ok() ? std::move(load).value() : offline::Experiment{};
+}
+
 TEST(LaserTest, InTheBuildingTheShippedLaserSetMapsFarBetterThanOdometry) {
   // The world the laser family is tuned in for its loops (scripts/tune-laser): 20 x 14 m, a
   // corridor ring around four rooms. A Pioneer-like robot without a gyro, as there.
   const testing::TempDir dir("building_experiment");
-  sim::ScenarioConfig config = sim::WithOdometryProfile({}, sim::OdometryProfile::kTracked);
-  config.duration_s = 180.0;
-  config.scans_per_s = 1.0;
-  config.speed_m_s = 0.4;
-  config.turn_rate_rad_s = 0.5;
-  config.seed = 3;
-  const auto robot = io::LoadRobot(std::string(SLAM_SOURCE_DIR) + "/config/pioneer-lms.robot.json");
-  ASSERT_TRUE(robot.ok()) << robot.Message();
-  const std::optional<sim::World> building = sim::BuiltinWorld("building");
-  ASSERT_TRUE(building);
-  const std::string out = dir.File("building");
-  const Result<void> written =
-      sim::WriteSimulatedExperiment(out, *building, "building", robot.value(), config);
-  ASSERT_TRUE(written.ok()) << written.Message();
-  const Result<offline::Experiment> load = offline::LoadExperiment(out);
-  ASSERT_TRUE(load.ok()) << load.Message();
-  const offline::Experiment& e = load.value();
+  const offline::Experiment e = SimulatedRun(dir, "building", "pioneer-lms.robot.json", 180, 3);
+  ASSERT_FALSE(e.scans.empty());
 
   offline::ReplayOptions options;
   options.params = ParamsChoice{};  // the shipped set of the robot's family, as the tools pick
@@ -307,6 +315,42 @@ TEST(LaserTest, InTheBuildingTheShippedLaserSetMapsFarBetterThanOdometry) {
   EXPECT_GT(odometry.quality->ate_rmse_m, 0.3);  // the heading from the wheels drifts
   EXPECT_LT(slam.quality->ate_rmse_m, odometry.quality->ate_rmse_m / 3.0);
   EXPECT_LT(slam.quality->ate_rmse_m, 0.15);
+}
+
+/// Whether two trajectories are the same, bit for bit.
+bool Same(const std::vector<TimedPose>& a, const std::vector<TimedPose>& b) {
+  return std::equal(a.begin(), a.end(), b.begin(), b.end(), [](const auto& p, const auto& q) {
+    return p.t == q.t && p.pose.x == q.pose.x && p.pose.y == q.pose.y &&
+           p.pose.theta == q.pose.theta;
+  });
+}
+
+TEST(LaserTest, TheHeadingSweepRunsOnLargeTurnsOfARangeScannerOnly) {
+  const testing::TempDir dir("sweep_experiments");
+  offline::ReplayOptions options;
+  options.params = ParamsChoice{};
+  options.budget.rays_per_scan = 65000;
+  options.config.seed = 1;
+  const auto poses = [&](const offline::Experiment& e, double turn_deg) {
+    options.config.heading_sweep_turn_deg = turn_deg;
+    const offline::ReplayResult r = offline::Replay(e.robot, e.scans, e.ground_truth, options);
+    EXPECT_LE(r.rays_per_scan_max, 65000);  // the sweep's headings are candidates of the quota
+    return r;
+  };
+  // The Pioneer turns by up to some 30 degrees a scan here: turns above 20 are swept, none
+  // above 360.
+  const offline::Experiment laser = SimulatedRun(dir, "building", "pioneer-lms.robot.json", 120, 3);
+  ASSERT_FALSE(laser.scans.empty());
+  const offline::ReplayResult off = poses(laser, 0.0);
+  EXPECT_TRUE(Same(poses(laser, 360.0).trajectory, off.trajectory));
+  const offline::ReplayResult swept = poses(laser, 20.0);
+  EXPECT_FALSE(Same(swept.trajectory, off.trajectory));
+  ASSERT_TRUE(swept.quality && off.quality);
+  EXPECT_LT(swept.quality->ate_rmse_m, 0.15);
+  // The marXbot's infrared scanner is never swept (its gyro keeps the heading).
+  const offline::Experiment infrared = SimulatedRun(dir, "rooms", "marxbot.robot.json", 40, 3);
+  ASSERT_FALSE(infrared.scans.empty());
+  EXPECT_TRUE(Same(poses(infrared, 20.0).trajectory, poses(infrared, 0.0).trajectory));
 }
 
 }  // namespace

@@ -78,6 +78,13 @@ int main(int argc, char** argv) {
                  "grid cell size in metres [each robot's: 0.01 for the marXbot's infrared "
                  "scanner, 0.05 for a laser]")
       ->check(CLI::Range(0.002, 1.0));
+  double heading_sweep_turn_deg = slam::SlamConfig{}.heading_sweep_turn_deg;
+  app.add_option("--heading-sweep-turn", heading_sweep_turn_deg,
+                 "a range scanner's heading sweep: when the odometry turned by more than this "
+                 "many degrees over a scan, phase B also tries headings over +-60 % of the turn "
+                 "(0: never; docs/laser.md)")
+      ->check(CLI::Range(0.0, 360.0))
+      ->capture_default_str();
   app.add_flag("--require-checks", require,
                "exit with status 3 unless SLAM beats odometry-only on every experiment at the "
                "largest budget, halves its mean ATE, and mean q improves with the budget");
@@ -86,6 +93,7 @@ int main(int argc, char** argv) {
 
   slam::offline::EvaluationPlan plan;
   plan.resolution_m = plan_resolution;
+  plan.heading_sweep_turn_deg = heading_sweep_turn_deg;
   if (!relations_path.empty()) {
     auto loaded = slam::offline::LoadRelations(relations_path);
     if (!loaded.ok()) return Fail(loaded.Message());

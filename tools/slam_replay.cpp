@@ -91,6 +91,13 @@ int main(int argc, char** argv) {
                  "scanner, 0.05 for a laser]")
       ->check(CLI::Range(0.002, 1.0));
   double range_sigma_min_cells = slam::SlamConfig{}.range_sigma_min_cells;
+  double heading_sweep_turn_deg = slam::SlamConfig{}.heading_sweep_turn_deg;
+  app.add_option("--heading-sweep-turn", heading_sweep_turn_deg,
+                 "a range scanner's heading sweep: when the odometry turned by more than this "
+                 "many degrees over a scan, phase B also tries headings over +-60 % of the turn "
+                 "(0: never; docs/laser.md)")
+      ->check(CLI::Range(0.0, 360.0))
+      ->capture_default_str();
   app.add_option("--range-sigma-cells", range_sigma_min_cells,
                  "a range scanner's readings are matched with a deviation of at least this many "
                  "cells (0: the sensor's own noise)")
@@ -177,6 +184,7 @@ int main(int argc, char** argv) {
   options.config.seed = seed;
   options.config.resolution_m = resolution;
   options.config.range_sigma_min_cells = range_sigma_min_cells;
+  options.config.heading_sweep_turn_deg = heading_sweep_turn_deg;
   options.budget.rays_per_scan = budget;
   options.budget.policy = *slam::ParseBudgetPolicy(policy_name);
   options.budget.max_particles = max_particles;
