@@ -51,6 +51,7 @@ constexpr auto kHandshakeTimeout = std::chrono::seconds(10);
 constexpr double kDropWarningEverySeconds = 5.0;
 constexpr size_t kMaxClientMessageBytes = 64 * 1024;
 constexpr size_t kMaxTrajectoryPoses = 5000;
+constexpr int kMaxHandshakes = 64;
 /// The web app of Foxglove: a page of that origin may change the budget (without a token).
 constexpr std::string_view kFoxgloveAppOrigin = "https://app.foxglove.dev";
 
@@ -87,6 +88,8 @@ struct FoxgloveServer::Impl {
   asio::io_context io{1};
   tcp::acceptor acceptor{io};
   asio::steady_timer ticker{io};
+  asio::steady_timer accept_retry{io};
+  int handshaking = 0;  // connections accepted that are not yet WebSockets (serving thread)
   std::thread thread;
   std::thread watcher;  // hands every published snapshot to the serving thread
   std::atomic<bool> stopping{false};
@@ -275,6 +278,7 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
 
   void OnOpen() {
     open = true;
+    --server.handshaking;
     protocol.emplace(
         server.channels, writer,
         foxglove::BudgetAccess{[this] { return server.service.Budget(); }, server.patch_budget});
@@ -306,6 +310,7 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
   void Close() {
     if (closed) return;
     closed = true;
+    if (!open) --server.handshaking;
     beast::error_code ignored;
     beast::get_lowest_layer(ws).socket().close(ignored);
     if (open) {
@@ -403,8 +408,26 @@ void FoxgloveServer::Impl::Forget(const Session* session) {
 
 void FoxgloveServer::Impl::Accept() {
   acceptor.async_accept([this](beast::error_code ec, tcp::socket socket) {
-    if (ec || stopping) return;  // the acceptor was closed (stopping), or a transient error
-    std::make_shared<Session>(*this, std::move(socket))->ReadRequest();
+    if (stopping || ec == asio::error::operation_aborted) return;  // closed: stopping
+    if (ec) {
+      // Out of file descriptors, say: try again shortly rather than stop accepting.
+      refused.fetch_add(1);
+      accept_retry.expires_after(std::chrono::milliseconds(100));
+      accept_retry.async_wait([this](beast::error_code error) {
+        if (!error && !stopping) Accept();
+      });
+      return;
+    }
+    if (handshaking >= kMaxHandshakes) {
+      // Connections that have not finished their upgrade hold a socket each for up to the
+      // handshake timeout: beyond this many, new ones are closed at once.
+      refused.fetch_add(1);
+      beast::error_code ignored;
+      socket.close(ignored);
+    } else {
+      ++handshaking;
+      std::make_shared<Session>(*this, std::move(socket))->ReadRequest();
+    }
     Accept();
   });
 }
@@ -511,6 +534,7 @@ void FoxgloveServer::Impl::CloseAll() {
   beast::error_code ignored;
   acceptor.close(ignored);
   ticker.cancel();
+  accept_retry.cancel();
   for (const std::shared_ptr<Session>& session : std::vector(sessions)) session->Close();
 }
 

@@ -3,6 +3,8 @@
 // sanitizers (scripts/sanitize), where the slamd child is instrumented too: the serving thread,
 // the snapshot watcher and the SLAM thread meet here.
 
+#include <unistd.h>
+
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/websocket.hpp>
@@ -204,6 +206,36 @@ TEST_F(FoxgloveSlamd, UpgradesThatBreakTheRulesAreRefused) {
   EXPECT_EQ(status_of(upgrade + "Host: 127.0.0.1\r\nSec-WebSocket-Protocol: foxglove.sdk.v1, "
                                 "foxglove.websocket.v1\r\n\r\n"),
             101);
+}
+
+TEST_F(FoxgloveSlamd, ConnectionsThatNeverUpgradeAreBoundedAndDoNotLockOthersOut) {
+  // 64 connections that send nothing hold their sockets until the handshake timeout (10 s);
+  // beyond them a new connection is closed at once.
+  std::vector<int> idle;
+  for (int i = 0; i < 64; ++i) {
+    const int fd = ConnectTo(foxglove_port_);
+    ASSERT_GE(fd, 0);
+    idle.push_back(fd);
+  }
+  Nap();  // let the server accept them all
+  const int extra = ConnectTo(foxglove_port_);
+  ASSERT_GE(extra, 0);
+  std::string got;
+  EXPECT_EQ(ReadSome(extra, got, 5.0), 0) << "the 65th idle connection was not closed";
+  ::close(extra);
+  for (const int fd : idle) ::close(fd);
+  // Once they are gone, clients connect as before.
+  const auto deadline = After(10);
+  std::optional<json> info;
+  while (!info && Clock::now() < deadline) {
+    try {
+      Client client(foxglove_port_);
+      info = client.NextOp("serverInfo", 5.0);
+    } catch (const std::exception&) {
+      Nap();
+    }
+  }
+  EXPECT_TRUE(info) << "no client could connect after the idle connections closed";
 }
 
 }  // namespace
