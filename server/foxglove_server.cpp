@@ -14,7 +14,6 @@
 #include <map>
 #include <nlohmann/json.hpp>
 #include <optional>
-#include <set>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -41,7 +40,6 @@ using tcp = asio::ip::tcp;
 using json = nlohmann::json;
 using Clock = std::chrono::steady_clock;
 using foxglove::Channel;
-using foxglove::kError;
 using foxglove::kInfo;
 using foxglove::kWarning;
 using foxglove::Status;
