@@ -421,17 +421,22 @@ void HttpServer::Impl::Setup() {
     // The library hands a const request, but owns it mutably; Guard rewrites Accept-Encoding.
     return Guard(const_cast<Request&>(req), res);
   });
-  server.set_logger([this](const Request& req, const Response& res) {
+  server.set_logger([this](const Request&, const Response& res) {
+    // A request the library could not parse (a malformed request line or header) is answered
+    // 400 without reaching the guard; what follows it on the connection is not a request to
+    // trust: it closes (1000 CRLFs once got 1000 answers on one connection).
+    if (res.status == 400) CloseConnectionAfterResponse();
+  });
+  // Counted in the post-routing handler, which the library calls for every answer (its own 400
+  // and 404 included) just before writing it, not in the logger, which it calls after: a client
+  // reading /metrics right after an answer came could miss it (it failed a CI run once).
+  server.set_post_routing_handler([this](const Request& req, Response& res) {
     // The method as a label only when it is one of HTTP's: whatever else a client sends as a
     // method (httplib answers 400) would grow the counters without bound and go into /metrics
     // unescaped.
     static const std::set<std::string> kMethods{"GET",    "HEAD",    "POST",  "PUT",    "PATCH",
                                                 "DELETE", "OPTIONS", "TRACE", "CONNECT"};
     const std::string method = kMethods.count(req.method) ? req.method : "other";
-    // A request the library could not parse (a malformed request line or header) is answered
-    // 400 without reaching the guard; what follows it on the connection is not a request to
-    // trust: it closes (1000 CRLFs once got 1000 answers on one connection).
-    if (res.status == 400) CloseConnectionAfterResponse();
     MutexLock lock(requests_mutex);
     ++requests[{method, res.status}];
   });
