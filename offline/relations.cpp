@@ -2,7 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
-#include <optional>
+#include <cstdio>
 
 #include "engine/io/text_fields.hpp"
 
@@ -10,8 +10,7 @@ namespace slam::offline {
 namespace {
 
 /// The trajectory's pose nearest in time to `t` when within `tolerance`.
-std::optional<Pose2> NearestPose(const std::vector<TimedPose>& trajectory, double t,
-                                 double tolerance) {
+const TimedPose* NearestPose(const std::vector<TimedPose>& trajectory, double t, double tolerance) {
   const auto after = std::lower_bound(trajectory.begin(), trajectory.end(), t,
                                       [](const TimedPose& p, double time) { return p.t < time; });
   const TimedPose* best = nullptr;
@@ -20,8 +19,8 @@ std::optional<Pose2> NearestPose(const std::vector<TimedPose>& trajectory, doubl
     const TimedPose& before = *std::prev(after);
     if (best == nullptr || t - before.t <= best->t - t) best = &before;
   }
-  if (best == nullptr || std::abs(best->t - t) > tolerance) return std::nullopt;
-  return best->pose;
+  if (best == nullptr || std::abs(best->t - t) > tolerance) return nullptr;
+  return best;
 }
 
 ErrorStatistics Statistics(const std::vector<double>& errors) {
@@ -91,12 +90,21 @@ RelationsScore ScoreRelations(const std::vector<TimedPose>& trajectory,
   score.relations = relations.size();
   std::vector<double> translation, rotation;
   for (const Relation& relation : relations) {
-    const std::optional<Pose2> first = NearestPose(trajectory, relation.t1, time_tolerance_s);
-    const std::optional<Pose2> second = NearestPose(trajectory, relation.t2, time_tolerance_s);
-    if (!first || !second) continue;
-    const Pose2 motion = Between(*first, *second);
-    translation.push_back(std::hypot(motion.x - relation.motion.x, motion.y - relation.motion.y));
-    rotation.push_back(RadToDeg(std::abs(NormalizeAngle(motion.theta - relation.motion.theta))));
+    const TimedPose* first = NearestPose(trajectory, relation.t1, time_tolerance_s);
+    const TimedPose* second = NearestPose(trajectory, relation.t2, time_tolerance_s);
+    if (first == nullptr || second == nullptr) continue;
+    RelationError error;
+    error.index = static_cast<size_t>(&relation - relations.data());
+    error.t1_pose = first->t;
+    error.t2_pose = second->t;
+    error.estimate = Between(first->pose, second->pose);
+    error.translation_m =
+        std::hypot(error.estimate.x - relation.motion.x, error.estimate.y - relation.motion.y);
+    error.rotation_deg =
+        RadToDeg(std::abs(NormalizeAngle(error.estimate.theta - relation.motion.theta)));
+    translation.push_back(error.translation_m);
+    rotation.push_back(error.rotation_deg);
+    score.errors.push_back(error);
   }
   score.used = translation.size();
   score.translation_m = Statistics(translation);
@@ -110,6 +118,34 @@ nlohmann::json RelationsToJson(const RelationsScore& score, double time_toleranc
           {"time_tolerance_s", time_tolerance_s},
           {"translational_m", StatisticsJson(score.translation_m)},
           {"rotational_deg", StatisticsJson(score.rotation_deg)}};
+}
+
+std::string RelationErrorsText(const std::vector<Relation>& relations, const RelationsScore& score,
+                               const RelationsScore& odometry) {
+  std::string text =
+      "# t1\tt2\tx\ty\tyaw_deg\tpose_t1\tpose_t2\test_x\test_y\test_yaw_deg\t"
+      "translational_m\trotational_deg\todom_x\todom_y\todom_yaw_deg\todom_translational_m\t"
+      "odom_rotational_deg\n";
+  char line[512];
+  size_t k = 0;  // odometry's errors, in the same order
+  for (const RelationError& e : score.errors) {
+    const Relation& r = relations.at(e.index);
+    while (k < odometry.errors.size() && odometry.errors[k].index < e.index) ++k;
+    const RelationError* odom = k < odometry.errors.size() && odometry.errors[k].index == e.index
+                                    ? &odometry.errors[k]
+                                    : nullptr;
+    const double nan = std::nan("");
+    std::snprintf(line, sizeof(line),
+                  "%.6f\t%.6f\t%.4f\t%.4f\t%.3f\t%.6f\t%.6f\t%.4f\t%.4f\t%.3f\t%.4f\t%.3f\t"
+                  "%.4f\t%.4f\t%.3f\t%.4f\t%.3f\n",
+                  r.t1, r.t2, r.motion.x, r.motion.y, RadToDeg(r.motion.theta), e.t1_pose,
+                  e.t2_pose, e.estimate.x, e.estimate.y, RadToDeg(e.estimate.theta),
+                  e.translation_m, e.rotation_deg, odom ? odom->estimate.x : nan,
+                  odom ? odom->estimate.y : nan, odom ? RadToDeg(odom->estimate.theta) : nan,
+                  odom ? odom->translation_m : nan, odom ? odom->rotation_deg : nan);
+    text += line;
+  }
+  return text;
 }
 
 }  // namespace slam::offline

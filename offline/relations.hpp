@@ -46,11 +46,22 @@ struct ErrorStatistics {
   double squared_std_dev = 0.0;
 };
 
+/// One relation as the trajectory scored it.
+struct RelationError {
+  size_t index = 0;      // of the relation, in the file's order (0-based)
+  double t1_pose = 0.0;  // times of the trajectory's poses it was scored on
+  double t2_pose = 0.0;
+  Pose2 estimate;              // the trajectory's displacement between them
+  double translation_m = 0.0;  // distance between its translation and the relation's
+  double rotation_deg = 0.0;   // absolute difference of the angles
+};
+
 struct RelationsScore {
   size_t relations = 0;  // in the file
   size_t used = 0;       // with a trajectory pose within the time tolerance at both ends
   ErrorStatistics translation_m;
   ErrorStatistics rotation_deg;
+  std::vector<RelationError> errors;  // each relation used, in the file's order
 };
 
 /// Scores `trajectory` (times strictly increasing) on `relations`. With no relation used, the
@@ -63,5 +74,12 @@ RelationsScore ScoreRelations(const std::vector<TimedPose>& trajectory,
 /// relations (in the file), time_tolerance_s, translational_m and rotational_deg, each with
 /// mean, std, squared_mean, squared_std.
 nlohmann::json RelationsToJson(const RelationsScore& score, double time_tolerance_s = 0.1);
+
+/// Each relation the trajectory was scored on, one per line, as tab-separated text with a '#'
+/// header naming the columns (docs/design.md section 8): the relation (t1, t2, x, y, yaw in
+/// degrees), the poses' times, the trajectory's displacement and its errors, and the same for
+/// `odometry` (a score of the same relations; "nan" where it left one out).
+std::string RelationErrorsText(const std::vector<Relation>& relations, const RelationsScore& score,
+                               const RelationsScore& odometry);
 
 }  // namespace slam::offline

@@ -80,6 +80,65 @@ TEST(RelationsTest, PosesAreTheNearestInTimeWithinTheTolerance) {
   EXPECT_NEAR(tie.translation_m.mean, 0.0, 1e-12);
 }
 
+TEST(RelationsTest, EachRelationUsedIsListedWithItsPosesAndErrorsBesideOdometrys) {
+  // Relation 0 is scored by both; relation 1 (its t1 11.45 s beyond the tolerance of the
+  // trajectory's 11 s) by neither; relation 2 only by "odometry", whose poses are 0.05 s later.
+  const std::vector<Relation> relations{
+      {11.0, 12.0, {1.1, 0.0, DegToRad(3.0)}},
+      {11.45, 12.0, {0.0, 0.0, 0.0}},
+      {12.12, 12.13, {0.0, 0.0, 0.0}},
+  };
+  std::vector<TimedPose> odometry = kTrajectory;
+  for (TimedPose& pose : odometry) pose.t += 0.05;
+  odometry[1].pose = {0.0, 0.0, kPi / 2 + DegToRad(2.0)};  // 2 degrees more turned at 11 s
+  const RelationsScore score = ScoreRelations(kTrajectory, relations);
+  const RelationsScore odom = ScoreRelations(odometry, relations);
+  ASSERT_EQ(score.errors.size(), 1u);
+  EXPECT_EQ(score.errors[0].index, 0u);
+  EXPECT_EQ(score.errors[0].t1_pose, 11.0);
+  EXPECT_EQ(score.errors[0].t2_pose, 12.0);
+  EXPECT_NEAR(score.errors[0].estimate.x, 1.0, 1e-12);
+  EXPECT_NEAR(score.errors[0].estimate.y, 0.0, 1e-12);
+  EXPECT_NEAR(score.errors[0].translation_m, 0.1, 1e-12);
+  EXPECT_NEAR(score.errors[0].rotation_deg, 3.0, 1e-9);
+  ASSERT_EQ(odom.errors.size(), 2u);
+  EXPECT_EQ(odom.errors[1].index, 2u);
+
+  const std::string text = RelationErrorsText(relations, score, odom);
+  std::vector<std::string> lines;
+  for (size_t from = 0; from < text.size();) {
+    const size_t end = text.find('\n', from);
+    ASSERT_NE(end, std::string::npos) << "every line ends with a newline";
+    lines.push_back(text.substr(from, end - from));
+    from = end + 1;
+  }
+  ASSERT_EQ(lines.size(), 2u);  // the header and relation 0 (odometry's relation 2 is not listed)
+  EXPECT_EQ(lines[0].rfind("# t1\tt2\tx\ty\tyaw_deg\tpose_t1\tpose_t2\test_x", 0), 0u) << lines[0];
+  std::vector<std::string> fields;
+  for (size_t from = 0;;) {
+    const size_t tab = lines[1].find('\t', from);
+    fields.push_back(lines[1].substr(from, tab - from));
+    if (tab == std::string::npos) break;
+    from = tab + 1;
+  }
+  ASSERT_EQ(fields.size(), 17u) << lines[1];
+  EXPECT_EQ(fields[0], "11.000000");
+  EXPECT_EQ(fields[2], "1.1000");     // the relation's x
+  EXPECT_EQ(fields[4], "3.000");      // its yaw, degrees
+  EXPECT_EQ(fields[5], "11.000000");  // the poses' times
+  EXPECT_EQ(fields[7], "1.0000");     // the trajectory's x
+  EXPECT_EQ(fields[10], "0.1000");    // translational error
+  EXPECT_EQ(fields[11], "3.000");     // rotational error
+  // Odometry turned 2 degrees more by 11 s: its forward metre lies 2 degrees to the right.
+  EXPECT_EQ(fields[12], "0.9994");
+  EXPECT_EQ(fields[13], "-0.0349");
+  EXPECT_EQ(fields[14], "-2.000");
+  EXPECT_EQ(fields[16], "5.000");
+  // A relation that odometry left out gets "nan" in its columns.
+  const std::string without = RelationErrorsText(relations, score, RelationsScore{});
+  EXPECT_NE(without.find("\tnan\tnan\tnan\tnan\tnan\n"), std::string::npos) << without;
+}
+
 TEST(RelationsTest, NoRelationUsedGivesZeroStatistics) {
   const RelationsScore score = ScoreRelations({}, {{1.0, 2.0, {1.0, 0.0, 0.0}}});
   EXPECT_EQ(score.used, 0u);

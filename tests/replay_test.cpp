@@ -631,6 +631,24 @@ TEST_F(ReplayTest, RelationsScoreTheTrajectoryAndOdometryOnTheBenchmarkMetric) {
             r["odometry"]["rotational_deg"]["mean"].get<double>());
   EXPECT_NEAR(r["translational_m"]["squared_mean"].get<double>(),
               std::pow(slam_m, 2) + std::pow(r["translational_m"]["std"].get<double>(), 2), 1e-12);
+  // Each relation's errors in relations.tsv: a header and one line per relation, whose
+  // translational errors average to the summary's mean.
+  EXPECT_EQ(r["errors_file"], (scratch / "out" / "relations.tsv").string());
+  std::ifstream errors(scratch / "out" / "relations.tsv");
+  std::string line;
+  ASSERT_TRUE(std::getline(errors, line));
+  EXPECT_EQ(line.rfind("# t1\t", 0), 0u) << line;
+  size_t listed = 0;
+  double sum_m = 0.0;
+  while (std::getline(errors, line)) {
+    std::istringstream fields(line);
+    std::vector<double> v(17);
+    for (double& x : v) ASSERT_TRUE(fields >> x) << line;
+    sum_m += v[10];
+    ++listed;
+  }
+  EXPECT_EQ(listed, written);
+  EXPECT_NEAR(sum_m / static_cast<double>(listed), slam_m, 1e-4);
 
   // slam-evaluate --relations scores each of its runs the same way.
   const auto loaded = offline::LoadRelations(relations);

@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/io/atomic_file.hpp"
 #include "engine/io/params_json.hpp"
 #include "offline/experiment_reader.hpp"
 #include "offline/relations.hpp"
@@ -131,7 +132,8 @@ int main(int argc, char** argv) {
   app.add_option("--relations", relations_path,
                  "benchmark relations (Freiburg format: t1 t2 x y z roll pitch yaw per line): adds "
                  "a \"relations\" object to the summary with the trajectory's relation errors, and "
-                 "odometry's beside them");
+                 "odometry's beside them; writes each relation's errors to relations.tsv in the "
+                 "output directory");
   app.add_flag("--quiet", quiet, "no progress line on stderr");
   app.set_version_flag("--version", std::string("slam-replay ") + SLAM_VERSION);
   CLI11_PARSE(app, argc, argv);
@@ -204,11 +206,22 @@ int main(int argc, char** argv) {
   Json summary = slam::offline::ReplaySummary(experiment, run, options);
   summary["out"] = out_dir;
   if (!relations_path.empty()) {
-    Json scored =
-        slam::offline::RelationsToJson(slam::offline::ScoreRelations(run.trajectory, relations));
+    const slam::offline::RelationsScore slam_score =
+        slam::offline::ScoreRelations(run.trajectory, relations);
+    const slam::offline::RelationsScore odometry_score =
+        slam::offline::ScoreRelations(slam::offline::DeadReckoning(experiment.scans), relations);
+    Json scored = slam::offline::RelationsToJson(slam_score);
     scored["file"] = relations_path;
-    scored["odometry"] = slam::offline::RelationsToJson(
-        slam::offline::ScoreRelations(slam::offline::DeadReckoning(experiment.scans), relations));
+    scored["odometry"] = slam::offline::RelationsToJson(odometry_score);
+    // Each relation's errors, to see which relations a score comes from (docs/laser.md).
+    const std::string errors_path = (std::filesystem::path(out_dir) / "relations.tsv").string();
+    const auto written = slam::io::WriteFileAtomic(
+        errors_path, slam::offline::RelationErrorsText(relations, slam_score, odometry_score));
+    if (written.ok()) {
+      scored["errors_file"] = errors_path;
+    } else {
+      outputs.errors.push_back(written.Message());
+    }
     summary["relations"] = std::move(scored);
   }
   std::cout << summary.dump(2) << "\n";
