@@ -322,7 +322,9 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
   const ScanReport report = engine_->ProcessScan(scan, plan);
   const double cpu_s = ThreadCpuSeconds() - cpu_start;
   // For viewers (Foxglove's /scan): a few hundred points, outside the scan's CPU account.
-  scan_points_ = std::make_shared<const std::vector<Vec2>>(engine_->ReadingPoints(scan));
+  if (options_.scan_points) {
+    scan_points_ = std::make_shared<const std::vector<Vec2>>(engine_->ReadingPoints(scan));
+  }
   const PlanRecord record = scheduler_.Record(report, cpu_s);
   const int64_t now = SteadyNs();
 

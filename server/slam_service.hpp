@@ -69,7 +69,7 @@ struct SlamSnapshot {
   std::optional<ScanMetrics> last;
   std::optional<Pose2> truth;  // ground truth at `pose.t`, map frame (simulated sources)
   /// The latest scan's readings in the robot's frame at `pose` (Slam::ReadingPoints); null
-  /// before the first scan and after a reset.
+  /// before the first scan, after a reset, and always without ServiceOptions::scan_points.
   std::shared_ptr<const std::vector<Vec2>> scan_points;
 
   /// Tile version as reported (0 for a missing tile).
@@ -120,6 +120,9 @@ struct ServiceOptions {
   /// its start pose) instead of at its last saved pose (a real robot does not move while slamd
   /// restarts).
   bool resume_at_origin = false;
+  /// Keep each scan's readings for the snapshot (SlamSnapshot::scan_points, Foxglove's /scan);
+  /// off, the SLAM thread does not compute them.
+  bool scan_points = true;
 };
 
 class SlamService {

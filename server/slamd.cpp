@@ -207,6 +207,7 @@ int main(int argc, char** argv) {
   service_options.config.seed = seed;
   service_options.config.resolution_m = slam::DefaultResolution(robot.value());
   service_options.resume_at_origin = source.rfind("sim:", 0) == 0;
+  service_options.scan_points = foxglove_port != 0;  // only Foxglove's /scan shows them
   // Held until slamd exits: a second slamd on the same directory would race its saves.
   std::optional<slam::server::StateDirLock> state_lock;
   if (!state_dir.empty()) {

@@ -541,6 +541,31 @@ TEST_F(SlamServiceTest, MapsTheLogAndPublishesSnapshots) {
     EXPECT_EQ(grid.FindTile(t.index)->cells, t.tile->cells) << t.index.x << ", " << t.index.y;
   }
   EXPECT_EQ(last->pose.pose.x, expected.trajectory.back().pose.x);
+  // The last scan's readings, for Foxglove's /scan: a few per sensor sample.
+  ASSERT_TRUE(last->scan_points);
+  EXPECT_GT(last->scan_points->size(), 20u);
+}
+
+TEST_F(SlamServiceTest, WithoutScanPointsTheSnapshotsCarryNoneAndTheMapIsTheSame) {
+  ASSERT_TRUE(*experiment_);
+  const int64_t scans = static_cast<int64_t>((*experiment_)->scans.size());
+  std::shared_ptr<const SlamSnapshot> with, without;
+  for (const bool keep : {true, false}) {
+    auto link = MakeLink();
+    ServiceOptions options = Options();
+    options.scan_points = keep;
+    SlamService service(*link, nullptr, options);
+    link->Start();
+    service.Start();
+    (keep ? with : without) = WaitForScans(service, scans);
+    service.Stop();
+    link->Stop();
+    EXPECT_EQ(service.Counters().scans, scans);
+  }
+  ASSERT_TRUE(with->scan_points);
+  EXPECT_FALSE(without->scan_points);
+  EXPECT_EQ(without->pose.pose.x, with->pose.pose.x);
+  EXPECT_EQ(without->tiles.size(), with->tiles.size());
 }
 
 TEST_F(SlamServiceTest, BudgetChangesApplyFromTheNextScanAndResetKeepsVersionsGrowing) {
