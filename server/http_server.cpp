@@ -421,7 +421,7 @@ void HttpServer::Impl::Setup() {
     // The library hands a const request, but owns it mutably; Guard rewrites Accept-Encoding.
     return Guard(const_cast<Request&>(req), res);
   });
-  server.set_logger([this](const Request&, const Response& res) {
+  server.set_logger([](const Request&, const Response& res) {
     // A request the library could not parse (a malformed request line or header) is answered
     // 400 without reaching the guard; what follows it on the connection is not a request to
     // trust: it closes (1000 CRLFs once got 1000 answers on one connection).
