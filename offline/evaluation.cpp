@@ -12,7 +12,9 @@
 #include <map>
 #include <mutex>
 #include <numeric>
+#include <optional>
 
+#include "engine/io/atomic_file.hpp"
 #include "engine/thread_safety.hpp"
 #include "offline/carmen_log.hpp"
 #include "offline/replay.hpp"
@@ -171,9 +173,10 @@ std::vector<EvaluationRun> Evaluate(
             const ReplayResult result =
                 Replay(experiment.robot, experiment.scans, experiment.ground_truth, options);
             run.summary = ReplaySummary(experiment, result, options);
+            std::optional<RelationsScore> relations;
             if (!plan.relations.empty()) {
-              run.summary["relations"] =
-                  RelationsToJson(ScoreRelations(result.trajectory, plan.relations));
+              relations = ScoreRelations(result.trajectory, plan.relations);
+              run.summary["relations"] = RelationsToJson(*relations);
             }
             if (!plan.outputs_dir.empty()) {
               const std::filesystem::path dir =
@@ -187,6 +190,14 @@ std::vector<EvaluationRun> Evaluate(
                 run.errors = WriteReplayOutputs(dir.string(), experiment, result, !run.refine,
                                                 options.budget)
                                  .errors;
+                if (relations) {  // each relation's errors, as slam-replay writes them
+                  const std::string path = (dir / "relations.tsv").string();
+                  const auto written = io::WriteFileAtomic(
+                      path, RelationErrorsText(
+                                plan.relations, *relations,
+                                ScoreRelations(DeadReckoning(experiment.scans), plan.relations)));
+                  if (!written.ok()) run.errors.push_back(written.Message());
+                }
               }
             }
             MutexLock lock(mutex);

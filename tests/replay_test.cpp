@@ -657,6 +657,7 @@ TEST_F(ReplayTest, RelationsScoreTheTrajectoryAndOdometryOnTheBenchmarkMetric) {
   plan.budgets = {65000};
   plan.odometry_only = false;
   plan.relations = loaded.value();
+  plan.outputs_dir = (scratch / "evaluated").string();
   const auto evaluated = offline::Evaluate(std::vector<offline::Experiment>{e}, plan);
   ASSERT_EQ(evaluated.size(), 1u);
   ASSERT_TRUE(evaluated[0].summary.contains("relations"));
@@ -665,6 +666,15 @@ TEST_F(ReplayTest, RelationsScoreTheTrajectoryAndOdometryOnTheBenchmarkMetric) {
   EXPECT_NEAR(scored["translational_m"]["mean"].get<double>(), slam_m, 1e-9);
   EXPECT_NEAR(scored["rotational_deg"]["mean"].get<double>(),
               r["rotational_deg"]["mean"].get<double>(), 1e-9);
+  // With the runs' outputs (--maps), each run's relations.tsv is slam-replay's, line for line.
+  EXPECT_TRUE(evaluated[0].errors.empty());
+  const auto read = [](const fs::path& path) {
+    std::ifstream in(path);
+    return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  };
+  const std::string replayed = read(scratch / "out" / "relations.tsv");
+  EXPECT_FALSE(replayed.empty());
+  EXPECT_EQ(read(scratch / "evaluated" / e.meta.name / "slam-65000" / "relations.tsv"), replayed);
 
   // A bad relations file is refused before the replay, naming its line.
   std::ofstream(relations, std::ios::app) << "1 2 3\n";

@@ -73,7 +73,8 @@ int main(int argc, char** argv) {
   std::string relations_path;
   app.add_option("--relations", relations_path,
                  "benchmark relations (Freiburg format) scoring every run, as slam-replay's "
-                 "--relations (for one log, or experiments sharing a clock)");
+                 "--relations (for one log, or experiments sharing a clock); with --maps, each "
+                 "run's relations.tsv too");
   app.add_option("--resolution", plan_resolution,
                  "grid cell size in metres [each robot's: 0.01 for the marXbot's infrared "
                  "scanner, 0.05 for a laser]")
