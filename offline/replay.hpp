@@ -78,6 +78,12 @@ struct ReplayResult {
   explicit ReplayResult(OccupancyGrid final_map) : map(std::move(final_map)) {}
 };
 
+/// The command-line help of slam-replay's and slam-evaluate's --heading-sweep-turn
+/// (SlamConfig::heading_sweep_turn_deg).
+inline constexpr char kHeadingSweepTurnHelp[] =
+    "a range scanner's heading sweep: when the odometry turned by more than this many degrees "
+    "over a scan, phase B also tries headings over +-60 % of the turn (0: never; docs/laser.md)";
+
 /// The odometry-only trajectory of `scans`, as the engine with phase B off builds it: from the
 /// origin at the first scan's start, every sample's pose and each scan's end pose, scans chained
 /// end to end.

@@ -16,6 +16,7 @@
 #include "engine/io/params_json.hpp"
 #include "offline/evaluation.hpp"
 #include "offline/experiment_reader.hpp"
+#include "offline/replay.hpp"
 
 namespace {
 
@@ -81,9 +82,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.002, 1.0));
   double heading_sweep_turn_deg = slam::SlamConfig{}.heading_sweep_turn_deg;
   app.add_option("--heading-sweep-turn", heading_sweep_turn_deg,
-                 "a range scanner's heading sweep: when the odometry turned by more than this "
-                 "many degrees over a scan, phase B also tries headings over +-60 % of the turn "
-                 "(0: never; docs/laser.md)")
+                 slam::offline::kHeadingSweepTurnHelp)
       ->check(CLI::Range(0.0, 360.0))
       ->capture_default_str();
   app.add_flag("--require-checks", require,

@@ -94,9 +94,7 @@ int main(int argc, char** argv) {
   double range_sigma_min_cells = slam::SlamConfig{}.range_sigma_min_cells;
   double heading_sweep_turn_deg = slam::SlamConfig{}.heading_sweep_turn_deg;
   app.add_option("--heading-sweep-turn", heading_sweep_turn_deg,
-                 "a range scanner's heading sweep: when the odometry turned by more than this "
-                 "many degrees over a scan, phase B also tries headings over +-60 % of the turn "
-                 "(0: never; docs/laser.md)")
+                 slam::offline::kHeadingSweepTurnHelp)
       ->check(CLI::Range(0.0, 360.0))
       ->capture_default_str();
   app.add_option("--range-sigma-cells", range_sigma_min_cells,
