@@ -29,6 +29,7 @@ if (!['open', 'token'].includes(mode) || !httpUrl || !wsUrl || (mode === 'token'
   process.exit(2);
 }
 const started = Date.now();
+const firstMessagesMs = Number(process.env.FOXGLOVE_FIRST_MESSAGES_MS ?? 2000);
 const log = (text) => console.log(`[${((Date.now() - started) / 1000).toFixed(1)} s] ${text}`);
 class TestFailure extends Error {}
 const check = (ok, message) => {
@@ -116,6 +117,7 @@ function connect(url, options = {}) {
     }
   });
   client.on('message', ({ subscriptionId, data }) => {
+    const at = Date.now(); // on arrival, before parsing and validating
     const channel = state.bySubscription.get(subscriptionId);
     if (!channel) return state.errors.push(`a message for unknown subscription ${subscriptionId}`);
     let message;
@@ -133,7 +135,7 @@ function connect(url, options = {}) {
       state.errors.push(`${channel.topic}: against its advertised schema: ${ajv.errorsText(channel.validate.errors)}`);
     }
     if (!state.messages.has(channel.topic)) state.messages.set(channel.topic, []);
-    state.messages.get(channel.topic).push({ at: Date.now(), message });
+    state.messages.get(channel.topic).push({ at, message });
   });
   return state;
 }
@@ -160,7 +162,7 @@ function upgrade(url, protocols, headers) {
 const base64Bytes = (text) => Buffer.from(text, 'base64');
 async function expectStatusError(state, what, fragment) {
   const seen = state.statuses.length;
-  await waitFor(`a status error for ${what}`, 3000, () => state.statuses.length > seen);
+  await waitFor(`a status error for ${what}`, 5000, () => state.statuses.length > seen);
   const status = state.statuses.at(-1);
   check(status.level === 2, `${what}: status level ${status.level}, not an error: ${status.message}`);
   check(status.message.includes(fragment), `${what}: status "${status.message}" does not mention ${fragment}`);
@@ -169,7 +171,7 @@ async function expectStatusError(state, what, fragment) {
 
 async function openChecks() {
   const a = connect(wsUrl);
-  await waitFor('serverInfo and advertise', 2000, () => a.serverInfo && a.channels.size > 0);
+  await waitFor('serverInfo and advertise', 5000, () => a.serverInfo && a.channels.size > 0);
   check(a.serverInfo.capabilities.includes('parameters'), 'no parameters capability');
   check(a.serverInfo.capabilities.includes('parametersSubscribe'), 'no parametersSubscribe capability');
   for (const [topic, schemaName] of Object.entries(expectedChannels)) {
@@ -178,13 +180,14 @@ async function openChecks() {
     check(channel.schemaName === schemaName, `${topic}: schema name ${channel.schemaName}, not ${schemaName}`);
     check(channel.encoding === 'json' && channel.schemaEncoding === 'jsonschema', `${topic}: not JSON`);
   }
-  // The target: /map and /pose, each valid, within 2 s of connecting.
-  await waitFor('/map and /pose within 2 s of connecting', 2000 - (Date.now() - a.connectedAt), () =>
-    count(a, '/map') > 0 && count(a, '/pose') > 0,
+  // The target: /map and /pose, each valid, within 2 s of connecting (sanitizer builds, many
+  // times slower, allow more: FOXGLOVE_FIRST_MESSAGES_MS, set by tests/CMakeLists.txt).
+  await waitFor(`/map and /pose within ${firstMessagesMs / 1000} s of connecting`,
+    firstMessagesMs - (Date.now() - a.connectedAt), () => count(a, '/map') > 0 && count(a, '/pose') > 0,
   );
   log(`/map after ${a.messages.get('/map')[0].at - a.connectedAt} ms, /pose after ${a.messages.get('/pose')[0].at - a.connectedAt} ms`);
   await waitFor('every channel', 10000, () => Object.keys(expectedChannels).every((t) => count(a, t) > 0));
-  await waitFor('a second /map (at most once a second while it changes)', 5000, () => count(a, '/map') >= 2);
+  await waitFor('a second /map (at most once a second while it changes)', 10000, () => count(a, '/map') >= 2);
   noErrors(a, 'messages');
 
   // The map: cells as many as the grid says, ROS occupancy values, free and occupied cells seen.
@@ -198,9 +201,13 @@ async function openChecks() {
   const free = values.filter((v) => v >= 0 && v < 30).length;
   const occupied = values.filter((v) => v > 70).length;
   check(free > 100 && occupied > 10, `map holds ${free} free and ${occupied} occupied cells`);
+  // At most once a second, as received: the first map (sent at once, the largest) may arrive
+  // late enough under load that the next follows it closely, so the count over the span is
+  // checked, with one to spare, rather than each gap (a map per scan would be ~6 a second).
+  await sleep(Math.max(0, 3000 - (Date.now() - a.messages.get('/map')[0].at))); // 3 s of maps
   const maps = a.messages.get('/map');
-  const gaps = maps.slice(1).map((m, i) => m.at - maps[i].at);
-  check(gaps.every((g) => g >= 900), `/map more often than once a second: gaps ${gaps}`);
+  const span = (maps.at(-1).at - maps[0].at) / 1000;
+  check(maps.length - 1 <= span + 1, `${maps.length} maps in ${span.toFixed(2)} s: more often than once a second`);
   // The scan: points in the robot frame, within the scanner's reach.
   const scan = last(a, '/scan');
   const points = base64Bytes(scan.data);
@@ -216,7 +223,7 @@ async function openChecks() {
 
   // Parameters: read, then set; REST and the page's event stream see the change.
   a.client.getParameters([], 'all');
-  await waitFor('parameterValues', 2000, () => a.parameterValues.some((p) => p.id === 'all'));
+  await waitFor('parameterValues', 5000, () => a.parameterValues.some((p) => p.id === 'all'));
   const all = a.parameterValues.find((p) => p.id === 'all').parameters;
   const names = all.map((p) => p.name).sort();
   check(
@@ -246,11 +253,11 @@ async function openChecks() {
   await sleep(500);
   a.client.subscribeParameterUpdates(['budget.rays_per_scan', 'budget.policy']);
   a.client.setParameters([{ name: 'budget.rays_per_scan', value: 16250, type: 'float64' }], 'set1');
-  await waitFor('the answer to setParameters', 2000, () => a.parameterValues.some((p) => p.id === 'set1'));
+  await waitFor('the answer to setParameters', 5000, () => a.parameterValues.some((p) => p.id === 'set1'));
   const answer = a.parameterValues.find((p) => p.id === 'set1').parameters;
   check(answer.length === 1 && answer[0].value === 16250, `setParameters answered ${JSON.stringify(answer)}`);
   check((await getBudget()).rays_per_scan === 16250, 'GET /api/v1/budget does not show 16250');
-  await waitFor('the page\'s event stream tells the new budget', 3000, () =>
+  await waitFor('the page\'s event stream tells the new budget', 5000, () =>
     /event: budget\nid: \d+\ndata: .*"rays_per_scan":16250/.test(eventText),
   );
   events.abort();
@@ -276,7 +283,7 @@ async function openChecks() {
   // Updates made elsewhere (REST) reach the parameter subscribers.
   const updates = a.parameterValues.length;
   await http('PATCH', '/api/v1/budget', { rays_per_scan: 32500 });
-  await waitFor('a parameter update after a REST change', 2000, () =>
+  await waitFor('a parameter update after a REST change', 5000, () =>
     a.parameterValues.slice(updates).some((p) => p.parameters.some((q) => q.name === 'budget.rays_per_scan' && q.value === 32500)),
   );
   const update = a.parameterValues.slice(updates).find((p) => p.parameters.length > 0);
@@ -307,15 +314,15 @@ async function openChecks() {
   await expectStatusError(foreign, 'a change from another site\'s page', 'not changed');
   check((await getBudget()).rays_per_scan === 32500, 'another site\'s page changed the budget');
   const app = connect(wsUrl, { headers: { Origin: 'https://app.foxglove.dev' }, subscribe: false });
-  await waitFor('the Foxglove app connected', 3000, () => app.serverInfo);
+  await waitFor('the Foxglove app connected', 5000, () => app.serverInfo);
   app.client.setParameters([{ name: 'budget.rays_per_scan', value: 65000 }], 'app');
-  await waitFor('the Foxglove app set the budget', 3000, () => app.parameterValues.some((p) => p.id === 'app'));
+  await waitFor('the Foxglove app set the budget', 5000, () => app.parameterValues.some((p) => p.id === 'app'));
   check((await getBudget()).rays_per_scan === 65000, 'the Foxglove app could not set the budget');
   for (const s of [a, foreign, app]) {
     noErrors(s, 'messages');
     s.client.close();
   }
-  await waitFor('clients gone from /metrics', 3000, async () => (await metric('slamd_foxglove_clients')) === 0);
+  await waitFor('clients gone from /metrics', 5000, async () => (await metric('slamd_foxglove_clients')) === 0);
   check((await metric('slamd_foxglove_refused_total')) >= 3, 'refusals not counted');
 }
 
@@ -340,7 +347,7 @@ async function tokenChecks() {
   });
   await waitFor('the good client gets poses', 5000, () => count(good, '/pose') > 0);
   good.client.setParameters([{ name: 'budget.rays_per_scan', value: 8125 }], 't');
-  await waitFor('the token holder set the budget', 3000, () => good.parameterValues.some((p) => p.id === 't'));
+  await waitFor('the token holder set the budget', 5000, () => good.parameterValues.some((p) => p.id === 't'));
   check((await getBudget()).rays_per_scan === 8125, 'the token holder could not set the budget');
 
   const lateBefore = await metric('slamd_late_scans_total');
