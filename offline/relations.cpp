@@ -126,7 +126,6 @@ std::string RelationErrorsText(const std::vector<Relation>& relations, const Rel
       "# t1\tt2\tx\ty\tyaw_deg\tpose_t1\tpose_t2\test_x\test_y\test_yaw_deg\t"
       "translational_m\trotational_deg\todom_x\todom_y\todom_yaw_deg\todom_translational_m\t"
       "odom_rotational_deg\n";
-  char line[512];
   size_t k = 0;  // odometry's errors, in the same order
   for (const RelationError& e : score.errors) {
     const Relation& r = relations.at(e.index);
@@ -135,15 +134,24 @@ std::string RelationErrorsText(const std::vector<Relation>& relations, const Rel
                                     ? &odometry.errors[k]
                                     : nullptr;
     const double nan = std::nan("");
-    std::snprintf(line, sizeof(line),
-                  "%.6f\t%.6f\t%.4f\t%.4f\t%.3f\t%.6f\t%.6f\t%.4f\t%.4f\t%.3f\t%.4f\t%.3f\t"
-                  "%.4f\t%.4f\t%.3f\t%.4f\t%.3f\n",
-                  r.t1, r.t2, r.motion.x, r.motion.y, RadToDeg(r.motion.theta), e.t1_pose,
-                  e.t2_pose, e.estimate.x, e.estimate.y, RadToDeg(e.estimate.theta),
-                  e.translation_m, e.rotation_deg, odom ? odom->estimate.x : nan,
-                  odom ? odom->estimate.y : nan, odom ? RadToDeg(odom->estimate.theta) : nan,
-                  odom ? odom->translation_m : nan, odom ? odom->rotation_deg : nan);
-    text += line;
+    // Sized by a first pass: a relations file may hold any finite number, 1e300 included, and
+    // a fixed buffer would cut such a line.
+    const auto format = [&](char* out, size_t size) {
+      return std::snprintf(
+          out, size,
+          "%.6f\t%.6f\t%.4f\t%.4f\t%.3f\t%.6f\t%.6f\t%.4f\t%.4f\t%.3f\t%.4f\t%.3f\t%.4f\t%.4f\t"
+          "%.3f\t%.4f\t%.3f\n",
+          r.t1, r.t2, r.motion.x, r.motion.y, RadToDeg(r.motion.theta), e.t1_pose, e.t2_pose,
+          e.estimate.x, e.estimate.y, RadToDeg(e.estimate.theta), e.translation_m, e.rotation_deg,
+          odom ? odom->estimate.x : nan, odom ? odom->estimate.y : nan,
+          odom ? RadToDeg(odom->estimate.theta) : nan, odom ? odom->translation_m : nan,
+          odom ? odom->rotation_deg : nan);
+    };
+    const size_t length = static_cast<size_t>(format(nullptr, 0));
+    const size_t at = text.size();
+    text.resize(at + length + 1);  // snprintf writes a terminating NUL
+    format(text.data() + at, length + 1);
+    text.resize(at + length);
   }
   return text;
 }

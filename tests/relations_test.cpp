@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -134,6 +135,13 @@ TEST(RelationsTest, EachRelationUsedIsListedWithItsPosesAndErrorsBesideOdometrys
   EXPECT_EQ(fields[13], "-0.0349");
   EXPECT_EQ(fields[14], "-2.000");
   EXPECT_EQ(fields[16], "5.000");
+  // A relation of huge (finite) numbers keeps its whole line.
+  const std::vector<Relation> huge{{11.0, 12.0, {1e300, -1e300, 0.0}}};
+  const std::string wide = RelationErrorsText(huge, ScoreRelations(kTrajectory, huge), odom);
+  EXPECT_EQ(std::count(wide.begin(), wide.end(), '\n'), 2) << wide.size();
+  EXPECT_EQ(wide.back(), '\n');
+  EXPECT_EQ(std::count(wide.begin(), wide.end(), '\t'), 2 * 16);
+  EXPECT_GT(wide.size(), 600u);  // two numbers of ~300 digits each, at least
   // A relation that odometry left out gets "nan" in its columns.
   const std::string without = RelationErrorsText(relations, score, RelationsScore{});
   EXPECT_NE(without.find("\tnan\tnan\tnan\tnan\tnan\n"), std::string::npos) << without;
