@@ -436,6 +436,21 @@ const Slam& WarmEngine(int particles) {
   return *slot;
 }
 
+// Normal draws as phase B draws its candidates' poses: range(0) 0 by Box-Muller
+// (Rng::Gaussian, the simulator's), 1 by the ziggurat (Rng::Normal, the engine's). Items are
+// draws.
+void BM_NormalDraw(benchmark::State& state) {
+  Rng rng(11);
+  const bool ziggurat = state.range(0) == 1;
+  double sum = 0.0;
+  for (auto _ : state) {
+    for (int i = 0; i < 64; ++i) sum += ziggurat ? rng.Normal(0.02) : rng.Gaussian(0.02);
+    benchmark::DoNotOptimize(sum);
+  }
+  state.SetItemsProcessed(state.iterations() * 64);
+}
+BENCHMARK(BM_NormalDraw)->ArgName("ziggurat")->Arg(0)->Arg(1);
+
 // Copy-on-write resampling: range(0) particles drawn systematically from a weighted set of as
 // many (all sharing the mapped tiles), then each drawn copy's first update ray, which copies
 // the tile it writes. Items are particles.

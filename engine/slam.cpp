@@ -682,9 +682,9 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
     out.nominal[p].theta = NormalizeAngle(out.nominal[p].theta - drift);
     Rng rng = Rng::ForStream(config_.seed, step, p, kStreamMotion);
     MotionDelta noisy = motion;
-    noisy.rot1 += rng.Gaussian(out.sigma_rot1);
-    noisy.trans += rng.Gaussian(out.sigma_trans);
-    noisy.rot2 += rng.Gaussian(out.sigma_rot2);
+    noisy.rot1 += rng.Normal(out.sigma_rot1);
+    noisy.trans += rng.Normal(out.sigma_trans);
+    noisy.rot2 += rng.Normal(out.sigma_rot2);
     out.predicted[p] = Compose(particles_[p].pose, Recompose(noisy));
     out.predicted[p].theta = NormalizeAngle(out.predicted[p].theta - drift);
   }
@@ -822,9 +822,9 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
         end.theta = NormalizeAngle(end.theta + offset);
       } else if (c > 0) {
         Rng rng = Rng::ForStream(config_.seed, step, p, kStreamCandidate + c);
-        end.x += rng.Gaussian(scale * sigma_pos);
-        end.y += rng.Gaussian(scale * sigma_pos);
-        end.theta = NormalizeAngle(end.theta + rng.Gaussian(scale * sigma_angle));
+        end.x += rng.Normal(scale * sigma_pos);
+        end.y += rng.Normal(scale * sigma_pos);
+        end.theta = NormalizeAngle(end.theta + rng.Normal(scale * sigma_angle));
       }
       const MatchWindow* window = windows[p] ? &*windows[p] : nullptr;
       candidate_pose[index] = end;

@@ -166,19 +166,28 @@ TEST(Matching, RefinementRecoversAWrongPoseWithinOneCellAndHalfADegree) {
       EXPECT_LT(angle_error(settled), 0.5) << RadToDeg(settled.theta);
     }
     // All of the error drifting in over one scan from a start that is right (a treel slipping):
-    // phase B takes out most of it, not all, since it moves the start too.
-    {
-      Slam slam(robot, params, EstimatorConfig(1, fit_peak));
+    // phase B takes out some of it on every seed and most of it on average (of 3.2 cm and 2
+    // degrees, 1.4 to 2.0 cm and 0.6 to 1.1 degrees are left on seeds 1-8), not all, since it
+    // moves the start too.
+    double pos_left = 0.0, angle_left = 0.0;
+    constexpr int kSeeds = 8;
+    for (uint64_t seed = 1; seed <= kSeeds; ++seed) {
+      SCOPED_TRACE(seed);
+      Slam slam(robot, params, EstimatorConfig(seed, fit_peak));
       slam.Restore(DrawMap(room, 0.01), truth);
       slam.ProcessScan(ScanAt(robot, room, truth, 0, truth, wrong), plan);
       const Pose2 found = slam.Best().pose;
-      EXPECT_LT(pos_error(found), 0.02)
+      EXPECT_LT(pos_error(found), 0.75 * std::hypot(error.x, error.y))
           << found.x << ", " << found.y << ", " << RadToDeg(found.theta);
-      EXPECT_LT(angle_error(found), 1.0);
+      EXPECT_LT(angle_error(found), 0.75 * RadToDeg(error.theta));
+      pos_left += pos_error(found) / kSeeds;
+      angle_left += angle_error(found) / kSeeds;
       const Pose2 settled = stand_still(slam, 2);
       EXPECT_LT(pos_error(settled), 0.01);
       EXPECT_LT(angle_error(settled), 0.5) << RadToDeg(settled.theta);
     }
+    EXPECT_LT(pos_left, 0.6 * std::hypot(error.x, error.y));
+    EXPECT_LT(angle_left, 0.5 * RadToDeg(error.theta));
   }
   // Without phase B the wrong odometry is kept.
   Slam blind(robot, params, SlamConfig{});
