@@ -253,7 +253,11 @@ void OccupancyGrid::RefreshSummaries(bool clearance) {
       }
       continue;
     }
-    if (!alone) slot = std::make_shared<Tile>(*slot);
+    if (alone) {
+      AcquireSoleOwnership(slot);  // another grid's copy of it, made before it let go, is done
+    } else {
+      slot = std::make_shared<Tile>(*slot);
+    }
     Tile& tile = *slot;
     if (stale_clearance) {
       ComputeClearance(rows, tile.clearance);

@@ -136,6 +136,29 @@ TEST(OccupancyGrid, CopyOnWriteInAnotherThreadHappensBeforeTheLastOwnerWrites) {
   }
 }
 
+// The same between two grids refreshing a shared tile's summaries (ProcessScan refreshes its
+// particles' grids in parallel): one copies the tile and lets go of it, the other, then its
+// only owner, computes the clearance in place. ThreadSanitizer flagged the refresh, which
+// lacked the acquire that writing has (CI, a replay under the adaptive policy).
+TEST(OccupancyGrid, SummaryRefreshInAnotherThreadHappensBeforeTheLastOwnerRefreshes) {
+  for (int round = 0; round < 20; ++round) {
+    OccupancyGrid a(GridGeometry(0.01), 5000);
+    a.Add({1, 1}, 4000);  // occupied: the refresh computes the tile's clearance
+    OccupancyGrid b = a;  // shares the tile, its summaries still to be computed
+    std::atomic<bool> copied{false};
+    std::thread other([&] {
+      b.RefreshSummaries();  // copies the shared tile, then drops b's reference to it
+      copied.store(true, std::memory_order_relaxed);  // orders nothing: the grid must
+    });
+    while (!copied.load(std::memory_order_relaxed)) std::this_thread::yield();
+    a.RefreshSummaries();  // a holds the tile alone now: refreshed in place
+    other.join();
+    EXPECT_FALSE(b.SharesTileWith(a, {0, 0}));
+    EXPECT_EQ(a.At({1, 1}), 4000);
+    EXPECT_EQ(b.At({1, 1}), 4000);
+  }
+}
+
 TEST(OccupancyGrid, VersionsOnlyGrowAndIdentifyContents) {
   OccupancyGrid a(GridGeometry(0.01), 5000);
   a.BeginWrite();
