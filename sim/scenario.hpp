@@ -45,6 +45,13 @@ struct OdometryErrors {
   // sets them). Floors (world.json "floors") scale the slip and skid and bias the encoders.
   double translation_scale_sigma = 0.0;  // relative error of the encoders' distance scale
   double gyro_scale_sigma = 0.0;         // relative error of the gyro's scale factor
+  // A differential drive's systematic errors of rotation (Borenstein and Feng's UMBmark), which
+  // matter where the heading comes from the encoders: wheels of unequal diameters turn the
+  // encoders' heading by this relative difference over the track width per metre driven, and an
+  // effective track unlike the nominal one scales every turn they measure. The gyro sees
+  // neither; the mean distance the encoders report is unchanged (to first order).
+  double wheel_diameter_sigma = 0.0;  // relative difference of the two wheels' diameters
+  double track_scale_sigma = 0.0;     // relative error of the effective track width
   // In turns the treels skid sideways: the body moves outwards at skid_s x v x w (m/s), which
   // the encoders do not see.
   double skid_s = 0.0;

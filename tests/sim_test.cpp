@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -707,6 +708,62 @@ TEST(ScenarioTest, ProfilesSetOnlyTheOdometryErrorsAndGentleIsTheDefault) {
     EXPECT_EQ(a.odometry[i].gyro_raw, b.odometry[i].gyro_raw);
   }
   EXPECT_EQ(a.true_path.back().pose.x, b.true_path.back().pose.x);
+}
+
+TEST(ScenarioTest, UnequalWheelsTurnAnEncoderHeadingPerMetreAndLeaveAGyroRobotAlone) {
+  // Noise-free but for the wheels: a robot that turns by its encoders sees its heading err in
+  // proportion to the distance it drove (each run draws its own difference of the wheels); the
+  // same runs of a robot with a gyro read exactly as they did before the wheels were modelled.
+  RobotDescription encoders = TestRobot();
+  encoders.base.heading_from_gyro = false;
+  const RobotDescription gyro = TestRobot();
+  const World box = *BuiltinWorld("box");
+  double sum_sq = 0.0;
+  std::vector<double> slopes;
+  for (const uint64_t seed : {1u, 2u, 3u, 4u, 5u, 6u, 7u, 8u}) {
+    SCOPED_TRACE(seed);
+    ScenarioConfig config = ShortRun(40.0, seed);
+    config.odometry.translation_slip_ratio = 0.0;
+    config.odometry.rotation_slip_ratio = 0.0;
+    config.odometry.accel_slip_s = 0.0;
+    ScenarioConfig plain = config;
+    config.odometry.wheel_diameter_sigma = 0.02;
+    const ScenarioOutput out = RunScenario(box, encoders, config);
+    const std::vector<TimedPose> odom = DeadReckoning(encoders, out.odometry);
+    double travelled = 0.0, last_error = 0.0;
+    std::vector<std::pair<double, double>> samples;  // distance, heading error (unwrapped)
+    for (size_t i = 1; i < out.true_path.size(); ++i) {
+      const TimedPose& truth = out.true_path[i];
+      travelled += (truth.pose.translation() - out.true_path[i - 1].pose.translation()).norm();
+      if (std::fmod(truth.t * 10.0, 1.0) > 1e-6) continue;
+      const double error =
+          Compose(out.true_path.front().pose, At(odom, truth.t)).theta - truth.pose.theta;
+      last_error += NormalizeAngle(error - last_error);
+      samples.emplace_back(travelled, last_error);
+    }
+    ASSERT_GT(travelled, 2.0);
+    const double slope = last_error / travelled;  // rad per metre
+    for (const auto& [d, e] : samples) EXPECT_NEAR(e, slope * d, DegToRad(0.3)) << d << " m";
+    slopes.push_back(slope);
+    sum_sq += slope * slope;
+
+    // The gyro's robot: the same readings with and without the wheels' difference.
+    const ScenarioOutput a = RunScenario(box, gyro, config);
+    const ScenarioOutput b = RunScenario(box, gyro, plain);
+    ASSERT_EQ(a.odometry.size(), b.odometry.size());
+    for (size_t i = 0; i < a.odometry.size(); ++i) {
+      ASSERT_EQ(a.odometry[i].left_ticks, b.odometry[i].left_ticks);
+      ASSERT_EQ(a.odometry[i].right_ticks, b.odometry[i].right_ticks);
+    }
+  }
+  // A 2 % difference over the marXbot's 15 cm track: 0.13 rad (7.6 degrees) per metre, in
+  // either direction, a new draw each run.
+  const double rms = std::sqrt(sum_sq / static_cast<double>(slopes.size()));
+  const double expected = 0.02 / TestRobot().base.track_width_m;
+  EXPECT_GT(rms, 0.4 * expected);
+  EXPECT_LT(rms, 2.0 * expected);
+  EXPECT_LT(*std::min_element(slopes.begin(), slopes.end()), 0.0);
+  EXPECT_GT(*std::max_element(slopes.begin(), slopes.end()), 0.0);
 }
 
 TEST(ScenarioTest, ACarpetMakesTheEncodersReadLong) {
