@@ -47,6 +47,17 @@ constexpr size_t kInformativeMatches = 12;
 constexpr double kHeadingDriftTimeS = 30.0;
 // The estimate's bound: more than any gyro's bias after its start-up calibration.
 constexpr double kMaxHeadingDriftDegS = 2.0;
+// A heading from the encoders errs with the distance driven, not with time: wheels of unequal
+// diameters turn the odometry by a constant angle per metre (Borenstein and Feng's systematic
+// odometry errors; the Intel lab's Pioneer, 3.3 degrees a metre, docs/laser.md), and a robot
+// standing still does not drift. The estimate averages over this distance (about the 30 s above
+// at the 0.2 to 0.3 m/s robots drive), and its bound allows a 5 % mismatch of the wheels on a
+// 30 cm axle.
+constexpr double kHeadingDriftDistanceM = 10.0;
+constexpr double kMaxHeadingDriftDegM = 10.0;
+// Scans that drove less than this tell a drift per metre little: their correction, weighted
+// down, is mostly the match's jitter (the bound over 5 cm is half a degree).
+constexpr double kMinHeadingDriftStepM = 0.05;
 
 constexpr double Square(double x) { return x * x; }
 // The largest MatchWindow a particle gets (4 bytes a cell: 16 MiB), whatever its rays: more
@@ -366,7 +377,7 @@ void Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
     p.pose = pose;
     p.log_weight = 0.0;
     p.history = nullptr;
-    p.heading_drift_rad_s = 0.0;
+    p.heading_drift = 0.0;
   }
 }
 
@@ -542,6 +553,7 @@ struct Slam::Prediction {
   std::vector<Pose2> nominal;    // per particle: odometry's end pose without its heading drift
   std::vector<Pose2> predicted;  // per particle: its end pose drawn from the motion model
   double trans = 0.0;            // odometry's translation over the scan (m)
+  double trans_signed = 0.0;     // the same, negative when the robot backed
   double sigma_trans = 0.0, sigma_rot1 = 0.0, sigma_rot2 = 0.0;  // of the motion model
   // Spread of phase B's search: the motion model's over this scan, plus the drift left
   // uncorrected since the last informative match, within the parameters' bounds.
@@ -596,12 +608,19 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   if (match.matched && matching.size() >= kInformativeMatches) {
     unmatched_var_pos_ = 0.0;
     unmatched_var_angle_ = 0.0;
-    // The heading the match corrected beyond the drift already taken out is drift still there.
-    const double most = DegToRad(kMaxHeadingDriftDegS);
+    // The heading the match corrected beyond the drift already taken out is drift still there:
+    // per second, a scan's worth of it over the averaging time; per metre, weighted by how far
+    // the scan drove.
+    const bool per_metre = !robot_.base.heading_from_gyro;
+    const double most = DegToRad(per_metre ? kMaxHeadingDriftDegM : kMaxHeadingDriftDegS);
+    const double weight =
+        prediction.trans_signed / std::max(prediction.trans, kMinHeadingDriftStepM);
     for (size_t p = 0; p < particles_.size(); ++p) {
       const double turn = NormalizeAngle(match.chosen[p].theta - prediction.nominal[p].theta);
-      double& drift = particles_[p].heading_drift_rad_s;
-      drift = std::clamp(drift - turn / kHeadingDriftTimeS, -most, most);
+      double& drift = particles_[p].heading_drift;
+      const double learnt =
+          per_metre ? turn * weight / kHeadingDriftDistanceM : turn / kHeadingDriftTimeS;
+      drift = std::clamp(drift - learnt, -most, most);
     }
   } else if (plan.refine) {
     unmatched_var_pos_ +=
@@ -651,6 +670,7 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   out.sigma_rot1 = params_.angle_error_ratio * std::abs(motion.rot1) + angle_const;
   out.sigma_rot2 = params_.angle_error_ratio * std::abs(motion.rot2) + angle_const;
   out.trans = std::abs(motion.trans);
+  out.trans_signed = motion.trans;
   const double drift_pos = std::sqrt(Square(out.sigma_trans) + unmatched_var_pos_);
   const double drift_angle =
       std::sqrt(Square(out.sigma_rot1) + Square(out.sigma_rot2) + unmatched_var_angle_);
@@ -667,7 +687,9 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   out.predicted.resize(n_particles);
   out.nominal.resize(n_particles);
   out.paths.reserve(n_particles);
-  const double span = std::max(0.0, scan.t_end - scan.t_begin);
+  // What the drift turns over this scan: per second of the scan, or per metre it drove.
+  const double span =
+      robot_.base.heading_from_gyro ? std::max(0.0, scan.t_end - scan.t_begin) : motion.trans;
   for (size_t p = 0; p < n_particles; ++p) {
     out.paths.emplace_back(scan, particles_[p].pose);
     out.nominal[p] = out.paths[p].nominal_end();
@@ -678,7 +700,7 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
     // The drift over the scan is taken out of the end's heading; the samples in between
     // follow through the correction (its share from the start included: a fraction of a
     // degree over a scan, where a constant rate would grow linearly).
-    const double drift = particles_[p].heading_drift_rad_s * span;
+    const double drift = particles_[p].heading_drift * span;
     out.nominal[p].theta = NormalizeAngle(out.nominal[p].theta - drift);
     Rng rng = Rng::ForStream(config_.seed, step, p, kStreamMotion);
     MotionDelta noisy = motion;

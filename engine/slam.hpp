@@ -115,9 +115,11 @@ struct Particle {
   double log_weight = 0.0;
   OccupancyGrid map;
   std::shared_ptr<const TrajectoryChunk> history;
-  // The heading drift of the odometry (rad/s, counter-clockwise positive: a gyro's bias) as
-  // this particle's matches have measured it; its prediction takes it out.
-  double heading_drift_rad_s = 0.0;
+  // The heading drift of the odometry as this particle's matches have measured it
+  // (counter-clockwise positive); its prediction takes it out. Where the heading comes from a
+  // gyro it is the gyro's bias, per second; where it comes from the encoders, the wheels'
+  // systematic error, per metre driven (RobotDescription's base.heading_from_gyro).
+  double heading_drift = 0.0;
 };
 
 class Slam {

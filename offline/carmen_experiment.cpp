@@ -93,6 +93,10 @@ RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name
   }
   RobotDescription robot;
   robot.name = "CARMEN log " + name;
+  // CARMEN's ODOM records are the base's dead reckoning, which its base modules (Pioneer, rflex,
+  // Segway...) integrate from the wheels' encoders alone: their heading errs per metre driven.
+  // A log from a base that fuses a gyro needs a robot description that says so.
+  robot.base.heading_from_gyro = false;
   robot.scanner.mount_radius_m = 0.0;
   robot.scanner.offset_x_m = ParamNumber(log, "robot_frontlaser_offset").value_or(0.0);
   robot.scanner.sensors = {{"laser", 0.0}};

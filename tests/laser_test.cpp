@@ -62,7 +62,9 @@ TEST(LaserTest, ACarmenLogBecomesScansWithTheirOdometryAndBeams) {
   EXPECT_EQ(e.meta.name, "run");
   EXPECT_TRUE(e.ground_truth.empty());
 
-  // The derived robot: one range sensor, 3 beams over 180 degrees, 81.83 taken for no return.
+  // The derived robot: one range sensor, 3 beams over 180 degrees, 81.83 taken for no return;
+  // its ODOM records turn by the wheels' encoders (the engine learns their drift per metre).
+  EXPECT_FALSE(e.robot.base.heading_from_gyro);
   ASSERT_EQ(e.robot.scanner.sensors.size(), 1u);
   const SensorTypeDescription& laser = e.robot.sensor_types.at(e.robot.scanner.sensors[0].type);
   EXPECT_EQ(laser.kind, SensorKind::kRange);

@@ -59,8 +59,9 @@ sim::World TestArena() {
 
 // One half turn of noise-free readings taken at `truth` while the odometry reports a motion
 // from odom_begin to odom_end.
-Scan ScanAt(const RobotDescription& robot, const sim::World& world, const Pose2& truth, int index,
-            const Pose2& odom_begin, const Pose2& odom_end) {
+// A scan whose readings are taken from `truth_begin` to `truth_end` (moving linearly over it).
+Scan ScanAlong(const RobotDescription& robot, const sim::World& world, const Pose2& truth_begin,
+               const Pose2& truth_end, int index, const Pose2& odom_begin, const Pose2& odom_end) {
   Scan scan;
   scan.index = index;
   scan.t_begin = index * (2.0 / 3.0);
@@ -74,6 +75,7 @@ Scan ScanAt(const RobotDescription& robot, const sim::World& world, const Pose2&
     s.t = scan.t_begin + f * (scan.t_end - scan.t_begin);
     s.odom = Interpolate(odom_begin, odom_end, f);
     s.platform_angle_rad = NormalizeAngle((index + f) * kPi);
+    const Pose2 truth = Interpolate(truth_begin, truth_end, f);
     for (int k = 0; k < kScannerSensors; ++k) {
       const auto& sensor = robot.scanner.sensors[size_t(k)];
       const auto& table = robot.sensor_types.at(sensor.type).calibration;
@@ -87,6 +89,12 @@ Scan ScanAt(const RobotDescription& robot, const sim::World& world, const Pose2&
     scan.samples.push_back(s);
   }
   return scan;
+}
+
+// A scan whose readings are all taken at `truth`.
+Scan ScanAt(const RobotDescription& robot, const sim::World& world, const Pose2& truth, int index,
+            const Pose2& odom_begin, const Pose2& odom_end) {
+  return ScanAlong(robot, world, truth, truth, index, odom_begin, odom_end);
 }
 
 // The engine settings of the matching tests: filter seed and phase B's estimator.
@@ -346,7 +354,7 @@ TEST(Matching, TheGyrosBiasIsLearntFromTheMatchesAndTakenOutInABlindStretch) {
     return report;
   };
   for (int k = 0; k < 90; ++k) EXPECT_GT(step(room).matching_measurements, 30);
-  const double learnt = slam.Best().heading_drift_rad_s;
+  const double learnt = slam.Best().heading_drift;
   EXPECT_NEAR(learnt, bias, 0.25 * bias) << RadToDeg(learnt) << " deg/s";
   const double before = slam.Best().pose.theta;
   EXPECT_NEAR(NormalizeAngle(before - truth.theta), 0.0, DegToRad(1.0));
@@ -354,6 +362,62 @@ TEST(Matching, TheGyrosBiasIsLearntFromTheMatchesAndTakenOutInABlindStretch) {
   const double drifted = NormalizeAngle(slam.Best().pose.theta - before);
   // Odometry alone: 12 x 0.67 = 8 degrees; what is left is the estimate's error over 8 s.
   EXPECT_LT(std::abs(drifted), DegToRad(2.0)) << RadToDeg(drifted) << " degrees";
+}
+
+TEST(Matching, WheelsDriftIsLearntPerMetreAndNotTakenOutStandingStill) {
+  // A robot that turns by its encoders (base.heading_from_gyro false) drives a circle of 15 cm
+  // radius in the room while its wheels err by 8 degrees a metre: every scan (5 cm) the
+  // odometry turns 0.4 degree more than the robot. The matches turn it back and the particle
+  // learns the drift per metre; standing still afterwards, blind, nothing turns (a drift per
+  // second would keep turning by what it learnt while driving); driving on blind, the heading
+  // errs far less than the odometry's 8 degrees a metre.
+  RobotDescription robot = testing::ShippedRobot();
+  robot.base.heading_from_gyro = false;
+  const sim::World room = TestRoom();
+  const sim::World nothing;
+  SlamParams params = NoMotionNoise();
+  params.min_angle_uncertainty_deg = 2.0;
+  const double radius = 0.15, step_m = 0.05, bias_per_m = DegToRad(8.0);
+  const Vec2 centre(-0.1, 0.05);
+  const auto on_circle = [&](double arc) {
+    const double a = arc / radius;
+    return Pose2{centre.x() + radius * std::cos(a), centre.y() + radius * std::sin(a),
+                 NormalizeAngle(a + kPi / 2)};
+  };
+  ScanPlan plan;
+  plan.candidates = 200;
+  Slam slam(robot, params, SlamConfig{});
+  double arc = 0.0;
+  Pose2 truth = on_circle(arc);
+  slam.Restore(DrawMap(room, SlamConfig{}.resolution_m), truth);
+  Pose2 odometry = truth;
+  int index = 0;
+  const auto drive = [&](const sim::World& world, double distance) {
+    arc += distance;
+    const Pose2 next_truth = on_circle(arc);
+    Pose2 next = Compose(odometry, Between(truth, next_truth));
+    next.theta = NormalizeAngle(next.theta + bias_per_m * distance);
+    const ScanReport report =
+        slam.ProcessScan(ScanAlong(robot, world, truth, next_truth, index, odometry, next), plan);
+    truth = next_truth;
+    odometry = next;
+    ++index;
+    return report;
+  };
+  for (int k = 0; k < 160; ++k) EXPECT_GT(drive(room, step_m).matching_measurements, 30);
+  // 8 m driven against the estimate's 10 m average: about 1 - exp(-0.8) = 55 % learnt.
+  const double learnt = slam.Best().heading_drift;
+  EXPECT_GT(learnt, 0.35 * bias_per_m) << RadToDeg(learnt) << " deg/m";
+  EXPECT_LT(learnt, 0.8 * bias_per_m) << RadToDeg(learnt) << " deg/m";
+  const double before = slam.Best().pose.theta;
+  EXPECT_NEAR(NormalizeAngle(before - truth.theta), 0.0, DegToRad(1.5));
+  for (int k = 0; k < 12; ++k) EXPECT_EQ(drive(nothing, 0.0).matching_measurements, 0);
+  EXPECT_NEAR(NormalizeAngle(slam.Best().pose.theta - before), 0.0, 1e-9)
+      << RadToDeg(NormalizeAngle(slam.Best().pose.theta - before)) << " degrees standing still";
+  for (int k = 0; k < 12; ++k) EXPECT_EQ(drive(nothing, step_m).matching_measurements, 0);
+  // Odometry alone: 0.6 m x 8 degrees a metre = 4.8 degrees.
+  const double drifted = NormalizeAngle(slam.Best().pose.theta - truth.theta);
+  EXPECT_LT(std::abs(drifted), DegToRad(3.0)) << RadToDeg(drifted) << " degrees";
 }
 
 TEST(Matching, AnInterruptedScanEvaluatesEachParticlesFirstCandidateOnly) {
