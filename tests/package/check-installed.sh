@@ -32,6 +32,11 @@ get() {  # get PORT PATH: the whole HTTP response, through bash's /dev/tcp
 mkdir -p /tmp/state
 chown nobody:nogroup /tmp/state
 cd /tmp
+# Created before slamd starts: the background job opens them when it is scheduled, which on a
+# loaded machine can come after the first read below (a missing file fails sed, and set -e the
+# script).
+: > /tmp/slamd.out
+: > /tmp/slamd.err
 setpriv --reuid=nobody --regid=nogroup --clear-groups \
   slamd --port 0 --foxglove-port 0 --state-dir /tmp/state > /tmp/slamd.out 2> /tmp/slamd.err &
 slamd_pid=$!

@@ -133,6 +133,9 @@ get() {  # get PORT PATH: the whole HTTP response, through bash's /dev/tcp
   cat <&3
   exec 3<&-
 }
+# Created first: the background job opens them when it is scheduled, maybe after the first read.
+: > "$work/slamd.out"
+: > "$work/slamd.err"
 "$bin/slamd" --port 0 --foxglove-port 0 --quiet > "$work/slamd.out" 2> "$work/slamd.err" &
 slamd_pid=$!
 trap 'kill "$slamd_pid" 2> /dev/null || true' EXIT
