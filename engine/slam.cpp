@@ -553,7 +553,9 @@ struct Slam::Prediction {
   std::vector<Pose2> nominal;    // per particle: odometry's end pose without its heading drift
   std::vector<Pose2> predicted;  // per particle: its end pose drawn from the motion model
   double trans = 0.0;            // odometry's translation over the scan (m)
-  double trans_signed = 0.0;     // the same, negative when the robot backed
+  // What a particle's heading drift is multiplied by over this scan: its time (s) where the
+  // heading comes from a gyro, its signed distance (m) where it comes from the encoders.
+  double drift_span = 0.0;
   double sigma_trans = 0.0, sigma_rot1 = 0.0, sigma_rot2 = 0.0;  // of the motion model
   // Spread of phase B's search: the motion model's over this scan, plus the drift left
   // uncorrected since the last informative match, within the parameters' bounds.
@@ -614,7 +616,7 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
     const bool per_metre = !robot_.base.heading_from_gyro;
     const double most = DegToRad(per_metre ? kMaxHeadingDriftDegM : kMaxHeadingDriftDegS);
     const double weight =
-        prediction.trans_signed / std::max(prediction.trans, kMinHeadingDriftStepM);
+        prediction.drift_span / std::max(std::abs(prediction.drift_span), kMinHeadingDriftStepM);
     for (size_t p = 0; p < particles_.size(); ++p) {
       const double turn = NormalizeAngle(match.chosen[p].theta - prediction.nominal[p].theta);
       double& drift = particles_[p].heading_drift;
@@ -670,7 +672,8 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   out.sigma_rot1 = params_.angle_error_ratio * std::abs(motion.rot1) + angle_const;
   out.sigma_rot2 = params_.angle_error_ratio * std::abs(motion.rot2) + angle_const;
   out.trans = std::abs(motion.trans);
-  out.trans_signed = motion.trans;
+  out.drift_span =
+      robot_.base.heading_from_gyro ? std::max(0.0, scan.t_end - scan.t_begin) : motion.trans;
   const double drift_pos = std::sqrt(Square(out.sigma_trans) + unmatched_var_pos_);
   const double drift_angle =
       std::sqrt(Square(out.sigma_rot1) + Square(out.sigma_rot2) + unmatched_var_angle_);
@@ -687,9 +690,6 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   out.predicted.resize(n_particles);
   out.nominal.resize(n_particles);
   out.paths.reserve(n_particles);
-  // What the drift turns over this scan: per second of the scan, or per metre it drove.
-  const double span =
-      robot_.base.heading_from_gyro ? std::max(0.0, scan.t_end - scan.t_begin) : motion.trans;
   for (size_t p = 0; p < n_particles; ++p) {
     out.paths.emplace_back(scan, particles_[p].pose);
     out.nominal[p] = out.paths[p].nominal_end();
@@ -700,7 +700,7 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
     // The drift over the scan is taken out of the end's heading; the samples in between
     // follow through the correction (its share from the start included: a fraction of a
     // degree over a scan, where a constant rate would grow linearly).
-    const double drift = particles_[p].heading_drift * span;
+    const double drift = particles_[p].heading_drift * out.drift_span;
     out.nominal[p].theta = NormalizeAngle(out.nominal[p].theta - drift);
     Rng rng = Rng::ForStream(config_.seed, step, p, kStreamMotion);
     MotionDelta noisy = motion;

@@ -57,9 +57,8 @@ sim::World TestArena() {
   return w;
 }
 
-// One half turn of noise-free readings taken at `truth` while the odometry reports a motion
-// from odom_begin to odom_end.
-// A scan whose readings are taken from `truth_begin` to `truth_end` (moving linearly over it).
+// One half turn of noise-free readings taken from `truth_begin` to `truth_end` (moving linearly
+// over it) while the odometry reports a motion from odom_begin to odom_end.
 Scan ScanAlong(const RobotDescription& robot, const sim::World& world, const Pose2& truth_begin,
                const Pose2& truth_end, int index, const Pose2& odom_begin, const Pose2& odom_end) {
   Scan scan;
