@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <limits>
 #include <map>
@@ -80,7 +81,72 @@ class OdometryTrack {
   std::vector<TimedPose> track_;
 };
 
+// A raw log's laser records put the laser at one place on the robot, up to the digits printed:
+// this close to their median, in at least this share of the records that carry both poses.
+constexpr double kMountAgreementM = 0.01;
+constexpr double kMountAgreementDeg = 0.5;
+constexpr double kMountAgreementShare = 0.99;
+
+std::string MountText(const Pose2& mount) {
+  char text[96];
+  std::snprintf(text, sizeof(text), "%.3f m ahead, %.3f m left, turned %.1f deg", mount.x, mount.y,
+                RadToDeg(mount.theta));
+  return text;
+}
+
+/// The median of `values` (not empty); reorders them.
+double Median(std::vector<double>& values) {
+  const auto middle = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
+  std::nth_element(values.begin(), middle, values.end());
+  return *middle;
+}
+
 }  // namespace
+
+CarmenMount DeriveCarmenMount(const CarmenLog& log) {
+  const std::optional<double> ahead = ParamNumber(log, "robot_frontlaser_offset");
+  const std::optional<double> side = ParamNumber(log, "robot_frontlaser_side_offset");
+  const std::optional<double> turned = ParamNumber(log, "robot_frontlaser_angular_offset");
+  if (ahead || side || turned) {
+    const Pose2 mount{ahead.value_or(0.0), side.value_or(0.0),
+                      NormalizeAngle(turned.value_or(0.0))};
+    return {mount, "from the log's PARAM robot_frontlaser_* lines"};
+  }
+  const std::string front = FrontMessage(log);
+  std::vector<Pose2> seen;  // the laser in the robot's frame, per record
+  for (const CarmenLaser& laser : log.lasers) {
+    if (laser.message != front || !laser.laser_pose || !laser.robot_odometry) continue;
+    seen.push_back(Between(*laser.robot_odometry, *laser.laser_pose));
+  }
+  if (seen.empty())
+    return {{}, "the log does not say where (no PARAM robot_frontlaser_*, no laser poses)"};
+  std::vector<double> xs, ys, cosines, sines;
+  for (const Pose2& p : seen) {
+    xs.push_back(p.x);
+    ys.push_back(p.y);
+    cosines.push_back(std::cos(p.theta));
+    sines.push_back(std::sin(p.theta));
+  }
+  const Pose2 median{Median(xs), Median(ys), std::atan2(Median(sines), Median(cosines))};
+  size_t agree = 0;
+  for (const Pose2& p : seen) {
+    agree += std::abs(p.x - median.x) <= kMountAgreementM &&
+             std::abs(p.y - median.y) <= kMountAgreementM &&
+             std::abs(NormalizeAngle(p.theta - median.theta)) <= DegToRad(kMountAgreementDeg);
+  }
+  if (static_cast<double>(agree) < kMountAgreementShare * static_cast<double>(seen.size())) {
+    return {{},
+            "the " + front + " records' laser poses are not one place on the robot (" +
+                std::to_string(seen.size() - agree) + " of " + std::to_string(seen.size()) +
+                " elsewhere; poses corrected after the run?): a robot.json beside the log "
+                "says where it is"};
+  }
+  // Rounded to the millimetre and the tenth of a degree the records are printed to, so that a
+  // laser on the centre is on it exactly.
+  const Pose2 mount{std::round(median.x * 1000.0) / 1000.0, std::round(median.y * 1000.0) / 1000.0,
+                    DegToRad(std::round(RadToDeg(median.theta) * 10.0) / 10.0)};
+  return {mount, "from the " + front + " records' laser poses against their odometry"};
+}
 
 RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name) {
   const std::string front = FrontMessage(log);
@@ -98,8 +164,10 @@ RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name
   // A log from a base that fuses a gyro needs a robot description that says so.
   robot.base.heading_from_gyro = false;
   robot.scanner.mount_radius_m = 0.0;
-  robot.scanner.offset_x_m = ParamNumber(log, "robot_frontlaser_offset").value_or(0.0);
-  robot.scanner.sensors = {{"laser", 0.0}};
+  const Pose2 mount = DeriveCarmenMount(log).pose;
+  robot.scanner.offset_x_m = mount.x;
+  robot.scanner.offset_y_m = mount.y;
+  robot.scanner.sensors = {{"laser", RadToDeg(mount.theta)}};
 
   SensorTypeDescription type;
   type.kind = SensorKind::kRange;
@@ -168,6 +236,10 @@ Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOpt
   experiment.meta.name = std::filesystem::path(path).stem().string();
   experiment.meta.source = "robot";
   experiment.robot = options.robot ? *options.robot : DeriveCarmenRobot(log, experiment.meta.name);
+  if (!options.robot) {
+    const CarmenMount mount = DeriveCarmenMount(log);
+    experiment.notes.push_back("laser " + MountText(mount.pose) + ", " + mount.source);
+  }
   ConfigErrors invalid = Validate(experiment.robot);
   if (!invalid.empty()) {
     for (ConfigError& e : invalid) e.detail = "robot for " + path + ": " + e.detail;

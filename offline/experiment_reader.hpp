@@ -71,6 +71,9 @@ struct Experiment {
   /// The first lines skipped as malformed, "file:line: why" (CARMEN logs; a CAN log's garbled
   /// lines are only counted).
   std::vector<std::string> problems;
+  /// What the reader assumed where the data did not say it (a CARMEN log's derived robot), one
+  /// line each.
+  std::vector<std::string> notes;
 
   /// Recorded time covered by can.log, seconds.
   double duration_s() const { return t_last - t_first; }
@@ -94,12 +97,25 @@ struct CarmenOptions {
 /// meta.name is the file's name, meta.source "robot". No ground truth.
 Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOptions& options = {});
 
-/// A robot for a CARMEN log: one range sensor at the robot's centre (or where PARAM
-/// robot_frontlaser_offset puts it), its beams from the records (RAWLASER / ROBOTLASER1) or the
-/// CARMEN convention (FLASER: PARAM laser_front_laser_fov, else 180 degrees, first beam at
-/// -fov/2, the last at +fov/2), its maximum range from PARAM robot_front_laser_max or the
-/// records, a no-return value where the log saturates at its largest reading, and a generic
-/// laser noise (1 cm + 0.5 % of the range).
+/// Where a CARMEN log's front laser sits on its robot (robot frame: x ahead, y left, theta
+/// counter-clockwise), and what says so, or why the centre (words for the user).
+struct CarmenMount {
+  Pose2 pose;
+  std::string source;
+};
+
+/// The front laser's place: from PARAM robot_frontlaser_offset, _side_offset and
+/// _angular_offset where the log has any of them; else from the records that carry both the
+/// laser's pose and the robot's odometry (FLASER with poses, ROBOTLASER1), when at least 99 % of
+/// them put the laser within 1 cm and 0.5 degrees of one place (a raw log; a log whose poses
+/// were corrected after the run does not); else the robot's centre.
+CarmenMount DeriveCarmenMount(const CarmenLog& log);
+
+/// A robot for a CARMEN log: one range sensor where DeriveCarmenMount puts it, its beams from the
+/// records (RAWLASER / ROBOTLASER1) or the CARMEN convention (FLASER: PARAM laser_front_laser_fov,
+/// else 180 degrees, first beam at -fov/2, the last at +fov/2), its maximum range from PARAM
+/// robot_front_laser_max or the records, a no-return value where the log saturates at its largest
+/// reading, and a generic laser noise (1 cm + 0.5 % of the range).
 RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name);
 
 }  // namespace slam::offline

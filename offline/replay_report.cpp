@@ -5,6 +5,7 @@
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/map_image.hpp"
 #include "engine/io/params_json.hpp"
+#include "engine/io/robot_json.hpp"
 #include "engine/io/tum.hpp"
 #include "engine/match_window.hpp"
 #include "hw_link/status_json.hpp"
@@ -154,6 +155,9 @@ ReplayOutputs WriteReplayOutputs(const std::string& dir, const offline::Experime
   check(io::WritePgm(base + "map.pgm", grid));
   check(io::WriteMapYaml(base + "map.yaml", "map.pgm", grid));
   check(io::WriteFileAtomic(base + "trajectory.tum", io::FormatTum(run.trajectory)));
+  // The robot replayed: for a bare CARMEN log the one derived from it, to edit and give back as
+  // robot.json beside the log.
+  check(io::WriteFileAtomic(base + "robot.json", io::RobotToJson(experiment.robot).dump(2) + "\n"));
 
   // The picture: odometry for comparison, the aligned ground truth, then the estimate on top.
   std::vector<io::TrajectoryLayer> layers;

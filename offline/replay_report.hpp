@@ -23,7 +23,8 @@ struct ReplayOutputs {
   std::vector<std::string> errors;  // one per file that could not be written
 };
 
-/// Writes trajectory.tum, map.pgm, map.yaml and map.png into `dir` (atomically, each).
+/// Writes trajectory.tum, map.pgm, map.yaml, map.png and robot.json (the robot replayed) into
+/// `dir` (atomically, each).
 ReplayOutputs WriteReplayOutputs(const std::string& dir, const offline::Experiment& experiment,
                                  const ReplayResult& run, bool odometry_only,
                                  const BudgetSettings& budget);

@@ -33,7 +33,11 @@ std::string CarmenLog(const RobotDescription& robot, const ScenarioOutput& outpu
     const TimedPose& before = *std::prev(after);
     return Interpolate(before.pose, after->pose, (t - before.t) / (after->t - before.t));
   };
-  const Pose2 offset{robot.scanner.offset_x_m, robot.scanner.offset_y_m, 0.0};
+  // Where the laser is on the robot, as CARMEN's laser pose says it (the reader derives the
+  // mount from it).
+  const Pose2 offset{
+      robot.scanner.offset_x_m, robot.scanner.offset_y_m,
+      robot.scanner.sensors.empty() ? 0.0 : DegToRad(robot.scanner.sensors.front().angle_deg)};
   std::string text =
       "# Simulated by slam-sim: a robot with a range scanner, CARMEN format.\n"
       "# ODOM x y theta tv rv accel timestamp hostname logger_timestamp\n"

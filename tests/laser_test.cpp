@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -11,6 +12,7 @@
 #include <optional>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "engine/io/robot_json.hpp"
 #include "engine/odometry.hpp"
@@ -275,6 +277,135 @@ TEST(LaserTest, TheSimulatedLidarIsRecordedAsACarmenLogAndMappedBetterThanOdomet
   EXPECT_LE(slam.rays_per_scan_max, 32500);
   EXPECT_LT(slam.quality->ate_rmse_m, odometry.quality->ate_rmse_m);
   EXPECT_LT(slam.quality->ate_rmse_m, 0.05);
+}
+
+/// A FLASER record of three beams at time `t`: the robot's odometry `odometry` and the laser's
+/// pose, `mount` on the robot.
+std::string FlaserLine(double t, const Pose2& odometry, const Pose2& mount) {
+  const Pose2 laser = Compose(odometry, mount);
+  char line[200];
+  std::snprintf(line, sizeof(line),
+                "FLASER 3 1.0 2.0 3.0 %.6f %.6f %.6f %.6f %.6f %.6f %.3f h %.3f\n", laser.x,
+                laser.y, laser.theta, odometry.x, odometry.y, odometry.theta, t, t);
+  return line;
+}
+
+TEST(LaserTest, ABareLogsLaserIsWhereItsParamsOrItsRecordsPutIt) {
+  const Pose2 mount{0.15, -0.04, DegToRad(5.0)};
+  const std::vector<Pose2> path = {
+      {0.0, 0.0, 0.0}, {1.0, 0.5, 0.3}, {2.0, 1.0, 1.2}, {-3.0, 4.0, -2.5}, {5.0, -2.0, 3.1}};
+  const auto log_of = [&](const std::string& head, const std::vector<Pose2>& mounts) {
+    std::string text = head;
+    for (size_t i = 0; i < path.size(); ++i) {
+      text += FlaserLine(10.0 + static_cast<double>(i), path[i], mounts[i]);
+    }
+    const Result<offline::CarmenLog> log = offline::ParseCarmenLog(text, "t.clf");
+    EXPECT_TRUE(log.ok()) << log.Message();
+    return log.ok() ? log.value() : offline::CarmenLog{};
+  };
+  const std::vector<Pose2> fixed(path.size(), mount);
+
+  // A raw log: every record puts the laser at one place on the robot.
+  const offline::CarmenMount raw = offline::DeriveCarmenMount(log_of("", fixed));
+  EXPECT_NEAR(raw.pose.x, 0.15, 1e-9);
+  EXPECT_NEAR(raw.pose.y, -0.04, 1e-9);
+  EXPECT_NEAR(RadToDeg(raw.pose.theta), 5.0, 1e-9);
+  EXPECT_NE(raw.source.find("FLASER records"), std::string::npos) << raw.source;
+  const RobotDescription robot = offline::DeriveCarmenRobot(log_of("", fixed), "t");
+  EXPECT_NEAR(robot.scanner.offset_x_m, 0.15, 1e-9);
+  EXPECT_NEAR(robot.scanner.offset_y_m, -0.04, 1e-9);
+  EXPECT_NEAR(robot.scanner.sensors.at(0).angle_deg, 5.0, 1e-9);
+
+  // CARMEN's parameters say it first.
+  const offline::CarmenMount param = offline::DeriveCarmenMount(
+      log_of("PARAM robot_frontlaser_offset 0.3 h 0\nPARAM robot_frontlaser_side_offset 0.02 h 0\n",
+             fixed));
+  EXPECT_DOUBLE_EQ(param.pose.x, 0.3);
+  EXPECT_DOUBLE_EQ(param.pose.y, 0.02);
+  EXPECT_DOUBLE_EQ(param.pose.theta, 0.0);
+  EXPECT_NE(param.source.find("PARAM"), std::string::npos) << param.source;
+
+  // A log whose laser poses were corrected after the run: they move about the robot, so they
+  // say nothing of the mount; the laser is taken at the centre, and the reason given.
+  std::vector<Pose2> moved = fixed;
+  moved[3] = {0.4, 0.1, 0.02};
+  const offline::CarmenMount corrected = offline::DeriveCarmenMount(log_of("", moved));
+  EXPECT_EQ(corrected.pose.x, 0.0);
+  EXPECT_EQ(corrected.pose.y, 0.0);
+  EXPECT_EQ(corrected.pose.theta, 0.0);
+  EXPECT_NE(corrected.source.find("1 of 5 elsewhere"), std::string::npos) << corrected.source;
+
+  // Records without poses (the short FLASER form): the centre, and why.
+  const Result<offline::CarmenLog> bare = offline::ParseCarmenLog(
+      "ODOM 0 0 0 0 0 0 1 h 1\nFLASER 3 1 2 3 1.5 h 1.5\n"
+      "ODOM 1 0 0 0 0 0 2 h 2\n",
+      "b.clf");
+  ASSERT_TRUE(bare.ok()) << bare.Message();
+  const offline::CarmenMount none = offline::DeriveCarmenMount(bare.value());
+  EXPECT_EQ(none.pose.x, 0.0);
+  EXPECT_NE(none.source.find("does not say"), std::string::npos) << none.source;
+
+  // Loading the log tells the user where the laser was put.
+  const testing::TempDir dir("carmen_mount");
+  const std::string path_file = dir.File("raw.clf");
+  {
+    std::ofstream out(path_file);
+    for (size_t i = 0; i < path.size(); ++i) {
+      out << FlaserLine(10.0 + static_cast<double>(i), path[i], mount);
+    }
+  }
+  const Result<offline::Experiment> load = offline::LoadExperiment(path_file);
+  ASSERT_TRUE(load.ok()) << load.Message();
+  ASSERT_EQ(load.value().notes.size(), 1u);
+  EXPECT_NE(load.value().notes[0].find("0.150 m ahead, -0.040 m left, turned 5.0 deg"),
+            std::string::npos)
+      << load.value().notes[0];
+  EXPECT_NEAR(load.value().robot.scanner.offset_x_m, 0.15, 1e-9);
+}
+
+TEST(LaserTest, ALasersMountComesBackFromItsLogAndMapsFarBetterThanTheCentre) {
+  // A Pioneer whose laser sits 20 cm ahead, 5 cm right, turned 10 degrees: its log, read bare,
+  // gives the mount back; ignoring it maps the run far worse.
+  const testing::TempDir dir("mounted_laser");
+  auto loaded = io::LoadRobot(std::string(SLAM_SOURCE_DIR) + "/config/pioneer-lms.robot.json");
+  ASSERT_TRUE(loaded.ok()) << loaded.Message();
+  RobotDescription robot = loaded.value();
+  robot.scanner.offset_x_m = 0.2;
+  robot.scanner.offset_y_m = -0.05;
+  robot.scanner.sensors.at(0).angle_deg = 10.0;
+  sim::ScenarioConfig config = sim::WithOdometryProfile({}, sim::OdometryProfile::kTracked);
+  config.duration_s = 60.0;
+  config.scans_per_s = 1.0;
+  config.seed = 5;
+  const std::string out = dir.File("rooms");
+  const Result<void> written =
+      sim::WriteSimulatedExperiment(out, *sim::BuiltinWorld("rooms"), "rooms", robot, config);
+  ASSERT_TRUE(written.ok()) << written.Message();
+
+  const Result<offline::Experiment> bare = offline::LoadExperiment(out + "/log.clf");
+  ASSERT_TRUE(bare.ok()) << bare.Message();
+  const ScannerDescription& derived = bare.value().robot.scanner;
+  EXPECT_NEAR(derived.offset_x_m, 0.2, 1e-3);
+  EXPECT_NEAR(derived.offset_y_m, -0.05, 1e-3);
+  EXPECT_NEAR(derived.sensors.at(0).angle_deg, 10.0, 0.1);
+
+  const Result<offline::Experiment> full = offline::LoadExperiment(out);  // with ground truth
+  ASSERT_TRUE(full.ok()) << full.Message();
+  const offline::Experiment& e = full.value();
+  offline::ReplayOptions options;
+  options.budget.rays_per_scan = 32500;
+  options.config.seed = 1;
+  const offline::ReplayResult mounted =
+      offline::Replay(bare.value().robot, e.scans, e.ground_truth, options);
+  RobotDescription centred = bare.value().robot;
+  centred.scanner.offset_x_m = 0.0;
+  centred.scanner.offset_y_m = 0.0;
+  centred.scanner.sensors.at(0).angle_deg = 0.0;
+  const offline::ReplayResult at_centre =
+      offline::Replay(centred, e.scans, e.ground_truth, options);
+  ASSERT_TRUE(mounted.quality && at_centre.quality);
+  EXPECT_LT(mounted.quality->ate_rmse_m, 0.05);
+  EXPECT_GT(at_centre.quality->ate_rmse_m, 3.0 * mounted.quality->ate_rmse_m);
 }
 
 /// A simulated run of `seconds` in a built-in world by the robot of `robot_file` (config/), with

@@ -1,6 +1,7 @@
 // slam-replay: runs the SLAM on a recorded experiment (docs/design.md sections 5-6) through the
 // same decoding as live data, prints a JSON summary on stdout and writes trajectory.tum, map.pgm +
-// map.yaml (ROS map_server) and map.png (the map with the trajectories, like the paper's Fig. 9).
+// map.yaml (ROS map_server), map.png (the map with the trajectories, like the paper's Fig. 9) and
+// robot.json (the robot replayed).
 
 #include <tbb/global_control.h>
 #include <unistd.h>
@@ -73,8 +74,8 @@ int main(int argc, char** argv) {
   CLI::App app{
       "Replays a recorded experiment (a directory with robot.json, can.log, meta.json, optional "
       "groundtruth.tum and world.json; or a CARMEN text log) through the SLAM. Prints a JSON "
-      "summary on stdout; writes trajectory.tum, map.pgm, map.yaml and map.png into the output "
-      "directory."};
+      "summary on stdout; writes trajectory.tum, map.pgm, map.yaml, map.png and robot.json (the "
+      "robot replayed, derived for a CARMEN log) into the output directory."};
   std::string experiment_dir, params_path, out_dir, relations_path;
   int64_t budget = 65000;
   double cpu_share = 0.0;
@@ -172,6 +173,9 @@ int main(int argc, char** argv) {
                  static_cast<unsigned long long>(experiment.counters.FramesRejected()), load_s);
     for (const std::string& problem : experiment.problems) {
       std::fprintf(stderr, "skipped: %s\n", problem.c_str());
+    }
+    for (const std::string& note : experiment.notes) {
+      std::fprintf(stderr, "note: %s\n", note.c_str());
     }
   }
 
