@@ -22,6 +22,7 @@ set(SLAM_MANUAL_PROGRAMS
     "slam-link|listen to the robot through a source and count what the link decodes"
     "slam-replay|run the SLAM on a recorded experiment or a CARMEN log"
     "slam-evaluate|replay recorded experiments at each ray budget and tabulate them"
+    "slam-relations|score trajectories on a benchmark's relations (Freiburg format)"
     "slam-tune|tune the SLAM parameters for each ray budget with an evolution strategy"
     "slamd-load|load slamd with event-stream viewers and REST requests")
 set(manual_entries "")
@@ -100,7 +101,8 @@ serves the map, the trajectory and REST control to a browser. The service's
 options are in /etc/default/slamd.
 
 The tools record simulated experiments (slam-sim), replay and evaluate them
-(slam-replay, slam-evaluate), tune the parameters of each ray budget
+(slam-replay, slam-evaluate), score trajectories on a benchmark's
+relations (slam-relations), tune the parameters of each ray budget
 (slam-tune), watch a robot link (slam-link) and load slamd (slamd-load).")
 set(CPACK_DEBIAN_PACKAGE_MAINTAINER
     "Seed 87ad349d maintainers <maintainers@users.noreply.h-seed-87ad349d.example>"

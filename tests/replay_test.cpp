@@ -676,6 +676,49 @@ TEST_F(ReplayTest, RelationsScoreTheTrajectoryAndOdometryOnTheBenchmarkMetric) {
   EXPECT_FALSE(replayed.empty());
   EXPECT_EQ(read(scratch / "evaluated" / e.meta.name / "slam-65000" / "relations.tsv"), replayed);
 
+  // slam-relations scores any trajectory file the same way: slam-replay's trajectory.tum and
+  // dead reckoning's give the replay's two scores, and over both it reports their spread.
+  const std::string scorer = std::string(SLAM_RELATIONS_BIN) + " --relations " + relations;
+  const std::string slam_tum = (scratch / "out" / "trajectory.tum").string();
+  const std::string odometry_tum = (scratch / "odometry.tum").string();
+  std::ofstream(odometry_tum) << io::FormatTum(offline::DeadReckoning(e.scans));
+  const CommandResult scored_files = RunCommand(
+      scorer + " " + slam_tum + " " + odometry_tum + " --errors " + (scratch / "errors").string(),
+      scratch);
+  ASSERT_EQ(scored_files.status, 0) << scored_files.err;
+  const Json files = Json::parse(scored_files.out);
+  ASSERT_EQ(files["runs"].size(), 2u);
+  EXPECT_EQ(files["runs"][0]["trajectory"], slam_tum);
+  EXPECT_EQ(files["runs"][0]["count"], written);
+  // The files carry micrometres and microseconds.
+  EXPECT_NEAR(files["runs"][0]["translational_m"]["mean"].get<double>(), slam_m, 1e-5);
+  EXPECT_NEAR(files["runs"][1]["translational_m"]["mean"].get<double>(), odometry_m, 1e-5);
+  EXPECT_EQ(files["over_runs"]["runs"], 2);
+  EXPECT_NEAR(files["over_runs"]["translational_m"]["best"].get<double>(), slam_m, 1e-5);
+  EXPECT_NEAR(files["over_runs"]["translational_m"]["worst"].get<double>(), odometry_m, 1e-5);
+  EXPECT_NEAR(files["over_runs"]["translational_m"]["mean"].get<double>(),
+              (slam_m + odometry_m) / 2.0, 1e-5);
+  const std::string listed_errors =
+      testing::ReadFile((scratch / "errors" / "1-trajectory.tsv").string());
+  EXPECT_EQ(static_cast<size_t>(std::count(listed_errors.begin(), listed_errors.end(), '\n')),
+            written + 1);  // the header and one line per relation
+  EXPECT_EQ(files["runs"][0]["errors_file"], (scratch / "errors" / "1-trajectory.tsv").string());
+  // A trajectory on another clock scores nothing and says so; a broken file names its line.
+  const std::string shifted_tum = (scratch / "shifted.tum").string();
+  std::vector<TimedPose> shifted = offline::DeadReckoning(e.scans);
+  for (TimedPose& p : shifted) p.t += 1000.0;
+  std::ofstream(shifted_tum) << io::FormatTum(shifted);
+  const CommandResult other_clock = RunCommand(scorer + " " + shifted_tum, scratch);
+  EXPECT_EQ(other_clock.status, 1);
+  EXPECT_NE(other_clock.err.find("no relation has a pose within 0.1 s"), std::string::npos)
+      << other_clock.err;
+  const std::string broken_tum = (scratch / "broken.tum").string();
+  std::ofstream(broken_tum) << "1 0 0 0 0 0 0 1\n0.5 0 0 0 0 0 0 1\n";
+  const CommandResult broken = RunCommand(scorer + " " + slam_tum + " " + broken_tum, scratch);
+  EXPECT_EQ(broken.status, 1);
+  EXPECT_TRUE(broken.out.empty());
+  EXPECT_NE(broken.err.find("broken.tum:2:"), std::string::npos) << broken.err;
+
   // A bad relations file is refused before the replay, naming its line.
   std::ofstream(relations, std::ios::app) << "1 2 3\n";
   const CommandResult bad = RunCommand(tool + " --relations " + relations, scratch);

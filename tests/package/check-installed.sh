@@ -12,7 +12,7 @@ apt-get install -y -q --no-install-recommends "$deb"
 echo "installed: $(dpkg-query -W -f='${Package} ${Version} ${db:Status-Status}' slamd)"
 version=$(dpkg-query -W -f='${Version}' slamd)
 
-for program in slamd slam-sim slam-link slam-replay slam-evaluate slam-tune slamd-load; do
+for program in slamd slam-sim slam-link slam-replay slam-evaluate slam-relations slam-tune slamd-load; do
   printed=$("$program" --version)
   [[ $printed == "$program $version" ]] || { echo "$program --version printed '$printed'"; exit 1; }
 done

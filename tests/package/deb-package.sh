@@ -39,7 +39,7 @@ expected=(/etc/default/slamd /lib/systemd/system/slamd.service
   /usr/share/doc/slamd/copyright /usr/share/doc/slamd/changelog.gz
   /usr/share/slamd/web/index.html /usr/share/slamd/web/node_modules/uplot/dist/uPlot.iife.min.js
   /usr/share/slamd/web/node_modules/uplot/dist/uPlot.min.css)
-for program in slamd slam-sim slam-link slam-replay slam-evaluate slam-tune slamd-load; do
+for program in slamd slam-sim slam-link slam-replay slam-evaluate slam-relations slam-tune slamd-load; do
   expected+=("/usr/bin/$program" "/usr/share/man/man1/$program.1.gz")
 done
 # The page's files and every robot description and parameter set of config/, as the source tree
@@ -116,7 +116,7 @@ echo "manual pages: render cleanly, name /usr/share/slamd"
 # robot description and slamd to the unpacked page (they look beside themselves first).
 bin=$work/root/usr/bin
 data=$work/root/usr/share/slamd
-for program in slamd slam-sim slam-link slam-replay slam-evaluate slam-tune slamd-load; do
+for program in slamd slam-sim slam-link slam-replay slam-evaluate slam-relations slam-tune slamd-load; do
   printed=$("$bin/$program" --version)
   [[ $printed == "$program $version" ]] || fail "$program --version printed '$printed'"
 done
