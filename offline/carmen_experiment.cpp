@@ -141,10 +141,13 @@ CarmenMount DeriveCarmenMount(const CarmenLog& log) {
                 " elsewhere; poses corrected after the run?): a robot.json beside the log "
                 "says where it is"};
   }
-  // Rounded to the millimetre and the tenth of a degree the records are printed to, so that a
-  // laser on the centre is on it exactly.
-  const Pose2 mount{std::round(median.x * 1000.0) / 1000.0, std::round(median.y * 1000.0) / 1000.0,
-                    DegToRad(std::round(RadToDeg(median.theta) * 10.0) / 10.0)};
+  // Rounded to the millimetre and the tenth of a degree, far finer than a mount matters, so that
+  // a laser on the centre sits on it exactly (+ 0.0: no negative zero to print).
+  const auto round_to = [](double value, double step) {
+    return std::round(value / step) * step + 0.0;
+  };
+  const Pose2 mount{round_to(median.x, 0.001), round_to(median.y, 0.001),
+                    DegToRad(round_to(RadToDeg(median.theta), 0.1))};
   return {mount, "from the " + front + " records' laser poses against their odometry"};
 }
 
