@@ -81,8 +81,8 @@ class OdometryTrack {
   std::vector<TimedPose> track_;
 };
 
-// A raw log's laser records put the laser at one place on the robot, up to the digits printed:
-// this close to their median, in at least this share of the records that carry both poses.
+// A raw log's laser records put the laser at one place on the robot: this close to their median,
+// in at least this share of the records that carry both poses.
 constexpr double kMountAgreementM = 0.01;
 constexpr double kMountAgreementDeg = 0.5;
 constexpr double kMountAgreementShare = 0.99;

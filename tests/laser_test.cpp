@@ -405,6 +405,18 @@ TEST(LaserTest, ALasersMountComesBackFromItsLogAndMapsFarBetterThanTheCentre) {
       offline::Replay(centred, e.scans, e.ground_truth, options);
   ASSERT_TRUE(mounted.quality && at_centre.quality);
   EXPECT_LT(mounted.quality->ate_rmse_m, 0.05);
+  // The replay's outputs carry the robot it used: robot.json reads back with the mount.
+  const std::string replayed = dir.File("replayed");
+  fs::create_directories(replayed);
+  const offline::ReplayOutputs outputs =
+      offline::WriteReplayOutputs(replayed, bare.value(), mounted, false, options.budget);
+  EXPECT_TRUE(outputs.errors.empty());
+  const auto read_back = io::LoadRobot(replayed + "/robot.json");
+  ASSERT_TRUE(read_back.ok()) << read_back.Message();
+  EXPECT_DOUBLE_EQ(read_back.value().scanner.offset_x_m, derived.offset_x_m);
+  EXPECT_DOUBLE_EQ(read_back.value().scanner.offset_y_m, derived.offset_y_m);
+  EXPECT_DOUBLE_EQ(read_back.value().scanner.sensors.at(0).angle_deg,
+                   derived.sensors.at(0).angle_deg);
   EXPECT_GT(at_centre.quality->ate_rmse_m, 3.0 * mounted.quality->ate_rmse_m);
 }
 
