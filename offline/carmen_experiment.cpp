@@ -6,10 +6,12 @@
 #include <filesystem>
 #include <limits>
 #include <map>
+#include <utility>
 
 #include "engine/io/text_fields.hpp"
 #include "engine/sensor_model.hpp"
 #include "offline/experiment_reader.hpp"
+#include "offline/statistics.hpp"
 
 namespace slam::offline {
 namespace {
@@ -94,13 +96,6 @@ std::string MountText(const Pose2& mount) {
   return text;
 }
 
-/// The median of `values` (not empty); reorders them.
-double Median(std::vector<double>& values) {
-  const auto middle = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
-  std::nth_element(values.begin(), middle, values.end());
-  return *middle;
-}
-
 }  // namespace
 
 CarmenMount DeriveCarmenMount(const CarmenLog& log) {
@@ -127,7 +122,11 @@ CarmenMount DeriveCarmenMount(const CarmenLog& log) {
     cosines.push_back(std::cos(p.theta));
     sines.push_back(std::sin(p.theta));
   }
-  const Pose2 median{Median(xs), Median(ys), std::atan2(Median(sines), Median(cosines))};
+  const auto median_of = [](std::vector<double> values) {
+    return SummarizeFive(std::move(values)).median;
+  };
+  const Pose2 median{median_of(xs), median_of(ys),
+                     std::atan2(median_of(sines), median_of(cosines))};
   size_t agree = 0;
   for (const Pose2& p : seen) {
     agree += std::abs(p.x - median.x) <= kMountAgreementM &&

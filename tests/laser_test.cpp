@@ -421,7 +421,7 @@ TEST(LaserTest, ALasersMountComesBackFromItsLogAndMapsFarBetterThanTheCentre) {
 }
 
 TEST(LaserTest, ARealLogFromAnotherLabIsReadWithItsLaserAheadAndMapped) {
-  // data/malaga-hall: a SICK 0.78 m ahead of a wheelchair's odometry, ROBOTLASER1 records.
+  // data/malaga-hall: a laser 0.78 m ahead of the robot's odometry, ROBOTLASER1 records.
   const std::string path = std::string(SLAM_SOURCE_DIR) + "/data/malaga-hall/malaga-hall.clf";
   const Result<offline::Experiment> load = offline::LoadExperiment(path);
   ASSERT_TRUE(load.ok()) << load.Message();
