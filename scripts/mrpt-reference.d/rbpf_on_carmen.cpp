@@ -4,10 +4,13 @@
 // slam-relations scores it as it scores our replays. scripts/mrpt-reference builds and runs it.
 //
 // usage: rbpf_on_carmen CONFIG.ini LOG.clf OUT.tum SEED
-// The config's [MappingApplication] section is read as MRPT's rbpf-slam reads it. Writes OUT.tum
-// and OUT.tum.json (records read, CPU time).
+// The config's [MappingApplication] section is read as MRPT's rbpf-slam reads it. Writes OUT.tum,
+// OUT.tum.json (records read, CPU time) and, when the config builds a points map (the ICP-based
+// one does), OUT.tum.points: the most likely particle's map, one "x y" per line, to draw.
 
 #include <mrpt/config/CConfigFile.h>
+#include <mrpt/maps/CMultiMetricMap.h>
+#include <mrpt/maps/CSimplePointsMap.h>
 #include <mrpt/obs/CActionCollection.h>
 #include <mrpt/obs/CActionRobotMovement2D.h>
 #include <mrpt/obs/CObservation2DRangeScan.h>
@@ -147,5 +150,7 @@ int main(int argc, char** argv) {
                 "\"cpu_ms_per_record\": %.3f}\n",
                 records.size(), skipped, path.size(), cpu_s, 1000.0 * cpu_s / records.size());
   summary << line;
-  return out && summary ? 0 : 1;
+  const auto points = builder.getCurrentlyBuiltMetricMap()->mapByClass<mrpt::maps::CSimplePointsMap>();
+  const bool points_ok = !points || points->save2D_to_text_file(out_path + ".points");
+  return out && summary && points_ok ? 0 : 1;
 }
