@@ -150,6 +150,31 @@ CarmenMount DeriveCarmenMount(const CarmenLog& log) {
   return {mount, "from the " + front + " records' laser poses against their odometry"};
 }
 
+namespace {
+
+BeamPattern FlaserBeams(const CarmenLog& log, int n) {
+  // The old FLASER records carry ranges only. CARMEN's convention: the field of view is centred
+  // ahead and the first beam is on its right edge. The field is PARAM laser_front_laser_fov
+  // where the log has it; else 100 degrees for 400 or 401 beams (a SICK LMS in its 100-degree
+  // mode, 0.25 degree apart, as CARMEN's own reader guesses from the count: spread over 180
+  // degrees they would be 1.8 times too far apart), else 180. The beams are PARAM
+  // laser_front_laser_resolution apart where the log has it, 0.25 degree for the 100-degree
+  // mode, else spread evenly from edge to edge.
+  const bool lms_100 = n == 400 || n == 401;
+  const std::optional<double> fov_param = ParamNumber(log, "laser_front_laser_fov");
+  const std::optional<double> resolution = ParamNumber(log, "laser_front_laser_resolution");
+  const double fov = fov_param.value_or(lms_100 ? 100.0 : 180.0);
+  double increment = n > 1 ? fov / (n - 1) : 0.0;
+  if (resolution && *resolution > 0.0) {
+    increment = *resolution;
+  } else if (lms_100 && !fov_param) {
+    increment = 0.25;
+  }
+  return {-fov / 2.0, increment, n};
+}
+
+}  // namespace
+
 RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name) {
   const std::string front = FrontMessage(log);
   const CarmenLaser* first = nullptr;
@@ -181,11 +206,8 @@ RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name
                   n};
     max_range = first->beams->max_range_m;
   } else {
-    // CARMEN's convention for the old FLASER records: the beams span the field of view
-    // symmetrically, the first on the right.
-    const double fov = ParamNumber(log, "laser_front_laser_fov").value_or(180.0);
     type.model = "laser";
-    type.beams = {-fov / 2.0, n > 1 ? fov / (n - 1) : 0.0, n};
+    type.beams = FlaserBeams(log, n);
   }
   max_range = ParamNumber(log, "robot_front_laser_max").value_or(max_range);
 

@@ -363,6 +363,53 @@ TEST(LaserTest, ABareLogsLaserIsWhereItsParamsOrItsRecordsPutIt) {
   EXPECT_NEAR(load.value().robot.scanner.offset_x_m, 0.15, 1e-9);
 }
 
+TEST(LaserTest, ABareFlaserLogsBeamsFollowItsParamsOrCarmensGuessFromTheCount) {
+  // A log of one FLASER record of n beams, after `head`; the derived robot's beams.
+  const auto beams_of = [](const std::string& head, int n) {
+    std::string text = head + "FLASER " + std::to_string(n);
+    for (int i = 0; i < n; ++i) text += " 2.5";
+    text += " 1.5 h 1.5\n";
+    const Result<offline::CarmenLog> log = offline::ParseCarmenLog(text, "t.clf");
+    EXPECT_TRUE(log.ok()) << log.Message();
+    const RobotDescription robot =
+        offline::DeriveCarmenRobot(log.ok() ? log.value() : offline::CarmenLog{}, "t");
+    return robot.sensor_types.at(robot.scanner.sensors.at(0).type).beams;
+  };
+  const auto expect_beams = [](const BeamPattern& b, double first, double increment, int count) {
+    EXPECT_NEAR(b.first_deg, first, 1e-9);
+    EXPECT_NEAR(b.increment_deg, increment, 1e-9);
+    EXPECT_EQ(b.count, count);
+  };
+  // Without PARAM lines: 180 degrees, edge to edge...
+  expect_beams(beams_of("", 181), -90.0, 1.0, 181);
+  expect_beams(beams_of("", 361), -90.0, 0.5, 361);
+  // ...except a SICK LMS in its 100-degree mode, 0.25 degree apart (not 0.45).
+  expect_beams(beams_of("", 401), -50.0, 0.25, 401);
+  expect_beams(beams_of("", 400), -50.0, 0.25, 400);
+  // The log's parameters say it first: its field of view, and its resolution.
+  expect_beams(beams_of("PARAM laser_front_laser_fov 100 h 0\n", 401), -50.0, 0.25, 401);
+  expect_beams(beams_of("PARAM laser_front_laser_fov 90 h 0\n", 181), -45.0, 0.5, 181);
+  expect_beams(beams_of("PARAM laser_front_laser_fov 180 h 0\n"
+                        "PARAM laser_front_laser_resolution 0.5 h 0\n",
+                        360),
+               -90.0, 0.5, 360);
+  expect_beams(beams_of("PARAM laser_front_laser_resolution 0.5 h 0\n", 361), -90.0, 0.5, 361);
+  expect_beams(beams_of("PARAM laser_front_laser_resolution 0.25 h 0\n", 401), -50.0, 0.25, 401);
+
+  // A resolution that cannot be: the log is refused, and the error says why.
+  const testing::TempDir dir("flaser_beams");
+  const std::string path = dir.File("wide.clf");
+  {
+    std::ofstream out(path);
+    out << "PARAM laser_front_laser_resolution 5 h 0\nFLASER 181";
+    for (int i = 0; i < 181; ++i) out << " 2.5";
+    out << " 1.5 h 1.5\n";
+  }
+  const Result<offline::Experiment> load = offline::LoadExperiment(path);
+  ASSERT_FALSE(load.ok());
+  EXPECT_NE(load.Message().find("spans more than a turn"), std::string::npos) << load.Message();
+}
+
 TEST(LaserTest, ALasersMountComesBackFromItsLogAndMapsFarBetterThanTheCentre) {
   // A Pioneer whose laser sits 20 cm ahead, 5 cm right, turned 10 degrees: its log, read bare,
   // gives the mount back; ignoring it maps the run far worse.
