@@ -9,6 +9,7 @@
 #include <utility>
 
 #include "engine/io/text_fields.hpp"
+#include "engine/odometry.hpp"
 #include "engine/sensor_model.hpp"
 #include "offline/experiment_reader.hpp"
 #include "offline/statistics.hpp"
@@ -82,6 +83,12 @@ class OdometryTrack {
  private:
   std::vector<TimedPose> track_;
 };
+
+// CARMEN stamps a record when it arrives, not when it was measured, and bunches records that
+// arrive together (the Intel log: 0.60 m of motion between records 0.01 s apart): the odometry's
+// plausible step gets this much time beyond the records' own gap (the CAN path, stamped by the
+// robot, gets OdometryIntegrator::kJumpSlackS).
+constexpr double kCarmenJumpSlackS = 0.5;
 
 // A raw log's laser records put the laser at one place on the robot: this close to their median,
 // in at least this share of the records that carry both poses.
@@ -310,19 +317,45 @@ Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOpt
   }
 
   std::optional<double> last_t;
-  Pose2 last_odometry;
+  Pose2 last_odometry;  // the previous scan's, in the run's odometry frame
+  Pose2 last_raw;       // the same, as the log has it
+  // The run's odometry frame from the log's: a base that restarts mid-run (its odometry back at
+  // zero, or anywhere) would teleport the prior. A step longer than the robot drives in the
+  // time between two records, at its max_speed_m_s over the gap (at most kMaxJumpWindowS) plus
+  // kCarmenJumpSlackS, is taken for a restart: counted, named, and the pose holds across it.
+  Pose2 reset;
   for (size_t k = 0; k < records.size(); ++k) {
     const CarmenLaser& laser = *records[k];
     if (last_t && !(laser.t > *last_t)) {
       ++counters.scans_out_of_order;
       continue;
     }
-    const std::optional<Pose2> odometry =
+    const std::optional<Pose2> raw =
         laser.robot_odometry ? laser.robot_odometry : track.At(laser.t);
-    if (!odometry) {
+    if (!raw) {
       ++counters.scans_without_odometry;
       continue;
     }
+    if (last_t) {
+      const double step_m = std::hypot(raw->x - last_raw.x, raw->y - last_raw.y);
+      const double window_s =
+          std::clamp(laser.t - *last_t, 0.0, OdometryIntegrator::kMaxJumpWindowS) +
+          kCarmenJumpSlackS;
+      if (step_m > experiment.robot.base.max_speed_m_s * window_s) {
+        ++counters.assembler.odometry_jumps;
+        reset = Compose(last_odometry, Inverse(*raw));
+        if (counters.assembler.odometry_jumps <= 20) {
+          char text[160];
+          std::snprintf(text, sizeof(text),
+                        ": the odometry jumps %.2f m in %.3f s (over %.1f m/s): taken for a "
+                        "restart of the base, the pose held across it",
+                        step_m, laser.t - *last_t, experiment.robot.base.max_speed_m_s);
+          experiment.notes.push_back(path + ":" + std::to_string(laser.line) + text);
+        }
+      }
+    }
+    last_raw = *raw;
+    const Pose2 odometry = Compose(reset, *raw);
     Scan scan;
     scan.index = static_cast<int64_t>(experiment.scans.size());
     scan.t_end = laser.t;
@@ -334,20 +367,20 @@ Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOpt
       // follows a scan's duration); it moves nothing.
       const double gap = k + 1 < records.size() ? records[k + 1]->t - laser.t : 1.0;
       scan.t_begin = laser.t - std::clamp(gap, 1e-3, 10.0);
-      scan.odom_begin = *odometry;
+      scan.odom_begin = odometry;
     }
-    scan.odom_end = *odometry;
+    scan.odom_end = odometry;
     scan.samples.resize(laser.ranges.size());
     for (size_t i = 0; i < laser.ranges.size(); ++i) {
       ScanSample& sample = scan.samples[i];
       sample.t = laser.t;
-      sample.odom = *odometry;
+      sample.odom = odometry;
       sample.platform_angle_rad = DegToRad(type.beams.AngleDeg(static_cast<int>(i)));
       sample.raw[0] = RangeToRaw(laser.ranges[i]);
     }
     experiment.scans.push_back(std::move(scan));
     last_t = laser.t;
-    last_odometry = *odometry;
+    last_odometry = odometry;
   }
   experiment.t_first = t_first;
   experiment.t_last = t_last;

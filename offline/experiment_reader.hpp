@@ -71,8 +71,8 @@ struct Experiment {
   /// The first lines skipped as malformed, "file:line: why" (CARMEN logs; a CAN log's garbled
   /// lines are only counted).
   std::vector<std::string> problems;
-  /// What the reader assumed where the data did not say it (a CARMEN log's derived robot), one
-  /// line each.
+  /// What the reader assumed where the data did not say it (a CARMEN log's derived robot, the
+  /// first 20 odometry restarts it took), one line each.
   std::vector<std::string> notes;
 
   /// Recorded time covered by can.log, seconds.

@@ -7,9 +7,11 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
@@ -279,6 +281,83 @@ TEST(LaserTest, TheSimulatedLidarIsRecordedAsACarmenLogAndMappedBetterThanOdomet
   EXPECT_LT(slam.quality->ate_rmse_m, 0.05);
 }
 
+TEST(LaserTest, ABaseRestartedMidRunIsCountedAndTheMapHoldsAcrossIt) {
+  const testing::TempDir dir("restart_experiment");
+  sim::ScenarioConfig config = sim::WithOdometryProfile({}, sim::OdometryProfile::kTracked);
+  config.duration_s = 60.0;
+  config.scans_per_s = 2.0;
+  config.seed = 7;
+  const std::string out = dir.File("rooms");
+  ASSERT_TRUE(
+      sim::WriteSimulatedExperiment(out, *sim::BuiltinWorld("rooms"), "rooms", LidarRobot(), config)
+          .ok());
+
+  // From 30 s on, the log's odometry restarts from 25 m away and turned by 2 rad: every ODOM
+  // record's pose and every FLASER record's poses (the laser's and the odometry's) move there.
+  const std::string log = out + "/log.clf";
+  std::ifstream in(log);
+  std::vector<std::string> lines;
+  std::optional<double> t_start;
+  const Pose2 restart{25.0, -8.0, 2.0};
+  for (std::string line; std::getline(in, line);) {
+    std::istringstream fields(line);
+    std::vector<std::string> f{std::istream_iterator<std::string>(fields), {}};
+    size_t pose_at = 0, poses = 0;  // the first pose field, and how many poses follow
+    if (!f.empty() && f[0] == "ODOM") {
+      pose_at = 1;
+      poses = 1;
+    } else if (!f.empty() && f[0] == "FLASER") {
+      pose_at = 2 + std::stoul(f[1]);
+      poses = 2;
+    }
+    if (poses > 0) {
+      const double t = std::stod(f[pose_at + 3 * poses + (f[0] == "ODOM" ? 3 : 0)]);
+      if (!t_start) t_start = t;
+      if (t - *t_start >= 30.0) {
+        for (size_t k = 0; k < poses; ++k) {
+          const size_t i = pose_at + 3 * k;
+          const Pose2 moved =
+              Compose(restart, {std::stod(f[i]), std::stod(f[i + 1]), std::stod(f[i + 2])});
+          f[i] = std::to_string(moved.x);
+          f[i + 1] = std::to_string(moved.y);
+          f[i + 2] = std::to_string(moved.theta);
+        }
+        line.clear();
+        for (const std::string& field : f) line += (line.empty() ? "" : " ") + field;
+      }
+    }
+    lines.push_back(line);
+  }
+  in.close();
+  {
+    std::ofstream rewritten(log);
+    for (const std::string& line : lines) rewritten << line << "\n";
+  }
+
+  const Result<offline::Experiment> load = offline::LoadExperiment(out);
+  ASSERT_TRUE(load.ok()) << load.Message();
+  const offline::Experiment& e = load.value();
+  EXPECT_EQ(e.counters.assembler.odometry_jumps, 1u);
+  EXPECT_TRUE(e.problems.empty());  // nothing is left out
+  ASSERT_EQ(e.notes.size(), 1u);    // the reader's assumption, said
+  EXPECT_NE(e.notes[0].find("taken for a restart of the base"), std::string::npos) << e.notes[0];
+  EXPECT_NE(e.notes[0].find("log.clf:"), std::string::npos) << e.notes[0];
+  // Across the restart the pose holds: no scan moves further than a sweep's drive.
+  for (size_t i = 1; i < e.scans.size(); ++i) {
+    const Pose2 step = Between(e.scans[i].odom_begin, e.scans[i].odom_end);
+    EXPECT_LT(std::hypot(step.x, step.y), 0.5) << "scan " << i;
+  }
+
+  // The map holds too: as accurate as the log without the restart (the same bound).
+  offline::ReplayOptions options;
+  options.budget.rays_per_scan = 32500;
+  options.config.seed = 1;
+  const auto [slam, odometry] = ReplayBoth(e, options);
+  ASSERT_TRUE(slam.quality && odometry.quality);
+  EXPECT_LT(slam.quality->ate_rmse_m, 0.05);
+  EXPECT_LT(odometry.quality->ate_rmse_m, 2.0);  // one held step, not a 25 m teleport
+}
+
 /// A FLASER record of three beams at time `t`: the robot's odometry `odometry` and the laser's
 /// pose, `mount` on the robot.
 std::string FlaserLine(double t, const Pose2& odometry, const Pose2& mount) {
@@ -297,13 +376,14 @@ TEST(LaserTest, ABareLogsLaserIsWhereItsParamsOrItsRecordsPutIt) {
   const auto log_of = [&](const std::string& head, const std::vector<Pose2>& mounts) {
     std::string text = head;
     for (size_t i = 0; i < path.size(); ++i) {
-      text += FlaserLine(10.0 + static_cast<double>(i), path[i], mounts[i]);
+      text += FlaserLine(10.0 + 10.0 * static_cast<double>(i), path[i], mounts[i]);
     }
     const Result<offline::CarmenLog> log = offline::ParseCarmenLog(text, "t.clf");
     EXPECT_TRUE(log.ok()) << log.Message();
     return log.ok() ? log.value() : offline::CarmenLog{};
   };
   const std::vector<Pose2> fixed(path.size(), mount);
+  // (The records are 10 s apart: the path's steps, up to 10 m, are drives, not restarts.)
 
   // A raw log: every record puts the laser at one place on the robot.
   const offline::CarmenMount raw = offline::DeriveCarmenMount(log_of("", fixed));
@@ -351,7 +431,7 @@ TEST(LaserTest, ABareLogsLaserIsWhereItsParamsOrItsRecordsPutIt) {
   {
     std::ofstream out(path_file);
     for (size_t i = 0; i < path.size(); ++i) {
-      out << FlaserLine(10.0 + static_cast<double>(i), path[i], mount);
+      out << FlaserLine(10.0 + 10.0 * static_cast<double>(i), path[i], mount);
     }
   }
   const Result<offline::Experiment> load = offline::LoadExperiment(path_file);
