@@ -62,6 +62,27 @@ std::string LaserTypeName(int type) {
   }
 }
 
+BeamPattern FlaserBeams(const CarmenLog& log, int n) {
+  // The old FLASER records carry ranges only. CARMEN's convention: the field of view is centred
+  // ahead and the first beam is on its right edge. The field is PARAM laser_front_laser_fov
+  // where the log has it; else 100 degrees for 400 or 401 beams (a SICK LMS in its 100-degree
+  // mode, 0.25 degree apart, as CARMEN's own reader guesses from the count: spread over 180
+  // degrees they would be 1.8 times too far apart), else 180. The beams are PARAM
+  // laser_front_laser_resolution apart where the log has it, 0.25 degree for the 100-degree
+  // mode, else spread evenly from edge to edge.
+  const bool lms_100 = n == 400 || n == 401;
+  const std::optional<double> fov_param = ParamNumber(log, "laser_front_laser_fov");
+  const std::optional<double> resolution = ParamNumber(log, "laser_front_laser_resolution");
+  const double fov = fov_param.value_or(lms_100 ? 100.0 : 180.0);
+  double increment = n > 1 ? fov / (n - 1) : 0.0;
+  if (resolution && *resolution > 0.0) {
+    increment = *resolution;
+  } else if (lms_100 && !fov_param) {
+    increment = 0.25;
+  }
+  return {-fov / 2.0, increment, n};
+}
+
 /// The robot's odometry between ODOM records: those whose time is after the previous kept one,
 /// interpolated linearly (the angle the short way round).
 class OdometryTrack {
@@ -156,31 +177,6 @@ CarmenMount DeriveCarmenMount(const CarmenLog& log) {
                     DegToRad(round_to(RadToDeg(median.theta), 0.1))};
   return {mount, "from the " + front + " records' laser poses against their odometry"};
 }
-
-namespace {
-
-BeamPattern FlaserBeams(const CarmenLog& log, int n) {
-  // The old FLASER records carry ranges only. CARMEN's convention: the field of view is centred
-  // ahead and the first beam is on its right edge. The field is PARAM laser_front_laser_fov
-  // where the log has it; else 100 degrees for 400 or 401 beams (a SICK LMS in its 100-degree
-  // mode, 0.25 degree apart, as CARMEN's own reader guesses from the count: spread over 180
-  // degrees they would be 1.8 times too far apart), else 180. The beams are PARAM
-  // laser_front_laser_resolution apart where the log has it, 0.25 degree for the 100-degree
-  // mode, else spread evenly from edge to edge.
-  const bool lms_100 = n == 400 || n == 401;
-  const std::optional<double> fov_param = ParamNumber(log, "laser_front_laser_fov");
-  const std::optional<double> resolution = ParamNumber(log, "laser_front_laser_resolution");
-  const double fov = fov_param.value_or(lms_100 ? 100.0 : 180.0);
-  double increment = n > 1 ? fov / (n - 1) : 0.0;
-  if (resolution && *resolution > 0.0) {
-    increment = *resolution;
-  } else if (lms_100 && !fov_param) {
-    increment = 0.25;
-  }
-  return {-fov / 2.0, increment, n};
-}
-
-}  // namespace
 
 RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name) {
   const std::string front = FrontMessage(log);
