@@ -243,17 +243,23 @@ TEST(LaserTest, ALogDirectoryNeedsNoMetaAndIsNamedAfterItself) {
   EXPECT_NE(bad.Message().find("meta.json"), std::string::npos) << bad.Message();
 }
 
-TEST(LaserTest, TheSimulatedLidarIsRecordedAsACarmenLogAndMappedBetterThanOdometry) {
-  const testing::TempDir dir("lidar_experiment");
+/// A simulated minute of the lidar robot in the rooms world (a tracked robot's odometry, two
+/// sweeps a second, seed 7), written into `dir` as an experiment directory; its path.
+std::string SimulatedLidarRooms(const testing::TempDir& dir) {
   sim::ScenarioConfig config = sim::WithOdometryProfile({}, sim::OdometryProfile::kTracked);
   config.duration_s = 60.0;
   config.scans_per_s = 2.0;
   config.seed = 7;
-  const RobotDescription robot = LidarRobot();
   const std::string out = dir.File("rooms");
-  const Result<void> written =
-      sim::WriteSimulatedExperiment(out, *sim::BuiltinWorld("rooms"), "rooms", robot, config);
-  ASSERT_TRUE(written.ok()) << written.Message();
+  const Result<void> written = sim::WriteSimulatedExperiment(out, *sim::BuiltinWorld("rooms"),
+                                                             "rooms", LidarRobot(), config);
+  EXPECT_TRUE(written.ok()) << written.Message();
+  return out;
+}
+
+TEST(LaserTest, TheSimulatedLidarIsRecordedAsACarmenLogAndMappedBetterThanOdometry) {
+  const testing::TempDir dir("lidar_experiment");
+  const std::string out = SimulatedLidarRooms(dir);
   EXPECT_TRUE(fs::exists(out + "/log.clf"));
   EXPECT_FALSE(fs::exists(out + "/can.log"));
 
@@ -283,14 +289,7 @@ TEST(LaserTest, TheSimulatedLidarIsRecordedAsACarmenLogAndMappedBetterThanOdomet
 
 TEST(LaserTest, ABaseRestartedMidRunIsCountedAndTheMapHoldsAcrossIt) {
   const testing::TempDir dir("restart_experiment");
-  sim::ScenarioConfig config = sim::WithOdometryProfile({}, sim::OdometryProfile::kTracked);
-  config.duration_s = 60.0;
-  config.scans_per_s = 2.0;
-  config.seed = 7;
-  const std::string out = dir.File("rooms");
-  ASSERT_TRUE(
-      sim::WriteSimulatedExperiment(out, *sim::BuiltinWorld("rooms"), "rooms", LidarRobot(), config)
-          .ok());
+  const std::string out = SimulatedLidarRooms(dir);
 
   // From 30 s on, the log's odometry restarts from 25 m away and turned by 2 rad: every ODOM
   // record's pose and every FLASER record's poses (the laser's and the odometry's) move there.
