@@ -15,10 +15,13 @@ int64_t CounterDelta(int32_t now, int32_t before) {
 
 }  // namespace
 
+double OdometryIntegrator::MaxTravelM(const BaseDescription& base, double dt_s, double slack_s) {
+  return base.max_speed_m_s * (std::clamp(dt_s, 0.0, kMaxJumpWindowS) + slack_s);
+}
+
 bool OdometryIntegrator::Plausible(const OdometryReading& reading) const {
   if (!last_) return true;
-  const double window_s = std::clamp(reading.t - last_->t, 0.0, kMaxJumpWindowS) + kJumpSlackS;
-  const double max_ticks = base_.max_speed_m_s * window_s * base_.ticks_per_m;
+  const double max_ticks = MaxTravelM(base_, reading.t - last_->t, kJumpSlackS) * base_.ticks_per_m;
   const auto left = static_cast<double>(CounterDelta(reading.left_ticks, last_->left_ticks));
   const auto right = static_cast<double>(CounterDelta(reading.right_ticks, last_->right_ticks));
   return std::abs(left) <= max_ticks && std::abs(right) <= max_ticks;

@@ -30,6 +30,10 @@ class OdometryIntegrator {
   bool Plausible(const OdometryReading& reading) const;
   static constexpr double kMaxJumpWindowS = 10.0;
   static constexpr double kJumpSlackS = 0.25;
+  /// The furthest `base` drives between two readings `dt_s` apart: max_speed_m_s over `dt_s`,
+  /// counted at most kMaxJumpWindowS, plus `slack_s`. A longer step is a jump (Plausible; a
+  /// CARMEN log's odometry, whose records are stamped on arrival, with a slack of its own).
+  static double MaxTravelM(const BaseDescription& base, double dt_s, double slack_s);
 
   /// Takes `reading` as the new reference without moving: the pose stays where it was. For a
   /// reading that is not Plausible (the counters restarted, or were corrupted): what happened

@@ -317,8 +317,8 @@ Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOpt
   Pose2 last_raw;       // the same, as the log has it
   // The run's odometry frame from the log's: a base that restarts mid-run (its odometry back at
   // zero, or anywhere) would teleport the prior. A step longer than the robot drives in the
-  // time between two records, at its max_speed_m_s over the gap (at most kMaxJumpWindowS) plus
-  // kCarmenJumpSlackS, is taken for a restart: counted, named, and the pose holds across it.
+  // time between two records (OdometryIntegrator::MaxTravelM, with kCarmenJumpSlackS) is taken
+  // for a restart: counted, named, and the pose holds across it.
   Pose2 reset;
   for (size_t k = 0; k < records.size(); ++k) {
     const CarmenLaser& laser = *records[k];
@@ -334,10 +334,8 @@ Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOpt
     }
     if (last_t) {
       const double step_m = std::hypot(raw->x - last_raw.x, raw->y - last_raw.y);
-      const double window_s =
-          std::clamp(laser.t - *last_t, 0.0, OdometryIntegrator::kMaxJumpWindowS) +
-          kCarmenJumpSlackS;
-      if (step_m > experiment.robot.base.max_speed_m_s * window_s) {
+      if (step_m > OdometryIntegrator::MaxTravelM(experiment.robot.base, laser.t - *last_t,
+                                                  kCarmenJumpSlackS)) {
         ++counters.assembler.odometry_jumps;
         reset = Compose(last_odometry, Inverse(*raw));
         if (counters.assembler.odometry_jumps <= 20) {
