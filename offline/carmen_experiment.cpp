@@ -178,7 +178,10 @@ CarmenMount DeriveCarmenMount(const CarmenLog& log) {
   return {mount, "from the " + front + " records' laser poses against their odometry"};
 }
 
-RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name) {
+namespace {
+
+/// DeriveCarmenRobot with the laser at `mount` (DeriveCarmenMount's, derived once by the caller).
+RobotDescription CarmenRobotAt(const CarmenLog& log, const std::string& name, const Pose2& mount) {
   const std::string front = FrontMessage(log);
   const CarmenLaser* first = nullptr;
   for (const CarmenLaser& laser : log.lasers) {
@@ -194,7 +197,6 @@ RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name
   // A log from a base that fuses a gyro needs a robot description that says so.
   robot.base.heading_from_gyro = false;
   robot.scanner.mount_radius_m = 0.0;
-  const Pose2 mount = DeriveCarmenMount(log).pose;
   robot.scanner.offset_x_m = mount.x;
   robot.scanner.offset_y_m = mount.y;
   robot.scanner.sensors = {{"laser", RadToDeg(mount.theta)}};
@@ -253,6 +255,12 @@ RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name
   return robot;
 }
 
+}  // namespace
+
+RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name) {
+  return CarmenRobotAt(log, name, DeriveCarmenMount(log).pose);
+}
+
 Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOptions& options) {
   Result<CarmenLog> parsed = LoadCarmenLog(path);
   if (!parsed.ok()) return {parsed.errors(), path};
@@ -262,9 +270,11 @@ Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOpt
   experiment.dir = path;
   experiment.meta.name = std::filesystem::path(path).stem().string();
   experiment.meta.source = "robot";
-  experiment.robot = options.robot ? *options.robot : DeriveCarmenRobot(log, experiment.meta.name);
-  if (!options.robot) {
+  if (options.robot) {
+    experiment.robot = *options.robot;
+  } else {
     const CarmenMount mount = DeriveCarmenMount(log);
+    experiment.robot = CarmenRobotAt(log, experiment.meta.name, mount.pose);
     experiment.notes.push_back("laser " + MountText(mount.pose) + ", " + mount.source);
   }
   ConfigErrors invalid = Validate(experiment.robot);
