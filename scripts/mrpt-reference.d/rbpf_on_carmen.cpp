@@ -150,7 +150,8 @@ int main(int argc, char** argv) {
                 "\"cpu_ms_per_record\": %.3f}\n",
                 records.size(), skipped, path.size(), cpu_s, 1000.0 * cpu_s / records.size());
   summary << line;
-  const auto points = builder.getCurrentlyBuiltMetricMap()->mapByClass<mrpt::maps::CSimplePointsMap>();
+  const auto points =
+      builder.getCurrentlyBuiltMetricMap()->mapByClass<mrpt::maps::CSimplePointsMap>();
   const bool points_ok = !points || points->save2D_to_text_file(out_path + ".points");
   return out && summary && points_ok ? 0 : 1;
 }
