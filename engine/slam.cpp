@@ -55,6 +55,16 @@ constexpr double kMaxHeadingDriftDegS = 2.0;
 // 30 cm axle.
 constexpr double kHeadingDriftDistanceM = 10.0;
 constexpr double kMaxHeadingDriftDegM = 10.0;
+// A range scanner's heading search follows the heading corrections its informative matches have
+// been making (their root mean square over about kCorrectionAveragingScans scans): it spans
+// kCorrectionSigmas of them, within the parameter set's minimum angle uncertainty (a robot whose
+// odometry errs like a tracked one keeps the set's search) and never below kLeastSearchShare of
+// it. A good odometry (a Pioneer's errs by about a degree a scan) narrows it, so that a match on
+// a few dozen rays cannot walk the heading away one plausible step after another
+// (docs/laser.md, "A heading search that follows the corrections").
+constexpr double kCorrectionSigmas = 3.0;
+constexpr double kCorrectionAveragingScans = 30.0;
+constexpr double kLeastSearchShare = 0.25;
 // Scans that drove less than this tell a drift per metre little: their correction, weighted
 // down, is mostly the match's jitter (the bound over 5 cm is half a degree).
 constexpr double kMinHeadingDriftStepM = 0.05;
@@ -371,6 +381,7 @@ Slam::Slam(const RobotDescription& robot, const SlamParams& params, const SlamCo
 void Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
   unmatched_var_pos_ = 0.0;
   unmatched_var_angle_ = 0.0;
+  correction_var_angle_.reset();
   for (Particle& p : particles_) {
     p.map = map;
     p.map.RefreshSummaries();
@@ -617,6 +628,19 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
     const double most = DegToRad(per_metre ? kMaxHeadingDriftDegM : kMaxHeadingDriftDegS);
     const double weight =
         prediction.drift_span / std::max(std::abs(prediction.drift_span), kMinHeadingDriftStepM);
+    if (HasRangeScanner(robot_)) {
+      double mean_sq = 0.0;
+      for (size_t p = 0; p < particles_.size(); ++p) {
+        mean_sq += Square(NormalizeAngle(match.chosen[p].theta - prediction.nominal[p].theta));
+      }
+      mean_sq /= static_cast<double>(particles_.size());
+      // It starts where the set's own search stands.
+      double& var = correction_var_angle_
+                        ? *correction_var_angle_
+                        : correction_var_angle_.emplace(Square(
+                              DegToRad(params_.min_angle_uncertainty_deg) / kCorrectionSigmas));
+      var += (mean_sq - var) / kCorrectionAveragingScans;
+    }
     for (size_t p = 0; p < particles_.size(); ++p) {
       const double turn = NormalizeAngle(match.chosen[p].theta - prediction.nominal[p].theta);
       double& drift = particles_[p].heading_drift;
@@ -677,7 +701,7 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   const double drift_pos = std::sqrt(Square(out.sigma_trans) + unmatched_var_pos_);
   const double drift_angle =
       std::sqrt(Square(out.sigma_rot1) + Square(out.sigma_rot2) + unmatched_var_angle_);
-  const double min_angle = DegToRad(params_.min_angle_uncertainty_deg);
+  const double min_angle = LeastSearchAngle();
   out.search_pos = std::clamp(drift_pos, params_.min_pos_uncertainty_m, kMaxSearchPosM);
   out.search_angle = std::clamp(drift_angle, min_angle, DegToRad(kMaxSearchAngleDeg));
   out.prior_pos = std::max(drift_pos, params_.min_pos_uncertainty_m / 3.0);
@@ -711,6 +735,13 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
     out.predicted[p].theta = NormalizeAngle(out.predicted[p].theta - drift);
   }
   return out;
+}
+
+double Slam::LeastSearchAngle() const {
+  const double set = DegToRad(params_.min_angle_uncertainty_deg);
+  if (!HasRangeScanner(robot_) || !correction_var_angle_) return set;
+  return std::clamp(kCorrectionSigmas * std::sqrt(*correction_var_angle_), kLeastSearchShare * set,
+                    set);
 }
 
 bool Slam::MatchesScan(const ScanPlan& plan, size_t matching) const {

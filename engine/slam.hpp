@@ -161,6 +161,9 @@ class Slam {
   /// Replaces the tuned parameters from the next scan on (precondition: valid).
   void SetParams(const SlamParams& params) { params_ = params; }
   const SlamParams& params() const { return params_; }
+  /// Phase B's least heading search for the next scan (rad): the set's minimum angle
+  /// uncertainty, narrowed for a range scanner to the corrections its matches have been making.
+  double LeastSearchAngle() const;
   const SlamConfig& config() const { return config_; }
 
   const std::vector<Particle>& particles() const { return particles_; }
@@ -237,6 +240,9 @@ class Slam {
   // m^2, heading rad^2): the search spreads that much wider when readings return.
   double unmatched_var_pos_ = 0.0;
   double unmatched_var_angle_ = 0.0;
+  // Mean square of the heading corrections of a range scanner's informative matches (rad^2),
+  // averaged over the last scans; none before the first.
+  std::optional<double> correction_var_angle_;
   const std::atomic<bool>* interrupt_ = nullptr;
 };
 

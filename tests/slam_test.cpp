@@ -9,6 +9,7 @@
 #include "engine/grid_traversal.hpp"
 #include "engine/io/robot_json.hpp"
 #include "engine/quality.hpp"
+#include "engine/random.hpp"
 #include "engine/sensor_model.hpp"
 #include "scheduler/fixed_plan.hpp"
 #include "sim/scenario.hpp"
@@ -206,31 +207,44 @@ TEST(Matching, RefinementRecoversAWrongPoseWithinOneCellAndHalfADegree) {
   EXPECT_NEAR(blind.Best().pose.x, wrong.x, 1e-12);
 }
 
+RobotDescription LidarRobot() {
+  const auto robot = io::LoadRobot(std::string(SLAM_SOURCE_DIR) + "/config/lidar.robot.json");
+  if (!robot.ok()) ADD_FAILURE() << robot.Message();
+  return robot.ok() ? robot.value() : RobotDescription{};
+}
+
+// One noise-free sweep of a range scanner taken at `truth` (every beam a sample at the scan's
+// end, half a second long) while the odometry reports a motion from odom_begin to odom_end.
+Scan SweepAt(const RobotDescription& robot, const sim::World& world, const Pose2& truth, int index,
+             const Pose2& odom_begin, const Pose2& odom_end) {
+  const SensorTypeDescription& type = robot.sensor_types.at(robot.scanner.sensors[0].type);
+  Scan scan;
+  scan.index = index;
+  scan.t_begin = 0.5 * index;
+  scan.t_end = scan.t_begin + 0.5;
+  scan.odom_begin = odom_begin;
+  scan.odom_end = odom_end;
+  const Vec2 origin = truth.Transform({robot.scanner.offset_x_m, robot.scanner.offset_y_m});
+  for (int beam = 0; beam < type.beams.count; ++beam) {
+    ScanSample s;
+    s.t = scan.t_end;
+    s.odom = odom_end;
+    s.platform_angle_rad = DegToRad(type.beams.AngleDeg(beam));
+    const auto d = sim::RayDistance(world, origin, truth.theta + s.platform_angle_rad, 12.0);
+    s.raw[0] = d ? RangeToRaw(*d) : 0;
+    scan.samples.push_back(s);
+  }
+  return scan;
+}
+
 // A laser's readings are matched with at least a cell's deviation (SlamConfig::
 // range_sigma_min_cells): a pose off by about a cell loses little likelihood, where matched at
 // the laser's own centimetre it loses most. The infrared scanner's matching does not change.
 TEST(Matching, ALasersReadingsAreMatchedWithAtLeastACellsDeviation) {
-  const auto lidar = io::LoadRobot(std::string(SLAM_SOURCE_DIR) + "/config/lidar.robot.json");
-  ASSERT_TRUE(lidar.ok()) << lidar.Message();
-  const RobotDescription& robot = lidar.value();
-  const SensorTypeDescription& type = robot.sensor_types.at(robot.scanner.sensors[0].type);
+  const RobotDescription robot = LidarRobot();
   sim::World room = TestArena();
   const Pose2 truth{0.0213, -0.0117, DegToRad(7.0)};
-  // One sweep at rest: every beam a sample at the same pose.
-  Scan scan;
-  scan.t_begin = 0.0;
-  scan.t_end = 0.5;
-  scan.odom_begin = scan.odom_end = truth;
-  for (int beam = 0; beam < type.beams.count; ++beam) {
-    ScanSample s;
-    s.t = scan.t_end;
-    s.odom = truth;
-    s.platform_angle_rad = DegToRad(type.beams.AngleDeg(beam));
-    const Vec2 origin = truth.Transform({robot.scanner.offset_x_m, robot.scanner.offset_y_m});
-    const auto d = sim::RayDistance(room, origin, truth.theta + s.platform_angle_rad, 12.0);
-    s.raw[0] = d ? RangeToRaw(*d) : 0;
-    scan.samples.push_back(s);
-  }
+  const Scan scan = SweepAt(robot, room, truth, 0, truth, truth);
   const Pose2 off{truth.x + 0.03, truth.y - 0.02, truth.theta + DegToRad(1.0)};
   const auto loss = [&](double min_cells) {
     SlamConfig config;
@@ -257,6 +271,58 @@ TEST(Matching, ALasersReadingsAreMatchedWithAtLeastACellsDeviation) {
     scores[cells] = slam.ScoreScan(ir, off);
   }
   EXPECT_EQ(scores[0], scores[1]);
+}
+
+TEST(Matching, ALasersHeadingSearchFollowsTheCorrectionsItsMatchesMake) {
+  // The robot stands in the arena while its odometry claims turns that did not happen, drawn
+  // with a deviation of 1.5 degrees a scan (a good odometry), then 8 (a tracked robot's). The
+  // matches turn them back; the least heading search follows three times their root mean
+  // square, within the set's 12 degrees and no less than a quarter of it.
+  const RobotDescription lidar = LidarRobot();
+  const sim::World arena = TestArena();
+  SlamParams params = NoMotionNoise();
+  params.min_angle_uncertainty_deg = 12.0;
+  SlamConfig config;
+  config.resolution_m = 0.05;
+  const Pose2 truth{0.0213, -0.0117, DegToRad(7.0)};
+  ScanPlan plan;
+  plan.candidates = 300;
+  const auto run = [&](const RobotDescription& robot, auto&& scan_at) {
+    Slam slam(robot, params, config);
+    slam.Restore(DrawMap(arena, config.resolution_m), truth);
+    EXPECT_DOUBLE_EQ(slam.LeastSearchAngle(), DegToRad(12.0));  // before any match
+    Rng rng(7);
+    int index = 0;
+    const auto stand = [&](double error_deg, int scans) {
+      for (int k = 0; k < scans; ++k, ++index) {
+        const Pose2 believed = slam.Best().pose;
+        const Pose2 claimed{believed.x, believed.y,
+                            NormalizeAngle(believed.theta + DegToRad(rng.Normal(error_deg)))};
+        const ScanReport report = slam.ProcessScan(scan_at(index, believed, claimed), plan);
+        EXPECT_GT(report.matching_measurements, 30);
+      }
+      if (HasRangeScanner(robot)) {  // the laser's matches found the true heading each time
+        EXPECT_NEAR(NormalizeAngle(slam.Best().pose.theta - truth.theta), 0.0, DegToRad(1.0))
+            << error_deg << " degrees a scan";
+      }
+      return RadToDeg(slam.LeastSearchAngle());
+    };
+    return std::array<double, 2>{stand(1.5, 120), stand(8.0, 60)};
+  };
+  const auto [good, tracked] = run(lidar, [&](int index, const Pose2& from, const Pose2& to) {
+    return SweepAt(lidar, arena, truth, index, from, to);
+  });
+  EXPECT_GT(good, 3.5);  // about 3 x 1.5, above the quarter of 12
+  EXPECT_LT(good, 6.5);
+  EXPECT_GT(tracked, 11.0);  // 3 x 8 is more than the set's 12: the set's search again
+  EXPECT_LE(tracked, 12.0 + 1e-9);
+  // The marXbot's infrared scanner keeps the set's search whatever its matches correct.
+  const RobotDescription marxbot = testing::ShippedRobot();
+  const auto infrared = run(marxbot, [&](int index, const Pose2& from, const Pose2& to) {
+    return ScanAt(marxbot, arena, truth, index, from, to);
+  });
+  EXPECT_DOUBLE_EQ(infrared[0], 12.0);
+  EXPECT_DOUBLE_EQ(infrared[1], 12.0);
 }
 
 TEST(Matching, WhereTheReadingsCannotTellPosesApartTheOdometryWins) {
