@@ -141,7 +141,6 @@ Pose2 Recompose(const MotionDelta& m) {
 // Phase B's fit of the log-likelihood's peak (FittedPeak): it needs this many candidates, and
 // its peak may lie at most this many search spreads from the best candidate (farther, the
 // quadratic is extrapolated: the best candidate stays).
-constexpr size_t kPeakFitMinCandidates = 20;
 constexpr double kPeakFitMaxStep = 2.0;
 // Candidates whose log-likelihood lies more than this many units per matched reading below the
 // best one's are left out of the fit: they sit on the likelihood's floor, and where the peak is
@@ -456,10 +455,16 @@ std::vector<Vec2> Slam::ReadingPoints(const Scan& scan) const {
   return points;
 }
 
-std::vector<size_t> Slam::ThinByAngle(const Scan& scan,
-                                      const std::vector<Measurement>& usable) const {
+double Slam::ThinningStep() const { return DegToRad(params_.angle_between_scans_deg); }
+
+double Slam::NarrowedThinningStep() const {
+  const double set = DegToRad(params_.min_angle_uncertainty_deg);
+  return set > 0.0 ? ThinningStep() * LeastSearchAngle() / set : ThinningStep();
+}
+
+std::vector<size_t> Slam::ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable,
+                                      double min_step) const {
   std::vector<size_t> kept;
-  const double min_step = DegToRad(params_.angle_between_scans_deg);
   std::optional<double> last_angle;
   size_t last_sample = SIZE_MAX;
   bool keep = false;
@@ -527,13 +532,17 @@ double Slam::ScoreScan(const Scan& scan, const Pose2& end) const {
   const ScanPath path(scan, best.pose);
   const std::vector<Measurement> usable = CollectMeasurements(scan);
   std::vector<const Measurement*> matching;
-  for (size_t i : ThinByAngle(scan, usable)) matching.push_back(&usable[i]);
+  for (size_t i : ThinByAngle(scan, usable, ThinningStep())) matching.push_back(&usable[i]);
   return LogLikelihood(best.map, nullptr, path, path.CorrectionTo(end), matching);
 }
 
 ScanSummary Slam::Summarize(const Scan& scan) const {
   const std::vector<Measurement> usable = CollectMeasurements(scan);
-  return {static_cast<int>(usable.size()), static_cast<int>(ThinByAngle(scan, usable).size())};
+  const auto thinned = static_cast<int>(ThinByAngle(scan, usable, ThinningStep()).size());
+  const double narrowed = NarrowedThinningStep();
+  return {static_cast<int>(usable.size()), thinned,
+          narrowed < ThinningStep() ? static_cast<int>(ThinByAngle(scan, usable, narrowed).size())
+                                    : thinned};
 }
 
 void Slam::Resample(size_t wanted, uint64_t step, uint64_t stream) {
@@ -678,7 +687,12 @@ bool Slam::StartScan(const Scan& scan, const ScanPlan& plan, uint64_t step) {
 std::vector<const Slam::Measurement*> Slam::SelectMatching(const Scan& scan,
                                                            const std::vector<Measurement>& usable,
                                                            const ScanPlan& plan) const {
-  const std::vector<size_t> thinned = ThinByAngle(scan, usable);
+  // More readings than the set's thinning keeps: the plan asks for the narrowed search's.
+  std::vector<size_t> thinned = ThinByAngle(scan, usable, ThinningStep());
+  if (plan.matching_measurements > static_cast<int>(thinned.size()) &&
+      NarrowedThinningStep() < ThinningStep()) {
+    thinned = ThinByAngle(scan, usable, NarrowedThinningStep());
+  }
   std::vector<const Measurement*> matching;
   for (size_t i :
        SpreadEvenly(thinned.size(), static_cast<size_t>(std::max(0, plan.matching_measurements)))) {
@@ -898,7 +912,7 @@ Slam::MatchResult Slam::MatchScan(const Prediction& prediction,
     out.chosen[p] = candidate_pose[best[p]];
     // The particle's weight takes the best candidate's log-likelihood, wherever the fit moves it.
     out.chosen_ll[p] = candidate_ll[best[p]];
-    if (config_.fit_peak && n_candidates >= kPeakFitMinCandidates) {
+    if (config_.fit_peak && n_candidates >= static_cast<size_t>(kPeakFitMinCandidates)) {
       const size_t begin = p * n_candidates;
       const std::optional<Pose2> peak =
           FittedPeak(std::span(candidate_pose).subspan(begin, n_candidates),

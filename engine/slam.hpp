@@ -78,7 +78,14 @@ struct RayCounts {
 struct ScanSummary {
   int usable_measurements = 0;    // readings inside their sensor's use window (update rays)
   int matching_measurements = 0;  // of those, kept for matching after thinning by angle
+  // Kept after the lighter thinning of a range scanner whose heading search has narrowed
+  // (Slam::LeastSearchAngle): a narrower search needs fewer candidates, so a plan may match
+  // more readings with each (SplitQuota). Not above matching_measurements otherwise.
+  int matching_available = 0;
 };
+
+/// Phase B fits the log-likelihood's peak when a particle has at least this many candidates.
+inline constexpr int kPeakFitMinCandidates = 20;
 
 /// What the engine did with one scan.
 struct ScanReport {
@@ -199,7 +206,14 @@ class Slam {
   std::vector<const Measurement*> SelectMatching(const Scan& scan,
                                                  const std::vector<Measurement>& usable,
                                                  const ScanPlan& plan) const;
-  std::vector<size_t> ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable) const;
+  /// The readings kept for matching: the first, then each at least `step` (rad) of platform
+  /// angle past the last kept.
+  std::vector<size_t> ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable,
+                                  double step) const;
+  /// ThinByAngle's step: the set's angle between scans, and the lighter one of a narrowed heading
+  /// search (the set's times LeastSearchAngle over the set's minimum angle uncertainty).
+  double ThinningStep() const;
+  double NarrowedThinningStep() const;
   /// Phase A: each particle's path through the scan and its end pose sampled from the motion
   /// model (noise-free without refinement: odometry-only mapping).
   Prediction PredictMotion(const Scan& scan, bool refine, uint64_t step) const;

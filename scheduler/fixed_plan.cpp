@@ -7,7 +7,9 @@ namespace slam {
 int64_t PlannedRays(const ScanPlan& plan, const ScanSummary& summary) {
   const int64_t particles = std::max(1, plan.particles);
   const int64_t updates = std::min(plan.update_rays, summary.usable_measurements);
-  const int64_t matching = std::min(plan.matching_measurements, summary.matching_measurements);
+  const int64_t matching =
+      std::min(plan.matching_measurements,
+               std::max(summary.matching_measurements, summary.matching_available));
   // The engine skips matching when there is nothing to choose between.
   const bool matches = plan.refine && matching > 0 && (plan.candidates > 1 || particles > 1);
   return particles * (updates + (matches ? int64_t{std::max(1, plan.candidates)} * matching : 0));
@@ -47,7 +49,17 @@ ScanPlan SplitQuota(const ScanSummary& summary, int64_t quota, int particles) {
   }
   int64_t candidates = left / matching;
   int64_t measurements = matching;
-  if (left - candidates * matching > per_particle / 20) {
+  // A range scanner whose heading search has narrowed needs as many times fewer candidates as
+  // its thinning keeps more readings (the candidates' density over the search stays), each
+  // matching more of them, as long as the peak fit keeps the candidates it needs.
+  const int64_t available = summary.matching_available;
+  if (available > matching && candidates > kPeakFitMinCandidates) {
+    const int64_t wanted =
+        std::max<int64_t>(kPeakFitMinCandidates, candidates * matching / available);
+    measurements = std::min(available, left / wanted);
+    candidates = left / measurements;
+  }
+  if (left - candidates * measurements > per_particle / 20) {
     // Whole candidates leave too much unused: one more candidate, slightly fewer measurements.
     ++candidates;
     measurements = left / candidates;

@@ -277,7 +277,8 @@ TEST(Matching, ALasersHeadingSearchFollowsTheCorrectionsItsMatchesMake) {
   // The robot stands in the arena while its odometry claims turns that did not happen, drawn
   // with a deviation of 1.5 degrees a scan (a good odometry), then 8 (a tracked robot's). The
   // matches turn them back; the least heading search follows three times their root mean
-  // square, within the set's 12 degrees and no less than a quarter of it.
+  // square, within the set's 12 degrees and no less than a quarter of it, and a set's thinning
+  // by angle lightens as much while it is narrower.
   const RobotDescription lidar = LidarRobot();
   const sim::World arena = TestArena();
   SlamParams params = NoMotionNoise();
@@ -287,6 +288,11 @@ TEST(Matching, ALasersHeadingSearchFollowsTheCorrectionsItsMatchesMake) {
   const Pose2 truth{0.0213, -0.0117, DegToRad(7.0)};
   ScanPlan plan;
   plan.candidates = 300;
+  struct Outcome {
+    double good = 0.0, tracked = 0.0;  // the least heading search after each stretch (degrees)
+    ScanSummary narrowed;              // of a scan after the good stretch, thinned to 4 degrees
+    int matched = 0;                   // readings that scan matched when a plan asked for all
+  };
   const auto run = [&](const RobotDescription& robot, auto&& scan_at) {
     Slam slam(robot, params, config);
     slam.Restore(DrawMap(arena, config.resolution_m), truth);
@@ -307,22 +313,46 @@ TEST(Matching, ALasersHeadingSearchFollowsTheCorrectionsItsMatchesMake) {
       }
       return RadToDeg(slam.LeastSearchAngle());
     };
-    return std::array<double, 2>{stand(1.5, 120), stand(8.0, 60)};
+    Outcome out;
+    out.good = stand(1.5, 120);
+    // What a set thinning to one reading in 4 degrees keeps now, and what the narrowed search
+    // lets a plan match instead.
+    SlamParams thinning = params;
+    thinning.angle_between_scans_deg = 4.0;
+    slam.SetParams(thinning);
+    const Scan still = scan_at(index, slam.Best().pose, slam.Best().pose);
+    out.narrowed = slam.Summarize(still);
+    ScanPlan more = plan;
+    more.candidates = 20;
+    more.matching_measurements = out.narrowed.matching_available;
+    out.matched = slam.ProcessScan(still, more).matching_measurements;
+    ++index;
+    slam.SetParams(params);
+    out.tracked = stand(8.0, 60);
+    return out;
   };
-  const auto [good, tracked] = run(lidar, [&](int index, const Pose2& from, const Pose2& to) {
+  const Outcome laser = run(lidar, [&](int index, const Pose2& from, const Pose2& to) {
     return SweepAt(lidar, arena, truth, index, from, to);
   });
-  EXPECT_GT(good, 3.5);  // about 3 x 1.5, above the quarter of 12
-  EXPECT_LT(good, 6.5);
-  EXPECT_GT(tracked, 11.0);  // 3 x 8 is more than the set's 12: the set's search again
-  EXPECT_LE(tracked, 12.0 + 1e-9);
-  // The marXbot's infrared scanner keeps the set's search whatever its matches correct.
+  EXPECT_GT(laser.good, 3.5);  // about 3 x 1.5, above the quarter of 12
+  EXPECT_LT(laser.good, 6.5);
+  EXPECT_GT(laser.tracked, 11.0);  // 3 x 8 is more than the set's 12: the set's search again
+  EXPECT_LE(laser.tracked, 12.0 + 1e-9);
+  // 360 beams a degree apart: 90 at the set's 4 degrees, and at 4 x good / 12 degrees (1.6,
+  // so every second beam) as many more as the search narrowed.
+  EXPECT_NEAR(laser.narrowed.matching_measurements, 90, 2);
+  EXPECT_NEAR(laser.narrowed.matching_available, 360 / std::ceil(4.0 * laser.good / 12.0), 2);
+  EXPECT_EQ(laser.matched, laser.narrowed.matching_available);
+  // The marXbot's infrared scanner keeps the set's search and thinning whatever its matches
+  // correct.
   const RobotDescription marxbot = testing::ShippedRobot();
-  const auto infrared = run(marxbot, [&](int index, const Pose2& from, const Pose2& to) {
+  const Outcome infrared = run(marxbot, [&](int index, const Pose2& from, const Pose2& to) {
     return ScanAt(marxbot, arena, truth, index, from, to);
   });
-  EXPECT_DOUBLE_EQ(infrared[0], 12.0);
-  EXPECT_DOUBLE_EQ(infrared[1], 12.0);
+  EXPECT_DOUBLE_EQ(infrared.good, 12.0);
+  EXPECT_DOUBLE_EQ(infrared.tracked, 12.0);
+  EXPECT_EQ(infrared.narrowed.matching_available, infrared.narrowed.matching_measurements);
+  EXPECT_EQ(infrared.matched, infrared.narrowed.matching_measurements);
 }
 
 TEST(Matching, WhereTheReadingsCannotTellPosesApartTheOdometryWins) {
