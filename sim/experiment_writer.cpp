@@ -107,6 +107,7 @@ Result<void> WriteSimulatedExperiment(const std::string& dir, const World& world
   meta["source"] = "sim";
   meta["seed"] = config.seed;
   meta["odometry"] = config.odometry.profile;
+  if (config.people > 0) meta["people"] = config.people;
 
   const std::string base = (std::filesystem::path(dir) / "").string();
   for (const auto& [name, text] :

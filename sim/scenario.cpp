@@ -30,6 +30,7 @@ enum Stream : uint64_t {
   kStreamRectifier = 8,
   kStreamSystematic = 9,  // the per-run scale errors
   kStreamTurnDrift = 10,
+  kStreamPeople = 11,
 };
 
 constexpr double kControlDt = 0.01;       // the motion is a constant twist over each step
@@ -281,6 +282,69 @@ LaserSweep SenseSweep(const World& world, const std::vector<Vec2>& corners,
   return sweep;
 }
 
+// People (ScenarioConfig::people): legs of kLegRadiusM, kLegSpreadM apart across the walking
+// direction; a walker keeps kWalkerClearanceM from walls and kWalkerRobotM from the robot,
+// and wanders by kWalkerTurnSigma (rad per square root of a second).
+constexpr int kMaxPeople = 50;
+constexpr double kLegRadiusM = 0.06;
+constexpr double kLegSpreadM = 0.25;
+constexpr double kWalkerClearanceM = 0.3;
+constexpr double kWalkerRobotM = 0.5;
+constexpr double kWalkerTurnSigma = 0.5;
+
+struct Walker {
+  Vec2 at = Vec2::Zero();
+  double heading = 0.0;
+};
+
+/// A walker somewhere the robot at `start` sees in a straight line, at least a metre away and
+/// clear of walls (nullopt when the robot stands where no such place is found).
+std::optional<Walker> PlaceWalker(const World& world, const Vec2& start, Rng& rng) {
+  for (int i = 0; i < 1000; ++i) {
+    const double angle = 2.0 * kPi * rng.Uniform();
+    const double free = RayDistance(world, start, angle, 20.0).value_or(20.0);
+    const double distance = 1.0 + (free - 1.0 - kWalkerClearanceM) * rng.Uniform();
+    const double heading = 2.0 * kPi * rng.Uniform();
+    if (free < 1.0 + kWalkerClearanceM) continue;
+    const Vec2 at = start + distance * Vec2(std::cos(angle), std::sin(angle));
+    if (ClearanceAt(world, at) >= kWalkerClearanceM) return Walker{at, heading};
+  }
+  return std::nullopt;
+}
+
+/// One control step of a walker: on along its heading, or, where that would take it too close to
+/// a wall or to the robot, standing while it turns to a heading that does not.
+void Walk(const World& world, const Vec2& robot, double speed, Walker& walker, Rng& rng) {
+  walker.heading += rng.Gaussian(kWalkerTurnSigma * std::sqrt(kControlDt));
+  const auto clear = [&](const Vec2& p) {
+    return ClearanceAt(world, p) >= kWalkerClearanceM && (p - robot).norm() >= kWalkerRobotM;
+  };
+  const Vec2 next =
+      walker.at + speed * kControlDt * Vec2(std::cos(walker.heading), std::sin(walker.heading));
+  if (clear(next) || !clear(walker.at)) {
+    walker.at = next;  // a walker the robot came up to walks on out of its way
+    return;
+  }
+  for (int i = 0; i < 16; ++i) {
+    const double heading = 2.0 * kPi * rng.Uniform();
+    if (clear(walker.at + 0.5 * Vec2(std::cos(heading), std::sin(heading)))) {
+      walker.heading = heading;
+      return;
+    }
+  }
+}
+
+/// The walkers' legs, as the circles after the world's own in `sensed`.
+void PlaceLegs(const std::vector<Walker>& walkers, size_t first, World& sensed) {
+  sensed.circles.resize(first + 2 * walkers.size());
+  for (size_t i = 0; i < walkers.size(); ++i) {
+    const Vec2 side =
+        0.5 * kLegSpreadM * Vec2(-std::sin(walkers[i].heading), std::cos(walkers[i].heading));
+    sensed.circles[first + 2 * i] = {walkers[i].at + side, kLegRadiusM};
+    sensed.circles[first + 2 * i + 1] = {walkers[i].at - side, kLegRadiusM};
+  }
+}
+
 }  // namespace
 
 std::vector<std::string> ScenarioConfig::Validate() const {
@@ -319,6 +383,10 @@ std::vector<std::string> ScenarioConfig::Validate() const {
   non_negative(floor_noise_raw, "floor_noise_raw");
   non_negative(tracker_noise_m, "tracker_noise_m");
   non_negative(tracker_noise_rad, "tracker_noise_rad");
+  if (people < 0 || people > kMaxPeople) {
+    errors.push_back("/people: must be in [0, " + std::to_string(kMaxPeople) + "]");
+  }
+  positive(person_speed_m_s, "person_speed_m_s");
   if (!(corner_hole_probability >= 0.0 && corner_hole_probability <= 1.0)) {
     errors.push_back("/corner_hole_probability: must be in [0, 1]");
   }
@@ -391,7 +459,14 @@ struct Simulator::State {
         left_offset(static_cast<int32_t>(static_cast<uint32_t>(ticks_rng.Next()))),
         right_offset(static_cast<int32_t>(static_cast<uint32_t>(ticks_rng.Next()))),
         pose(StartPose(motion_world, c, Rng::ForStream(c.seed, kStreamStart))),
-        last_gyro_theta(pose.theta) {
+        last_gyro_theta(pose.theta),
+        people_rng(Rng::ForStream(c.seed, kStreamPeople)),
+        sensed(world_in) {
+    for (int i = 0; i < c.people; ++i) {
+      const std::optional<Walker> placed = PlaceWalker(world, pose.translation(), people_rng);
+      if (placed) walkers.push_back(*placed);
+    }
+    PlaceLegs(walkers, world.circles.size(), sensed);
     Rng systematic = Rng::ForStream(c.seed, kStreamSystematic);
     translation_scale = systematic.Gaussian(c.odometry.translation_scale_sigma);
     gyro_scale = systematic.Gaussian(c.odometry.gyro_scale_sigma);
@@ -425,6 +500,9 @@ struct Simulator::State {
   int64_t next_odometry = 0, next_sample = 0, next_tracker = 0;
   double last_gyro_t = 0.0;
   double last_gyro_theta;
+  Rng people_rng;
+  std::vector<Walker> walkers;
+  World sensed;  // the world with the walkers' legs, as the sensors see it
 };
 
 Simulator::Simulator(const World& world, const RobotDescription& robot,
@@ -449,6 +527,13 @@ void Simulator::Step(ScenarioOutput& out) {
   const double t0 = static_cast<double>(st.step) * kControlDt;
   const double t1 = static_cast<double>(st.step + 1) * kControlDt;
   const Pose2 pose = st.pose;
+
+  if (!st.walkers.empty()) {
+    for (Walker& walker : st.walkers) {
+      Walk(st.world, pose.translation(), config.person_speed_m_s, walker, st.people_rng);
+    }
+    PlaceLegs(st.walkers, st.world.circles.size(), st.sensed);
+  }
 
   const std::pair<double, double> command = st.wanderer.Command(st.motion_world, pose);
   double v = command.first;
@@ -538,7 +623,7 @@ void Simulator::Step(ScenarioOutput& out) {
       const double t = static_cast<double>(st.next_sample) / config.scans_per_s;
       const Pose2 p = Move(pose, v, w, extra, t - t0);
       out.sweeps.push_back(
-          SenseSweep(st.world, st.corners, robot, first_type, config, p, t, st.sensor_rng));
+          SenseSweep(st.sensed, st.corners, robot, first_type, config, p, t, st.sensor_rng));
       out.true_path.push_back({t, Normalized(p)});
       ++st.next_sample;
     }
@@ -557,7 +642,7 @@ void Simulator::Step(ScenarioOutput& out) {
       const double angle = p.theta + platform + DegToRad(sensor.angle_deg);
       const Vec2 origin =
           p.translation() + robot.scanner.mount_radius_m * Vec2(std::cos(angle), std::sin(angle));
-      r.raw[s] = SenseRaw(st.world, st.corners, robot.sensor_types.at(sensor.type), config, origin,
+      r.raw[s] = SenseRaw(st.sensed, st.corners, robot.sensor_types.at(sensor.type), config, origin,
                           angle, st.sensor_rng);
     }
     r.rectifier_mv = static_cast<uint16_t>(

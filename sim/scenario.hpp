@@ -86,6 +86,13 @@ struct ScenarioConfig {
   double near_floor_fraction = 0.4;  // below the minimum range the raw falls linearly
                                      // to this fraction of the table's first raw at 0 m
 
+  // People walking about (0: none): each a pair of legs, discs a range scanner or a Sharp
+  // sensor sees where they cross its beam, walking at person_speed_m_s and turning away from
+  // walls and from the robot. They are in no map: what a recorded lab has and a drawn world
+  // lacks.
+  int people = 0;
+  double person_speed_m_s = 1.0;
+
   double tracker_noise_m = 0.001;
   double tracker_noise_rad = 0.005;
 

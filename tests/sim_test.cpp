@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/io/robot_json.hpp"
 #include "engine/pose.hpp"
 #include "engine/robot.hpp"
 #include "engine/sensor_model.hpp"
@@ -795,6 +796,55 @@ TEST(ScenarioTest, ACarpetMakesTheEncodersReadLong) {
     const double encoders = ticks / robot.base.ticks_per_m;
     EXPECT_NEAR(encoders / truth, expected, 0.004) << "floors: " << world.floors.size();
   }
+}
+
+TEST(ScenarioTest, PeopleWalkingAboutBlockALasersBeamsAndLeaveTheRobotAlone) {
+  // A Pioneer-like robot with a laser in the flat for two minutes, with three people walking
+  // about and without: the same motion and odometry, and beams that read shorter where a leg
+  // crosses them, never longer.
+  const auto pioneer =
+      io::LoadRobot(std::string(SLAM_SOURCE_DIR) + "/config/pioneer-lms.robot.json");
+  ASSERT_TRUE(pioneer.ok()) << pioneer.Message();
+  ScenarioConfig config = ShortRun(120.0, 4);
+  config.speed_m_s = 0.4;
+  config.turn_rate_rad_s = 0.5;
+  config.scans_per_s = 1.0;
+  const World flat = *BuiltinWorld("flat");
+  const ScenarioOutput empty = RunScenario(flat, pioneer.value(), config);
+  config.people = 3;
+  const ScenarioOutput busy = RunScenario(flat, pioneer.value(), config);
+  ASSERT_EQ(busy.odometry.size(), empty.odometry.size());
+  ASSERT_EQ(busy.true_path.size(), empty.true_path.size());
+  ASSERT_EQ(busy.sweeps.size(), empty.sweeps.size());
+  for (size_t i = 0; i < busy.odometry.size(); ++i) {
+    ASSERT_EQ(busy.odometry[i].left_ticks, empty.odometry[i].left_ticks) << i;
+    ASSERT_EQ(busy.odometry[i].right_ticks, empty.odometry[i].right_ticks) << i;
+  }
+  for (size_t i = 0; i < busy.true_path.size(); ++i) {
+    ASSERT_EQ(busy.true_path[i].pose.x, empty.true_path[i].pose.x) << i;
+  }
+  int beams = 0, shorter = 0, longer = 0, sweeps_seeing_people = 0;
+  for (size_t s = 0; s < busy.sweeps.size(); ++s) {
+    bool seen = false;
+    for (size_t b = 0; b < busy.sweeps[s].ranges.size(); ++b) {
+      const double with = busy.sweeps[s].ranges[b], without = empty.sweeps[s].ranges[b];
+      ++beams;
+      shorter += with < without - 0.05;
+      longer += with > without + 0.05;
+      seen = seen || with < without - 0.05;
+    }
+    sweeps_seeing_people += seen;
+  }
+  EXPECT_EQ(longer, 0);
+  EXPECT_GT(shorter, beams / 1000);  // seen: legs a few beams wide each
+  EXPECT_LT(shorter, beams / 20);    // but a few legs, not walls
+  EXPECT_GT(sweeps_seeing_people, static_cast<int>(busy.sweeps.size()) / 10);
+  // Their number is checked.
+  ScenarioConfig crowd;
+  crowd.people = 51;
+  EXPECT_EQ(crowd.Validate(), std::vector<std::string>{"/people: must be in [0, 50]"});
+  crowd.people = -1;
+  EXPECT_EQ(crowd.Validate(), std::vector<std::string>{"/people: must be in [0, 50]"});
 }
 
 TEST(DatasetTest, SetsAreDisjointAndHoldTheirWorlds) {

@@ -89,6 +89,12 @@ int main(int argc, char** argv) {
   app.add_option("--turn-rate", turn_rate_rad_s, "turning rate in place, rad/s")
       ->capture_default_str()
       ->check(CLI::Range(0.05, 5.0));
+  int people = 0;
+  app.add_option("--people", people,
+                 "people walking about at 1 m/s, their legs seen by the sensors and in no map "
+                 "(a lab's staff; 0 for an empty building)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 50));
   app.add_option("--odometry", odometry,
                  "how the odometry errs: tracked (a tracked robot with a MEMS gyro: dead "
                  "reckoning drifts decimetres to metres in 300 s) or gentle (the original "
@@ -125,6 +131,7 @@ int main(int argc, char** argv) {
   base.scans_per_s = scans_per_s;
   base.speed_m_s = speed_m_s;
   base.turn_rate_rad_s = turn_rate_rad_s;
+  base.people = people;
 
   std::vector<Job> jobs;
   // Each set's directory and the jobs of its index.json.
