@@ -303,9 +303,9 @@ std::optional<Walker> PlaceWalker(const World& world, const Vec2& start, Rng& rn
   for (int i = 0; i < 1000; ++i) {
     const double angle = 2.0 * kPi * rng.Uniform();
     const double free = RayDistance(world, start, angle, 20.0).value_or(20.0);
-    const double distance = 1.0 + (free - 1.0 - kWalkerClearanceM) * rng.Uniform();
-    const double heading = 2.0 * kPi * rng.Uniform();
+    const double along = rng.Uniform(), heading = 2.0 * kPi * rng.Uniform();
     if (free < 1.0 + kWalkerClearanceM) continue;
+    const double distance = 1.0 + (free - 1.0 - kWalkerClearanceM) * along;
     const Vec2 at = start + distance * Vec2(std::cos(angle), std::sin(angle));
     if (ClearanceAt(world, at) >= kWalkerClearanceM) return Walker{at, heading};
   }
@@ -313,21 +313,25 @@ std::optional<Walker> PlaceWalker(const World& world, const Vec2& start, Rng& rn
 }
 
 /// One control step of a walker: on along its heading, or, where that would take it too close to
-/// a wall or to the robot, standing while it turns to a heading that does not.
+/// a wall or towards the robot within kWalkerRobotM, standing while it turns to a heading that
+/// does not (a walker the robot came up to walks away from it).
 void Walk(const World& world, const Vec2& robot, double speed, Walker& walker, Rng& rng) {
   walker.heading += rng.Gaussian(kWalkerTurnSigma * std::sqrt(kControlDt));
-  const auto clear = [&](const Vec2& p) {
-    return ClearanceAt(world, p) >= kWalkerClearanceM && (p - robot).norm() >= kWalkerRobotM;
+  const auto open = [&](const Vec2& to) {
+    const double near = (to - robot).norm();
+    return ClearanceAt(world, to) >= kWalkerClearanceM &&
+           (near >= kWalkerRobotM || near > (walker.at - robot).norm());
   };
-  const Vec2 next =
-      walker.at + speed * kControlDt * Vec2(std::cos(walker.heading), std::sin(walker.heading));
-  if (clear(next) || !clear(walker.at)) {
-    walker.at = next;  // a walker the robot came up to walks on out of its way
+  const auto step = [&](double heading, double length) -> Vec2 {
+    return walker.at + length * Vec2(std::cos(heading), std::sin(heading));
+  };
+  if (open(step(walker.heading, speed * kControlDt))) {
+    walker.at = step(walker.heading, speed * kControlDt);
     return;
   }
   for (int i = 0; i < 16; ++i) {
     const double heading = 2.0 * kPi * rng.Uniform();
-    if (clear(walker.at + 0.5 * Vec2(std::cos(heading), std::sin(heading)))) {
+    if (open(step(heading, 0.5))) {
       walker.heading = heading;
       return;
     }
