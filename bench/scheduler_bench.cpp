@@ -59,7 +59,8 @@ void BM_SchedulerPlan(benchmark::State& state) {
     report.particles = plan.particles;
     report.candidates = plan.candidates;
     report.matching_measurements =
-        std::min(plan.matching_measurements, summary.matching_measurements);
+        std::min(plan.matching_measurements,
+                 std::max(summary.matching_measurements, summary.matching_available));
     report.update_rays = std::min(plan.update_rays, summary.usable_measurements);
     report.rays.matching = int64_t{plan.particles} * plan.candidates * report.matching_measurements;
     report.rays.update = int64_t{plan.particles} * report.update_rays;

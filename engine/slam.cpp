@@ -68,6 +68,10 @@ constexpr double kLeastSearchShare = 0.25;
 // Scans that drove less than this tell a drift per metre little: their correction, weighted
 // down, is mostly the match's jitter (the bound over 5 cm is half a degree).
 constexpr double kMinHeadingDriftStepM = 0.05;
+// A scan whose odometry moved less than kMinHeadingDriftStepM and turned less than this stood
+// still: its heading correction is the match's jitter, not the odometry's error, and does not
+// narrow the search (a robot parked for a minute would set off with the narrowest one).
+constexpr double kStillTurnDeg = 1.0;
 
 constexpr double Square(double x) { return x * x; }
 // The largest MatchWindow a particle gets (4 bytes a cell: 16 MiB), whatever its rays: more
@@ -138,9 +142,9 @@ Pose2 Recompose(const MotionDelta& m) {
   return {m.trans * std::cos(m.rot1), m.trans * std::sin(m.rot1), NormalizeAngle(m.rot1 + m.rot2)};
 }
 
-// Phase B's fit of the log-likelihood's peak (FittedPeak): it needs this many candidates, and
-// its peak may lie at most this many search spreads from the best candidate (farther, the
-// quadratic is extrapolated: the best candidate stays).
+// Phase B's fit of the log-likelihood's peak (FittedPeak): it needs kPeakFitMinCandidates
+// (slam.hpp), and its peak may lie at most this many search spreads from the best candidate
+// (farther, the quadratic is extrapolated: the best candidate stays).
 constexpr double kPeakFitMaxStep = 2.0;
 // Candidates whose log-likelihood lies more than this many units per matched reading below the
 // best one's are left out of the fit: they sit on the likelihood's floor, and where the peak is
@@ -457,9 +461,24 @@ std::vector<Vec2> Slam::ReadingPoints(const Scan& scan) const {
 
 double Slam::ThinningStep() const { return DegToRad(params_.angle_between_scans_deg); }
 
-double Slam::NarrowedThinningStep() const {
+double Slam::NarrowedThinningStep(const Scan& scan) const {
   const double set = DegToRad(params_.min_angle_uncertainty_deg);
-  return set > 0.0 ? ThinningStep() * LeastSearchAngle() / set : ThinningStep();
+  const double least = LeastSearchAngle();
+  if (!(least < set)) return ThinningStep();
+  // The ratio of the searches this scan runs with the narrowed least and with the set's: a
+  // turn's or a blind stretch's drift widens both alike.
+  const double drift = DriftAngle(scan);
+  const double most = DegToRad(kMaxSearchAngleDeg);
+  return ThinningStep() * std::min(std::max(drift, least), most) /
+         std::min(std::max(drift, set), most);
+}
+
+double Slam::DriftAngle(const Scan& scan) const {
+  const MotionDelta motion = Decompose(Between(scan.odom_begin, scan.odom_end));
+  const double angle_const = DegToRad(params_.angle_error_const_deg);
+  const double rot1 = params_.angle_error_ratio * std::abs(motion.rot1) + angle_const;
+  const double rot2 = params_.angle_error_ratio * std::abs(motion.rot2) + angle_const;
+  return std::sqrt(Square(rot1) + Square(rot2) + unmatched_var_angle_);
 }
 
 std::vector<size_t> Slam::ThinByAngle(const Scan& scan, const std::vector<Measurement>& usable,
@@ -539,7 +558,7 @@ double Slam::ScoreScan(const Scan& scan, const Pose2& end) const {
 ScanSummary Slam::Summarize(const Scan& scan) const {
   const std::vector<Measurement> usable = CollectMeasurements(scan);
   const auto thinned = static_cast<int>(ThinByAngle(scan, usable, ThinningStep()).size());
-  const double narrowed = NarrowedThinningStep();
+  const double narrowed = NarrowedThinningStep(scan);
   return {static_cast<int>(usable.size()), thinned,
           narrowed < ThinningStep() ? static_cast<int>(ThinByAngle(scan, usable, narrowed).size())
                                     : thinned};
@@ -637,7 +656,10 @@ ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
     const double most = DegToRad(per_metre ? kMaxHeadingDriftDegM : kMaxHeadingDriftDegS);
     const double weight =
         prediction.drift_span / std::max(std::abs(prediction.drift_span), kMinHeadingDriftStepM);
-    if (HasRangeScanner(robot_)) {
+    const Pose2 odometry = Between(scan.odom_begin, scan.odom_end);
+    const bool still = std::hypot(odometry.x, odometry.y) < kMinHeadingDriftStepM &&
+                       std::abs(odometry.theta) < DegToRad(kStillTurnDeg);
+    if (HasRangeScanner(robot_) && !still) {
       double mean_sq = 0.0;
       for (size_t p = 0; p < particles_.size(); ++p) {
         mean_sq += Square(NormalizeAngle(match.chosen[p].theta - prediction.nominal[p].theta));
@@ -687,11 +709,13 @@ bool Slam::StartScan(const Scan& scan, const ScanPlan& plan, uint64_t step) {
 std::vector<const Slam::Measurement*> Slam::SelectMatching(const Scan& scan,
                                                            const std::vector<Measurement>& usable,
                                                            const ScanPlan& plan) const {
-  // More readings than the set's thinning keeps: the plan asks for the narrowed search's.
+  // A plan asking for more readings than the set's thinning keeps (not merely unlimited) asks
+  // for the narrowed search's.
   std::vector<size_t> thinned = ThinByAngle(scan, usable, ThinningStep());
-  if (plan.matching_measurements > static_cast<int>(thinned.size()) &&
-      NarrowedThinningStep() < ThinningStep()) {
-    thinned = ThinByAngle(scan, usable, NarrowedThinningStep());
+  const double narrowed = NarrowedThinningStep(scan);
+  if (plan.matching_measurements != ScanPlan::kUnlimited &&
+      plan.matching_measurements > static_cast<int>(thinned.size()) && narrowed < ThinningStep()) {
+    thinned = ThinByAngle(scan, usable, narrowed);
   }
   std::vector<const Measurement*> matching;
   for (size_t i :
@@ -713,8 +737,7 @@ Slam::Prediction Slam::PredictMotion(const Scan& scan, bool refine, uint64_t ste
   out.drift_span =
       robot_.base.heading_from_gyro ? std::max(0.0, scan.t_end - scan.t_begin) : motion.trans;
   const double drift_pos = std::sqrt(Square(out.sigma_trans) + unmatched_var_pos_);
-  const double drift_angle =
-      std::sqrt(Square(out.sigma_rot1) + Square(out.sigma_rot2) + unmatched_var_angle_);
+  const double drift_angle = DriftAngle(scan);
   const double min_angle = LeastSearchAngle();
   out.search_pos = std::clamp(drift_pos, params_.min_pos_uncertainty_m, kMaxSearchPosM);
   out.search_angle = std::clamp(drift_angle, min_angle, DegToRad(kMaxSearchAngleDeg));

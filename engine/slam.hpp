@@ -63,7 +63,8 @@ struct ScanPlan {
   int particles = 1;                       // particle count from this scan on (a change
                                            // resamples before the scan)
   int candidates = 1;                      // pose candidates per particle (1 = no refinement)
-  int matching_measurements = kUnlimited;  // cap on measurements matched per candidate
+  int matching_measurements = kUnlimited;  // cap on measurements matched per candidate (above
+                                           // the set's thinning: a narrowed search's readings)
   int update_rays = kUnlimited;            // cap on grid-update rays per particle
   bool refine = true;                      // false: phase B off, odometry-only mapping
 };
@@ -151,7 +152,9 @@ class Slam {
   /// the scan ended at `end` (from the particle's current pose). For diagnostics and tests.
   double ScoreScan(const Scan& scan, const Pose2& end) const;
 
-  /// Counts what a scan offers, for the scheduler to plan with.
+  /// Counts what a scan offers, for the scheduler to plan with. For a range scanner it also
+  /// depends on the corrections earlier matches made (matching_available): it holds for the
+  /// next ProcessScan with the same parameters.
   ScanSummary Summarize(const Scan& scan) const;
 
   /// Where the scan's readings (those inside their sensor's use window) lie in the robot's
@@ -213,7 +216,10 @@ class Slam {
   /// ThinByAngle's step: the set's angle between scans, and the lighter one of a narrowed heading
   /// search (the set's times LeastSearchAngle over the set's minimum angle uncertainty).
   double ThinningStep() const;
-  double NarrowedThinningStep() const;
+  double NarrowedThinningStep(const Scan& scan) const;
+  /// Deviation of the heading's drift over the scan (rad): the motion model's for its
+  /// odometry, plus the drift left uncorrected since the last informative match.
+  double DriftAngle(const Scan& scan) const;
   /// Phase A: each particle's path through the scan and its end pose sampled from the motion
   /// model (noise-free without refinement: odometry-only mapping).
   Prediction PredictMotion(const Scan& scan, bool refine, uint64_t step) const;

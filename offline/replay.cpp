@@ -83,7 +83,10 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
       ++switches;
     }
     ScanSummary summary = engine.Summarize(scan);
-    if (!options.refine) summary.matching_measurements = 0;  // phase B off: nothing to match
+    if (!options.refine) {  // phase B off: nothing to match
+      summary.matching_measurements = 0;
+      summary.matching_available = 0;
+    }
     ScanPlan plan = scheduler.Plan(summary, scan.t_end - scan.t_begin, engine.params());
     plan.refine = options.refine;
     const ScanReport report = engine.ProcessScan(scan, plan);

@@ -15,6 +15,9 @@ namespace slam {
 /// the rest; when whole candidates would leave more than 5 % of a particle's share unused, the
 /// matching measurements are thinned so that one more candidate fits. When not even two
 /// candidates per particle fit, matching measurements are thinned first, then update rays.
+/// A range scanner whose heading search has narrowed (summary.matching_available above
+/// summary.matching_measurements) gets as many times fewer candidates as it has more readings,
+/// each matching more of them, down to kPeakFitMinCandidates.
 ScanPlan SplitQuota(const ScanSummary& summary, int64_t quota, int particles);
 
 /// The paper's policy: SplitQuota with the particle count of `params`.

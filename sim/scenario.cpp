@@ -302,10 +302,10 @@ struct Walker {
 std::optional<Walker> PlaceWalker(const World& world, const Vec2& start, Rng& rng) {
   for (int i = 0; i < 1000; ++i) {
     const double angle = 2.0 * kPi * rng.Uniform();
-    const double free = RayDistance(world, start, angle, 20.0).value_or(20.0);
+    const std::optional<double> free = RayDistance(world, start, angle, 20.0);
     const double along = rng.Uniform(), heading = 2.0 * kPi * rng.Uniform();
-    if (free < 1.0 + kWalkerClearanceM) continue;
-    const double distance = 1.0 + (free - 1.0 - kWalkerClearanceM) * along;
+    if (!free || *free < 1.0 + kWalkerClearanceM) continue;  // none within 20 m: open edge
+    const double distance = 1.0 + (*free - 1.0 - kWalkerClearanceM) * along;
     const Vec2 at = start + distance * Vec2(std::cos(angle), std::sin(angle));
     if (ClearanceAt(world, at) >= kWalkerClearanceM) return Walker{at, heading};
   }

@@ -84,7 +84,7 @@ TEST(FixedPlan, ANarrowedSearchTradesCandidatesForReadingsDownToThePeakFitsNeed)
   EXPECT_EQ(kept.candidates, 17);
   EXPECT_EQ(kept.matching_measurements, 45);
   // Without a narrowed search nothing changes.
-  const ScanPlan set = SplitQuota({180, 45}, 32500, 3);
+  const ScanPlan set = SplitQuota({180, 45, 45}, 32500, 3);
   EXPECT_EQ(set.matching_measurements, 45);
   EXPECT_EQ(set.candidates, (32500 / 3 - 180) / 45);
 }

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <atomic>
 #include <cmath>
 
@@ -274,85 +275,100 @@ TEST(Matching, ALasersReadingsAreMatchedWithAtLeastACellsDeviation) {
 }
 
 TEST(Matching, ALasersHeadingSearchFollowsTheCorrectionsItsMatchesMake) {
-  // The robot stands in the arena while its odometry claims turns that did not happen, drawn
-  // with a deviation of 1.5 degrees a scan (a good odometry), then 8 (a tracked robot's). The
-  // matches turn them back; the least heading search follows three times their root mean
-  // square, within the set's 12 degrees and no less than a quarter of it, and a set's thinning
-  // by angle lightens as much while it is narrower.
+  // The robot shuttles 6 cm back and forth in the arena while its odometry errs in heading by a
+  // deviation of 1.5 degrees a scan (a good odometry), then 8 (a tracked robot's), then stands
+  // still. The matches turn the errors back; the least heading search follows three times
+  // their root mean square, within the set's 12 degrees and no less than a quarter of it,
+  // standing still leaves it as it was, and a set's thinning by angle lightens as much as the
+  // search narrowed.
   const RobotDescription lidar = LidarRobot();
   const sim::World arena = TestArena();
   SlamParams params = NoMotionNoise();
   params.min_angle_uncertainty_deg = 12.0;
   SlamConfig config;
   config.resolution_m = 0.05;
-  const Pose2 truth{0.0213, -0.0117, DegToRad(7.0)};
+  const std::array<Pose2, 2> spots{Pose2{0.0213, -0.0117, DegToRad(7.0)},
+                                   Compose(Pose2{0.0213, -0.0117, DegToRad(7.0)}, {0.06, 0, 0})};
   ScanPlan plan;
   plan.candidates = 300;
   struct Outcome {
-    double good = 0.0, tracked = 0.0;  // the least heading search after each stretch (degrees)
-    ScanSummary narrowed;              // of a scan after the good stretch, thinned to 4 degrees
-    int matched = 0;                   // readings that scan matched when a plan asked for all
+    double good = 0.0, tracked = 0.0, parked = 0.0;  // least heading search after each (deg)
+    ScanSummary narrowed;  // of a scan after the good stretch, thinned to 4 degrees
+    int matched = 0;       // readings that scan matched when a plan asked for more than all
+    int64_t rays = 0, planned = 0;  // the rays it cast, and PlannedRays for it
   };
   const auto run = [&](const RobotDescription& robot, auto&& scan_at) {
     Slam slam(robot, params, config);
-    slam.Restore(DrawMap(arena, config.resolution_m), truth);
+    slam.Restore(DrawMap(arena, config.resolution_m), spots[0]);
     EXPECT_DOUBLE_EQ(slam.LeastSearchAngle(), DegToRad(12.0));  // before any match
     Rng rng(7);
     int index = 0;
-    const auto stand = [&](double error_deg, int scans) {
+    const auto drive = [&](double error_deg, int scans, bool shuttle) {
       for (int k = 0; k < scans; ++k, ++index) {
+        const Pose2 from = spots[static_cast<size_t>(index % 2)];
+        const Pose2 to = shuttle ? spots[static_cast<size_t>((index + 1) % 2)] : from;
         const Pose2 believed = slam.Best().pose;
-        const Pose2 claimed{believed.x, believed.y,
-                            NormalizeAngle(believed.theta + DegToRad(rng.Normal(error_deg)))};
-        const ScanReport report = slam.ProcessScan(scan_at(index, believed, claimed), plan);
+        Pose2 claimed = Compose(believed, Between(from, to));
+        claimed.theta = NormalizeAngle(claimed.theta + DegToRad(rng.Normal(error_deg)));
+        const ScanReport report = slam.ProcessScan(scan_at(index, to, believed, claimed), plan);
         EXPECT_GT(report.matching_measurements, 30);
+        if (!shuttle) --index;  // stays on the same spot
       }
       if (HasRangeScanner(robot)) {  // the laser's matches found the true heading each time
-        EXPECT_NEAR(NormalizeAngle(slam.Best().pose.theta - truth.theta), 0.0, DegToRad(1.0))
+        EXPECT_NEAR(NormalizeAngle(slam.Best().pose.theta - spots[0].theta), 0.0, DegToRad(1.0))
             << error_deg << " degrees a scan";
       }
       return RadToDeg(slam.LeastSearchAngle());
     };
     Outcome out;
-    out.good = stand(1.5, 120);
+    out.good = drive(1.5, 120, true);
     // What a set thinning to one reading in 4 degrees keeps now, and what the narrowed search
-    // lets a plan match instead.
+    // gives a plan asking for more readings than that.
     SlamParams thinning = params;
     thinning.angle_between_scans_deg = 4.0;
     slam.SetParams(thinning);
-    const Scan still = scan_at(index, slam.Best().pose, slam.Best().pose);
+    const Pose2 here = spots[static_cast<size_t>(index % 2)];
+    const Scan still = scan_at(index, here, slam.Best().pose, slam.Best().pose);
     out.narrowed = slam.Summarize(still);
     ScanPlan more = plan;
     more.candidates = 20;
-    more.matching_measurements = out.narrowed.matching_available;
-    out.matched = slam.ProcessScan(still, more).matching_measurements;
-    ++index;
+    more.matching_measurements = out.narrowed.matching_available + 10;
+    const ScanReport report = slam.ProcessScan(still, more);
+    out.matched = report.matching_measurements;
+    out.rays = report.rays.total();
+    out.planned = PlannedRays(more, out.narrowed);
     slam.SetParams(params);
-    out.tracked = stand(8.0, 60);
+    out.tracked = drive(8.0, 60, true);
+    out.parked = drive(0.0, 60, false);
     return out;
   };
-  const Outcome laser = run(lidar, [&](int index, const Pose2& from, const Pose2& to) {
-    return SweepAt(lidar, arena, truth, index, from, to);
-  });
+  const Outcome laser =
+      run(lidar, [&](int index, const Pose2& truth, const Pose2& from, const Pose2& to) {
+        return SweepAt(lidar, arena, truth, index, from, to);
+      });
   EXPECT_GT(laser.good, 3.5);  // about 3 x 1.5, above the quarter of 12
   EXPECT_LT(laser.good, 6.5);
   EXPECT_GT(laser.tracked, 11.0);  // 3 x 8 is more than the set's 12: the set's search again
   EXPECT_LE(laser.tracked, 12.0 + 1e-9);
+  EXPECT_DOUBLE_EQ(laser.parked, laser.tracked);  // a minute parked teaches it nothing
   // 360 beams a degree apart: 90 at the set's 4 degrees, and at 4 x good / 12 degrees (1.6,
-  // so every second beam) as many more as the search narrowed.
+  // so every second beam) as many more as the search narrowed, all of which the plan gets.
   EXPECT_NEAR(laser.narrowed.matching_measurements, 90, 2);
   EXPECT_NEAR(laser.narrowed.matching_available, 360 / std::ceil(4.0 * laser.good / 12.0), 2);
   EXPECT_EQ(laser.matched, laser.narrowed.matching_available);
+  EXPECT_EQ(laser.rays, laser.planned);
   // The marXbot's infrared scanner keeps the set's search and thinning whatever its matches
   // correct.
   const RobotDescription marxbot = testing::ShippedRobot();
-  const Outcome infrared = run(marxbot, [&](int index, const Pose2& from, const Pose2& to) {
-    return ScanAt(marxbot, arena, truth, index, from, to);
-  });
+  const Outcome infrared =
+      run(marxbot, [&](int index, const Pose2& truth, const Pose2& from, const Pose2& to) {
+        return ScanAt(marxbot, arena, truth, index, from, to);
+      });
   EXPECT_DOUBLE_EQ(infrared.good, 12.0);
   EXPECT_DOUBLE_EQ(infrared.tracked, 12.0);
   EXPECT_EQ(infrared.narrowed.matching_available, infrared.narrowed.matching_measurements);
   EXPECT_EQ(infrared.matched, infrared.narrowed.matching_measurements);
+  EXPECT_EQ(infrared.rays, infrared.planned);
 }
 
 TEST(Matching, WhereTheReadingsCannotTellPosesApartTheOdometryWins) {
