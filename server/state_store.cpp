@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <sys/file.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -39,7 +40,7 @@ void Put(std::string& out, T value) {
 
 class Reader {
  public:
-  explicit Reader(const std::string& bytes) : bytes_(bytes) {}
+  explicit Reader(std::string_view bytes) : bytes_(bytes) {}
   template <typename T>
   bool Get(T& value) {
     if (bytes_.size() - pos_ < sizeof(T)) return false;
@@ -50,18 +51,24 @@ class Reader {
   size_t remaining() const { return bytes_.size() - pos_; }
 
  private:
-  const std::string& bytes_;
+  std::string_view bytes_;
   size_t pos_ = 0;
 };
 
-Result<std::string> ReadFile(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Error(path.string() + ": cannot open");
-  std::ostringstream s;
-  s << in.rdbuf();
-  if (in.bad()) return Error(path.string() + ": read error");
-  return s.str();
-}
+// A tile in the file: its index, its version, its cells.
+constexpr size_t kTileBytes = 2 * sizeof(int32_t) + sizeof(uint64_t) + kTileCells * sizeof(LogOdds);
+
+// What the files state.json names can hold at most; anything larger was not written by a save
+// (and is refused before it is read: a link to /dev/zero or a huge file would exhaust memory).
+// A tile file: header, every tile the map's bound allows (kMapTileBound), checksum.
+constexpr uint64_t kMaxTilesFileBytes =
+    sizeof(kMagic) + sizeof(uint32_t) + sizeof(double) + 2 * sizeof(uint64_t) +
+    uint64_t{2 * kMapTileBound} * uint64_t{2 * kMapTileBound} * kTileBytes + sizeof(uint64_t);
+// state.json holds a few names and numbers (about 300 bytes).
+constexpr uint64_t kMaxStateJsonBytes = 64 * 1024;
+// A saved trajectory line is about 70 bytes: 256 MiB is some 3.8 million scans, four days at 10
+// scans a second.
+constexpr uint64_t kMaxTrajectoryBytes = uint64_t{256} << 20;
 
 }  // namespace
 
@@ -103,8 +110,8 @@ Result<SavedState> DecodeTiles(const std::string& bytes) {
   if (stored != TileFileChecksum(std::string_view(bytes).substr(0, body))) {
     return Error("checksum mismatch (truncated or damaged)");
   }
-  const std::string payload = bytes.substr(sizeof(kMagic), body - sizeof(kMagic));
-  Reader in(payload);
+  // A view, not a copy: a tile file can be hundreds of megabytes.
+  Reader in(std::string_view(bytes).substr(sizeof(kMagic), body - sizeof(kMagic)));
   uint32_t tile_size = 0;
   uint64_t count = 0;
   if (!in.Get(tile_size) || !in.Get(state.resolution_m) || !in.Get(state.version) ||
@@ -125,8 +132,6 @@ Result<SavedState> DecodeTiles(const std::string& bytes) {
     return Error("map version " + std::to_string(state.version) +
                  " is out of range (at most 2^62)");
   }
-  constexpr size_t kTileBytes =
-      2 * sizeof(int32_t) + sizeof(uint64_t) + kTileCells * sizeof(LogOdds);
   if (count != in.remaining() / kTileBytes || in.remaining() % kTileBytes != 0) {
     return Error("tile count does not match the file size");
   }
@@ -172,7 +177,8 @@ bool IsVersionedName(const std::string& name) {
 /// The versioned files the committed state.json in `base` names (none when there is none).
 std::set<std::string> CommittedNames(const fs::path& base) {
   std::set<std::string> names;
-  const Result<std::string> text = ReadFile(base / "state.json");
+  const Result<std::string> text =
+      io::ReadRegularFile((base / "state.json").string(), kMaxStateJsonBytes);
   if (!text.ok()) return names;
   const nlohmann::json meta = nlohmann::json::parse(text.value(), nullptr, false);
   if (!meta.is_object()) return names;
@@ -287,8 +293,29 @@ Result<StateDirLock> StateDirLock::Acquire(const std::string& dir) {
   fs::create_directories(dir, ec);
   if (ec) return failed("cannot create: " + ec.message());
   const std::string path = (fs::path(dir) / "slamd.lock").string();
-  const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-  if (fd < 0) return failed("cannot open " + path + ": " + std::strerror(errno));
+  // The lock file is truncated and written: a link planted there (to any file of the user slamd
+  // runs as, or to a path to create) is refused, never followed (O_NOFOLLOW), and so is a FIFO
+  // (O_NONBLOCK, then fstat) or a second name of another file (a hard link).
+  const int fd =
+      ::open(path.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_NONBLOCK | O_NOCTTY | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    if (errno == ELOOP) return failed(path + " is a symbolic link (not followed); remove it");
+    return failed("cannot open " + path + ": " + std::strerror(errno));
+  }
+  struct stat st {};
+  std::string refused;
+  if (::fstat(fd, &st) != 0) {
+    refused = "cannot stat " + path + ": " + std::strerror(errno);
+  } else if (!S_ISREG(st.st_mode)) {
+    refused = path + " is not a regular file; remove it";
+  } else if (st.st_nlink != 1) {
+    refused = path + " has " + std::to_string(st.st_nlink) +
+              " names (a hard link to another file); remove it";
+  }
+  if (!refused.empty()) {
+    ::close(fd);
+    return failed(refused);
+  }
   if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
     const int why = errno;
     char holder[32] = {};
@@ -324,9 +351,13 @@ StateDirLock::~StateDirLock() {
 Result<std::optional<SavedState>> LoadState(const std::string& dir) {
   const fs::path base(dir);
   const fs::path meta_path = base / "state.json";
-  std::error_code ec;
-  if (!fs::exists(meta_path, ec)) return std::optional<SavedState>();  // nothing saved yet
-  const Result<std::string> text = ReadFile(meta_path);
+  // Nothing saved yet only when nothing at all is there: a link (even a dangling one) or a
+  // FIFO in its place is refused by the read below, naming it.
+  struct stat st {};
+  if (::lstat(meta_path.c_str(), &st) != 0 && errno == ENOENT) {
+    return std::optional<SavedState>();
+  }
+  const Result<std::string> text = io::ReadRegularFile(meta_path.string(), kMaxStateJsonBytes);
   if (!text.ok()) return text.errors();
   const nlohmann::json meta = nlohmann::json::parse(text.value(), nullptr, false);
   if (meta.is_discarded() || !meta.is_object()) {
@@ -351,14 +382,22 @@ Result<std::optional<SavedState>> LoadState(const std::string& dir) {
   if (!tiles_name || !trajectory_name) {
     return Error(meta_path.string() + ": missing or bad tiles_file / trajectory_file");
   }
-  const Result<std::string> bytes = ReadFile(base / *tiles_name);
+  const Result<std::string> bytes =
+      io::ReadRegularFile((base / *tiles_name).string(), kMaxTilesFileBytes);
   if (!bytes.ok()) return bytes.errors();
   Result<SavedState> decoded = DecodeTiles(bytes.value());
   if (!decoded.ok()) {
     return Error((base / *tiles_name).string() + ": " + decoded.Message());
   }
   SavedState state = std::move(decoded).value();
-  auto trajectory = io::LoadTum((base / *trajectory_name).string());
+  const std::string trajectory_path = (base / *trajectory_name).string();
+  const Result<std::string> tum = io::ReadRegularFile(trajectory_path, kMaxTrajectoryBytes);
+  if (!tum.ok()) return tum.errors();
+  // Poses are where the robot was on this map: a pose beyond the map's bound was not saved by a
+  // slamd (and the engine must never be handed one).
+  const double half_width_m = double{kMapTileBound} * kTileSize * state.resolution_m;
+  auto trajectory =
+      io::ParseTum(tum.value(), trajectory_path, {-half_width_m, half_width_m, "the map's bound"});
   if (!trajectory.ok()) {
     return Error(trajectory.Message());
   }

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <utility>
 
+#include "engine/io/atomic_file.hpp"
 #include "engine/io/params_json.hpp"
 #include "engine/thread_safety.hpp"
 #include "offline/evaluation.hpp"
@@ -23,6 +24,23 @@ namespace fs = std::filesystem;
 // Bounds of a job request: a job on the robot is a small study (the full one is slam-tune's).
 constexpr int kMaxPopulation = 200;
 constexpr int kMaxGenerations = 200;
+
+/// Makes `<output_dir>/jobs/<id>/` and its `params/` for a job's outputs: the output folder (the
+/// state directory, which may be a link the operator made) is created if missing; what is
+/// created or entered below it must be a real directory, never a link planted there to have the
+/// outputs written elsewhere. An error (naming the folder) or "".
+std::string MakeJobDirs(const fs::path& output_dir, const std::string& id) {
+  std::error_code ec;
+  fs::create_directories(output_dir, ec);
+  if (ec) return "cannot create " + output_dir.string() + ": " + ec.message();
+  for (const fs::path& dir :
+       {output_dir / "jobs", output_dir / "jobs" / id, output_dir / "jobs" / id / "params"}) {
+    if (const Result<void> made = io::MakeRealDirectory(dir.string()); !made.ok()) {
+      return made.Message();
+    }
+  }
+  return "";
+}
 
 /// Lowest CPU priority for the calling thread: SCHED_IDLE runs only when a core would otherwise
 /// idle, so the SLAM thread and the HTTP threads always come first. Falls back to nice 19.
@@ -115,8 +133,12 @@ JobManager::JobManager(std::string experiments_dir, std::string output_dir)
     : experiments_dir_(std::move(experiments_dir)), output_dir_(std::move(output_dir)) {
   // Ids go on from the results an earlier run left in <output>/jobs/<id>/: a new job 1 would
   // write over the old job 1's.
+  // symlink_status: a link planted in place of jobs/ is not read (jobs then refuse to use it).
   std::error_code error;
-  if (output_dir_.empty() || !fs::is_directory(fs::path(output_dir_) / "jobs", error)) return;
+  if (output_dir_.empty() ||
+      !fs::is_directory(fs::symlink_status(fs::path(output_dir_) / "jobs", error))) {
+    return;
+  }
   try {
     for (const auto& entry : fs::directory_iterator(fs::path(output_dir_) / "jobs", error)) {
       const std::string name = entry.path().filename().string();
@@ -234,6 +256,10 @@ void JobManager::Run(Job& job) {
         {fs::path(e.dir).filename().string(), &e.robot, &e.scans, &e.ground_truth});
   }
 
+  const std::string out_dir =
+      output_dir_.empty() ? std::string() : (fs::path(output_dir_) / "jobs" / job.id).string();
+  if (error.empty() && !out_dir.empty()) error = MakeJobDirs(output_dir_, job.id);
+
   bool finished = false;
   if (error.empty() && !job.cancel) {
     offline::TuningSettings settings;
@@ -252,8 +278,6 @@ void JobManager::Run(Job& job) {
       }
       Touch();
     };
-    const std::string out_dir =
-        output_dir_.empty() ? std::string() : (fs::path(output_dir_) / "jobs" / job.id).string();
     callbacks.generation_done = [&](const offline::TuningState& s, int64_t) {
       {
         MutexLock lock(mutex_);
@@ -262,7 +286,12 @@ void JobManager::Run(Job& job) {
         for (const auto& g : job.generations) job.evaluations_done += g.evaluations;
       }
       if (!out_dir.empty()) {
-        for (const std::string& e : offline::WriteTuningOutputs(out_dir, s)) error += e + "\n";
+        // Checked again before each write: the folders may have been replaced meanwhile.
+        if (const std::string refused = MakeJobDirs(output_dir_, job.id); !refused.empty()) {
+          error += refused + "\n";
+        } else {
+          for (const std::string& e : offline::WriteTuningOutputs(out_dir, s)) error += e + "\n";
+        }
       }
       Touch();
     };

@@ -20,7 +20,8 @@ std::string FormatTum(const std::vector<TimedPose>& trajectory) {
   return text;
 }
 
-Result<std::vector<TimedPose>> ParseTum(std::string_view text, const std::string& source) {
+Result<std::vector<TimedPose>> ParseTum(std::string_view text, const std::string& source,
+                                        const PositionBound& bound) {
   std::vector<TimedPose> poses;
   LineProblems problems(source);
   ForEachLine(text, [&](size_t line_number, std::string_view line) {
@@ -36,6 +37,14 @@ Result<std::vector<TimedPose>> ParseTum(std::string_view text, const std::string
     for (size_t i = 0; i < 8; ++i) numbers = numbers && ParseFiniteDouble(fields[i], v[i]);
     if (!numbers) {
       problems.Add(line_number, "not a finite number");
+      return;
+    }
+    const auto inside = [&](double m) { return m >= bound.lo_m && m < bound.hi_m; };
+    if (!inside(v[1]) || !inside(v[2])) {
+      char detail[200];
+      std::snprintf(detail, sizeof(detail), "position (%.6g, %.6g) is outside %s (%.6g to %.6g m)",
+                    v[1], v[2], bound.name.c_str(), bound.lo_m, bound.hi_m);
+      problems.Add(line_number, detail);
       return;
     }
     const double norm = std::sqrt(v[4] * v[4] + v[5] * v[5] + v[6] * v[6] + v[7] * v[7]);
