@@ -31,9 +31,10 @@ std::optional<BudgetPolicy> ParseBudgetPolicy(std::string_view text) {
 
 ConfigErrors Validate(const BudgetSettings& settings) {
   ConfigErrors errors;
-  if (settings.rays_per_scan < 1 || settings.rays_per_scan > 100'000'000) {
-    errors.push_back(
-        {"/rays_per_scan", std::to_string(settings.rays_per_scan) + " is outside [1, 100000000]"});
+  if (settings.rays_per_scan < 1 || settings.rays_per_scan > kMaxRaysPerScan) {
+    errors.push_back({"/rays_per_scan", std::to_string(settings.rays_per_scan) +
+                                            " is outside [1, " + std::to_string(kMaxRaysPerScan) +
+                                            "]"});
   }
   // Written so that NaN fails too.
   if (!(settings.cpu_share > 0.0 && settings.cpu_share <= 1.0)) {
@@ -41,9 +42,10 @@ ConfigErrors Validate(const BudgetSettings& settings) {
     detail << settings.cpu_share << " is outside (0, 1]";
     errors.push_back({"/cpu_share", detail.str()});
   }
-  if (settings.max_particles < 1 || settings.max_particles > 1000) {
-    errors.push_back(
-        {"/max_particles", std::to_string(settings.max_particles) + " is outside [1, 1000]"});
+  if (settings.max_particles < 1 || settings.max_particles > kMaxParticlesCap) {
+    errors.push_back({"/max_particles", std::to_string(settings.max_particles) +
+                                            " is outside [1, " +
+                                            std::to_string(kMaxParticlesCap) + "]"});
   }
   return errors;
 }

@@ -25,6 +25,12 @@ std::string_view ToString(BudgetPolicy policy);  // "fixed" or "adaptive"
 std::optional<QuotaMode> ParseQuotaMode(std::string_view text);
 std::optional<BudgetPolicy> ParseBudgetPolicy(std::string_view text);
 
+/// The largest ray budget a scan may be given (slamd, slam-replay, slam-tune): a scan at this
+/// budget takes seconds on one core already.
+inline constexpr int64_t kMaxRaysPerScan = 100'000'000;
+/// The largest particle count the adaptive policy may be allowed.
+inline constexpr int kMaxParticlesCap = 1000;
+
 /// What may be spent per scan, and how: changed at run time (REST, command line).
 struct BudgetSettings {
   QuotaMode mode = QuotaMode::kRaysPerScan;

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cstdint>
+#include <limits>
 #include <optional>
 #include <vector>
 
@@ -23,6 +25,15 @@ std::string MediaType(const std::string& content_type) {
 
 std::string Dump(const json& body) {
   return body.dump(-1, ' ', false, json::error_handler_t::replace);
+}
+
+int64_t SaturatedInt64(const json& integer) {
+  if (integer.is_number_unsigned()) {
+    const auto n = integer.get<uint64_t>();
+    constexpr auto kMax = static_cast<uint64_t>(std::numeric_limits<int64_t>::max());
+    return n > kMax ? std::numeric_limits<int64_t>::max() : static_cast<int64_t>(n);
+  }
+  return integer.get<int64_t>();
 }
 
 void SendJson(httplib::Response& res, const json& body, int status) {
@@ -108,7 +119,13 @@ Result<BudgetSettings> BudgetFromJson(const json& body) {
   if (!rays.is_number_integer()) {
     errors.push_back({"/rays_per_scan", "must be an integer", 0});
   } else {
-    b.rays_per_scan = rays.get<int64_t>();
+    if (rays.is_number_unsigned() && rays.get<uint64_t>() > uint64_t{1} << 62) {
+      errors.push_back({"/rays_per_scan",
+                        rays.dump() + " is outside [1, " + std::to_string(kMaxRaysPerScan) + "]",
+                        0});
+    } else {
+      b.rays_per_scan = SaturatedInt64(rays);
+    }
   }
   const json& share = body["cpu_share"];
   if (!share.is_number()) {
@@ -120,8 +137,16 @@ Result<BudgetSettings> BudgetFromJson(const json& body) {
   if (!particles.is_number_integer()) {
     errors.push_back({"/max_particles", "must be an integer", 0});
   } else {
-    const auto n = particles.get<int64_t>();
-    b.max_particles = static_cast<int>(std::clamp<int64_t>(n, -1, 1 << 30));
+    // Beyond the int range, the bound's message names what was sent, not what it was cut to.
+    const int64_t n = SaturatedInt64(particles);
+    if (n > std::numeric_limits<int>::max() || n < std::numeric_limits<int>::min()) {
+      errors.push_back({"/max_particles",
+                        particles.dump() + " is outside [1, " +
+                            std::to_string(kMaxParticlesCap) + "]",
+                        0});
+    } else {
+      b.max_particles = static_cast<int>(n);
+    }
   }
   // Ranges of the values whose type was right (a mistyped value has no range to check).
   std::vector<std::string> mistyped;
@@ -159,7 +184,8 @@ json MetricsEventJson(const SlamSnapshot& s) {
           {"particles", m.particles},
           {"candidates", m.candidates},
           {"ess", m.ess},
-          {"pose_error_m", m.pose_error_m ? json(*m.pose_error_m) : json(nullptr)}};
+          {"pose_error_m", m.pose_error_m ? json(*m.pose_error_m) : json(nullptr)},
+          {"ate_m", m.ate_m ? json(*m.ate_m) : json(nullptr)}};
 }
 
 json PoseEventJson(const SlamSnapshot& s) {

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cstdio>
 
 #include "server/api_json.hpp"
 #include "server/bounded_server.hpp"
@@ -104,13 +105,37 @@ Result<void> CheckFraming(std::string_view head) {
     return std::isalnum(static_cast<unsigned char>(c)) != 0 ||
            std::string_view("!#$%&'*+-.^_`|~").find(c) != std::string_view::npos;
   };
+  // Control characters but HTAB: a CR not before LF (a bare CR), an LF not after CR, a NUL.
+  // Parsers end lines and values at different ones, or keep them in a value passed on.
+  const auto control_in = [](std::string_view text) -> std::optional<std::string> {
+    for (const char c : text) {
+      const auto byte = static_cast<unsigned char>(c);
+      if ((byte < 0x20 && c != '\t') || byte == 0x7f) {
+        char hex[8];
+        std::snprintf(hex, sizeof(hex), "0x%02X", byte);
+        return std::string(byte == '\r'   ? "a bare CR"
+                           : byte == '\n' ? "a bare LF"
+                           : byte == 0   ? "a NUL"
+                                         : "the control character " + std::string(hex));
+      }
+    }
+    return std::nullopt;
+  };
   const size_t line_end = head.find("\r\n");
   if (line_end == std::string_view::npos) return {};  // the parser judges it
   const std::string_view request_line = head.substr(0, line_end);
+  if (const auto control = control_in(request_line)) {
+    return Error(*control + " in the request line");
+  }
   const bool http11 = request_line.ends_with(" HTTP/1.1");
   int content_lengths = 0, hosts = 0;
   std::optional<std::string> problem;
   ForEachFieldLine(head, [&](std::string_view line) {
+    if (const auto control = control_in(line)) {
+      problem = *control + " in the header line '" +
+                std::string(line.substr(0, std::min<size_t>(line.find(':'), 64))) + "'";
+      return false;
+    }
     if (line.front() == ' ' || line.front() == '\t') {
       problem = "a header line folded onto the previous one (obsolete line folding)";
       return false;
@@ -126,7 +151,22 @@ Result<void> CheckFraming(std::string_view head) {
                 "' is not a token (no whitespace before the colon)";
       return false;
     }
-    content_lengths += FieldNameIs(line, "content-length");
+    if (FieldNameIs(line, "content-length")) {
+      ++content_lengths;
+      // 1*DIGIT between optional whitespace (RFC 9110 8.6): "+2", "2, 2" or "0x2" read as a
+      // number by one parser and refused or read otherwise by another.
+      std::string_view value = line.substr(colon + 1);
+      while (!value.empty() && (value.front() == ' ' || value.front() == '\t'))
+        value.remove_prefix(1);
+      while (!value.empty() && (value.back() == ' ' || value.back() == '\t')) value.remove_suffix(1);
+      if (value.empty() || !std::all_of(value.begin(), value.end(), [](char c) {
+            return std::isdigit(static_cast<unsigned char>(c)) != 0;
+          })) {
+        problem = "a Content-Length that is not a decimal number ('" +
+                  std::string(value.substr(0, 32)) + "')";
+        return false;
+      }
+    }
     hosts += FieldNameIs(line, "host");
     return true;
   });

@@ -37,6 +37,44 @@ std::vector<const TrajectoryChunk*> Chunks(const std::shared_ptr<const Trajector
   return chunks;
 }
 
+// At most this many ground-truth poses, evenly spread over the run, enter the live error: its
+// cost per scan stays bounded however long slamd runs.
+constexpr size_t kMaxErrorPoses = 2000;
+
+struct TruthErrors {
+  double ate_m = 0.0;         // RMS residual over the run so far
+  double pose_error_m = 0.0;  // residual of the latest ground-truth pose the estimate spans
+};
+
+// The estimate against the ground truth as the ATE measures it: both aligned by the rigid
+// transform that fits the whole run so far best. Aligning at the first pose only would charge
+// the start's heading error to every later pose (several times the ATE of the same run).
+// nullopt until two ground-truth poses fall within the estimate.
+std::optional<TruthErrors> ErrorsAgainstTruth(const std::vector<TimedPose>& estimate,
+                                              const std::vector<TimedPose>& truth) {
+  if (estimate.size() < 2 || truth.empty()) return std::nullopt;
+  const auto first = std::lower_bound(
+      truth.begin(), truth.end(), estimate.front().t,
+      [](const TimedPose& p, double t) { return p.t < t; });
+  const auto end = std::upper_bound(truth.begin(), truth.end(), estimate.back().t,
+                                    [](double t, const TimedPose& p) { return t < p.t; });
+  if (end - first < 2) return std::nullopt;
+  const size_t span = static_cast<size_t>(end - first);
+  const size_t stride = (span + kMaxErrorPoses - 1) / kMaxErrorPoses;
+  std::vector<TimedPose> sample;
+  sample.reserve(span / stride + 2);
+  for (size_t i = 0; i < span; i += stride) sample.push_back(*(first + static_cast<long>(i)));
+  if (sample.back().t != std::prev(end)->t) sample.push_back(*std::prev(end));  // the latest
+  const std::optional<TrajectoryQuality> quality = EvaluateTrajectory(estimate, sample);
+  const std::optional<Pose2> latest = PoseAt(estimate, sample.back().t);
+  if (!quality || !latest) return std::nullopt;
+  TruthErrors errors;
+  errors.ate_m = quality->ate_rmse_m;
+  errors.pose_error_m =
+      (quality->alignment.Apply(latest->translation()) - sample.back().pose.translation()).norm();
+  return errors;
+}
+
 }  // namespace
 
 const char* ToString(SlamState state) {
@@ -376,10 +414,6 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
     if (world_to_map_) {
       newly_mapped = TransformTrajectory(*world_to_map_, newly_mapped);
       for (TimedPose& p : newly_mapped) p.t += time_offset_s_;
-      if (const auto truth = PoseAt(truth_world_, scan.t_end)) {
-        const Vec2 truth_map = world_to_map_->Apply(truth->translation());
-        m.pose_error_m = (truth_map - report.pose.translation()).norm();
-      }
     }
   }
 
@@ -401,6 +435,24 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
     c.latency_sum_s += m.latency_s;
     c.assembler = assembler_.counters();
     truth_map_.insert(truth_map_.end(), newly_mapped.begin(), newly_mapped.end());
+  }
+  if (world_to_map_) {
+    std::vector<TimedPose> estimate;  // this run's scan ends, in the ground truth's time
+    for (const TrajectoryChunk* chunk : Chunks(engine_->Best().history)) {
+      if (chunk->poses.empty()) continue;
+      TimedPose end = chunk->poses.back();
+      end.t += time_offset_s_;
+      if (estimate.empty() || end.t > estimate.back().t) estimate.push_back(end);
+    }
+    std::optional<TruthErrors> errors;
+    {
+      MutexLock lock(mutex_);  // truth_map_ is written on this thread only; readers copy it
+      errors = ErrorsAgainstTruth(estimate, truth_map_);
+    }
+    if (errors) {
+      m.ate_m = errors->ate_m;
+      m.pose_error_m = errors->pose_error_m;
+    }
   }
   Publish(m);
 }

@@ -48,7 +48,11 @@ struct ScanMetrics {
   double cpu_share = 0.0;       // cpu_s / scan_period_s
   double realtime_ratio = 0.0;  // scan_period_s / busy_s: how many times faster than real time
   bool late = false;            // latency above the scan period: the next scan was already due
-  std::optional<double> pose_error_m;  // against the ground truth, when simulated
+  // Against the ground truth (simulated sources), both trajectories aligned by the rigid
+  // transform that fits this run so far best, as the ATE is: the latest pose's distance, and
+  // the RMS over the run (its ATE so far).
+  std::optional<double> pose_error_m;
+  std::optional<double> ate_m;
 };
 
 /// Everything a reader needs, as of one scan. Immutable once published.

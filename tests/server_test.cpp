@@ -18,6 +18,7 @@
 #include "engine/random.hpp"
 #include "hw_link/transports.hpp"
 #include "offline/replay.hpp"
+#include "server/api_json.hpp"
 #include "server/http_server.hpp"
 #include "server/request_guard.hpp"
 #include "server/slam_service.hpp"
@@ -388,6 +389,21 @@ TEST(Security, CheckFramingOfARequestHead) {
   EXPECT_EQ(problem(line + "Host: a\r\nno colon\r\n\r\n"), "a header line without a colon");
   EXPECT_EQ(problem(line + "\r\n"), "a request of HTTP version 1.1 needs a Host header");
   EXPECT_EQ(problem(line + "Host: a\r\nHost: b\r\n\r\n"), "more than one Host header");
+  // Content-Length is 1*DIGIT between optional whitespace; control characters but HTAB nowhere.
+  EXPECT_TRUE(CheckFraming(line + "Host: a\r\nContent-Length: \t12 \r\n\r\n").ok());
+  for (const char* length : {"+2", "-0", "0x2", "2, 2", "2 2", "", " "}) {
+    SCOPED_TRACE(length);
+    EXPECT_NE(problem(line + "Host: a\r\nContent-Length:" + length + "\r\n\r\n")
+                  .find("not a decimal number"),
+              std::string::npos);
+  }
+  EXPECT_EQ(problem(line + "Host: a\r\nX-A: 1\r2\r\n\r\n"), "a bare CR in the header line 'X-A'");
+  EXPECT_EQ(problem(line + "Host: a\r\nX-A: 1\n2\r\n\r\n"), "a bare LF in the header line 'X-A'");
+  EXPECT_EQ(problem(line + "Host: a\r\n" + "X-A: 1" + std::string(1, '\0') + "2\r\n\r\n"),
+            "a NUL in the header line 'X-A'");
+  EXPECT_EQ(problem(line + "Host: a\r\nX-A: \x7f\r\n\r\n"),
+            "the control character 0x7F in the header line 'X-A'");
+  EXPECT_EQ(problem("GET /\r HTTP/1.1\r\nHost: a\r\n\r\n"), "a bare CR in the request line");
 }
 
 TEST(Security, EntityTagLists) {
@@ -431,6 +447,33 @@ TEST(Security, HostNameOfAHostHeader) {
   EXPECT_EQ(HostName("evil.example:80"), "evil.example");
   EXPECT_EQ(HostName(""), "");
   EXPECT_EQ(HostName("[unclosed"), "[unclosed");
+}
+
+TEST(BudgetRequest, IntegersBeyondInt64AreNamedAsSentNotWrapped) {
+  // 2^64 - 1 is an unsigned JSON number: read as int64 it was -1 ("-1 is outside [1, 1000]").
+  const auto errors_of = [](const std::string& text) {
+    nlohmann::json body = {{"mode", "rays"}, {"rays_per_scan", 65000}, {"cpu_share", 0.25},
+                           {"policy", "adaptive"}, {"max_particles", 16}};
+    const nlohmann::json patch = nlohmann::json::parse(text);
+    body.update(patch);
+    const Result<BudgetSettings> b = BudgetFromJson(body);
+    return b.ok() ? ConfigErrors{} : b.errors();
+  };
+  ConfigErrors e = errors_of(R"({"max_particles": 18446744073709551615})");
+  ASSERT_EQ(e.size(), 1u);
+  EXPECT_EQ(e[0].pointer, "/max_particles");
+  EXPECT_EQ(e[0].detail, "18446744073709551615 is outside [1, 1000]");
+  e = errors_of(R"({"max_particles": -9223372036854775808})");
+  ASSERT_EQ(e.size(), 1u);
+  EXPECT_EQ(e[0].detail, "-9223372036854775808 is outside [1, 1000]");
+  e = errors_of(R"({"max_particles": 4294967297})");  // 2^32 + 1: was 1 << 30 after a clamp
+  ASSERT_EQ(e.size(), 1u);
+  EXPECT_EQ(e[0].detail, "4294967297 is outside [1, 1000]");
+  e = errors_of(R"({"rays_per_scan": 18446744073709551615})");
+  ASSERT_EQ(e.size(), 1u);
+  EXPECT_EQ(e[0].pointer, "/rays_per_scan");
+  EXPECT_EQ(e[0].detail, "18446744073709551615 is outside [1, 100000000]");
+  EXPECT_TRUE(errors_of(R"({"max_particles": 1000, "rays_per_scan": 100000000})").empty());
 }
 
 TEST(TuneRequest, DefaultsAndErrorsWithPointers) {

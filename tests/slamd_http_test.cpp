@@ -16,6 +16,7 @@
 #include <limits>
 #include <sstream>
 
+#include "engine/quality.hpp"
 #include "tests/slamd_harness.hpp"
 
 namespace slamd_test {
@@ -1078,8 +1079,10 @@ TEST_F(EventStreamSlamd, ConnectGivesHelloTilesThenLiveEvents) {
 
   // Live: pose, metrics and newer tiles within a few seconds.
   bool saw_pose = false, saw_metrics = false, saw_newer_tiles = false;
-  const auto deadline = After(8.0);
-  while (!(saw_pose && saw_metrics && saw_newer_tiles) && Clock::now() < deadline) {
+  int metrics_events = 0;
+  double last_ate_m = -1.0;
+  const auto deadline = After(12.0);
+  while (!(saw_pose && metrics_events >= 6 && saw_newer_tiles) && Clock::now() < deadline) {
     const auto event = stream.Next(std::chrono::duration<double>(deadline - Clock::now()).count());
     if (!event) break;
     const json data = event->Json();
@@ -1099,8 +1102,14 @@ TEST_F(EventStreamSlamd, ConnectGivesHelloTilesThenLiveEvents) {
                               "cpu_share", "realtime_ratio", "particles", "candidates", "ess"}) {
         EXPECT_TRUE(data[key].is_number()) << key << " in " << event->data;
       }
+      // Every event of a simulated run carries both errors (once, most were null: the ground
+      // truth had not reached the scan's end yet).
+      ++metrics_events;
       ASSERT_TRUE(data.contains("pose_error_m")) << event->data;
       EXPECT_TRUE(data["pose_error_m"].is_number()) << "simulated: a pose error " << event->data;
+      ASSERT_TRUE(data.contains("ate_m")) << event->data;
+      EXPECT_TRUE(data["ate_m"].is_number()) << "simulated: an ATE so far " << event->data;
+      if (data["ate_m"].is_number()) last_ate_m = data["ate_m"].get<double>();
     } else if (event->name == "tiles") {
       for (const auto& tile : data["tiles"]) {
         EXPECT_GT(tile["version"].get<int64_t>(), tiles->Id()) << event->data;
@@ -1111,7 +1120,24 @@ TEST_F(EventStreamSlamd, ConnectGivesHelloTilesThenLiveEvents) {
   }
   EXPECT_TRUE(saw_pose);
   EXPECT_TRUE(saw_metrics);
+  EXPECT_GE(metrics_events, 6);
   EXPECT_TRUE(saw_newer_tiles);
+
+  // The live ATE is the offline one of the trajectory served a moment later (a scan or two more).
+  const json trajectory = GetJson(http(), "/api/v1/trajectory");
+  const auto poses = [](const json& rows) {
+    std::vector<slam::TimedPose> out;
+    for (const auto& r : rows) {
+      out.push_back({r[0].get<double>(), {r[1].get<double>(), r[2].get<double>(),
+                                          r[3].get<double>()}});
+    }
+    return out;
+  };
+  const auto offline = slam::EvaluateTrajectory(poses(trajectory["slam"]),
+                                          poses(trajectory["ground_truth"]));
+  ASSERT_TRUE(offline.has_value()) << trajectory.dump().substr(0, 300);
+  ASSERT_GE(last_ate_m, 0.0);
+  EXPECT_NEAR(last_ate_m, offline->ate_rmse_m, 0.005 + 0.25 * offline->ate_rmse_m);
 }
 
 TEST_F(EventStreamSlamd, LastEventIdResendsOnlyNewerTiles) {

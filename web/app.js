@@ -60,11 +60,15 @@ const map = new MapView($('map-canvas'), {
     $('map-follow').checked = map.follow;
   },
 });
+window.slamdPage = { map };  // for the browser test and the console
 $('map-fit').addEventListener('click', () => map.fit());
 $('map-follow').addEventListener('change', (event) => map.setFollow(event.target.checked));
 
+let restartSeen = false;  // a `hello` from another slamd instance, not yet resynchronised
+
 async function loadMap() {
-  map.beginSync();
+  map.beginSync({ restarted: restartSeen });
+  restartSeen = false;
   map.setIndex((await getJson('/api/v1/map')).body);
 }
 
@@ -162,7 +166,24 @@ function showStatus(status) {
   $('st-realtime').textContent = fixed(slam.realtime_ratio, 1);
   $('st-time').textContent = fixed(slam.robot_time_s, 1, ' s');
   if (typeof source.simulated === 'boolean') setSimulated(source.simulated);
+  if (status.features) showFeatures(status.features);
   if (status.job) tuning.show(status.job);
+}
+
+/** Buttons for what this slamd cannot do are disabled, and say why. */
+function showFeatures(features) {
+  const save = $('map-save');
+  save.disabled = features.save === false;
+  save.title = save.disabled ? 'slamd was started without --state-dir: there is nowhere to save'
+    : 'Save the map and trajectory to the state directory';
+  tuning.setAvailable(features.tuning !== false);
+}
+
+/** slamd is out of reach: what the status panel showed is no longer known. */
+function forgetStatus() {
+  setLinkState('unknown');
+  setSlamState('unknown');
+  $('st-link-error').hidden = true;
 }
 
 let statusInFlight = false;
@@ -212,11 +233,13 @@ $('map-reset').addEventListener('click', async () => {
 // ---- event stream ----------------------------------------------------------------------------
 
 let needsSync = false;  // set when the stream dropped: the next `hello` refetches everything
+let instance = null;  // of the slamd whose `hello` came last (changes with every start)
 
 function setConnected(state) {
   const badge = $('connection');
   badge.textContent = state;
-  badge.className = `badge ${state === 'connected' ? 'badge-ok' : 'badge-bad'}`;
+  const look = { connected: 'badge-ok', snapshot: '' }[state] ?? 'badge-bad';
+  badge.className = `badge ${look}`;
   body.dataset.connected = String(state === 'connected');
 }
 
@@ -243,6 +266,11 @@ function connect() {
   events.addEventListener('hello', parse((hello) => {
     setConnected('connected');
     if (typeof hello.simulated === 'boolean') setSimulated(hello.simulated);
+    if (instance !== null && hello.instance !== instance) {
+      restartSeen = true;
+      needsSync = true;
+    }
+    instance = hello.instance ?? null;
     if (needsSync) {
       needsSync = false;
       sync();
@@ -271,6 +299,7 @@ function connect() {
   });
   events.addEventListener('error', () => {
     setConnected('disconnected');
+    forgetStatus();
     needsSync = true;
     map.suspend();
     if (events.readyState === EventSource.CLOSED) {
@@ -282,9 +311,16 @@ function connect() {
 
 // ---- start -----------------------------------------------------------------------------------
 
-setConnected('connecting…');
-connect();
-sync();
-setInterval(() => {
-  if (!document.hidden && !needsSync) loadStatus().catch(() => {});
-}, kStatusPeriodMs);
+// `?static`: one synchronisation and no event stream, so that the page settles (a headless
+// `chromium --screenshot` of it finishes; the stream would keep it loading for ever).
+if (new URLSearchParams(window.location.search).has('static')) {
+  setConnected('snapshot');
+  sync();
+} else {
+  setConnected('connecting…');
+  connect();
+  sync();
+  setInterval(() => {
+    if (!document.hidden && !needsSync) loadStatus().catch(() => {});
+  }, kStatusPeriodMs);
+}

@@ -90,8 +90,13 @@ export class MapView {
    * versions afresh): tiles announced from now on are current; the next setIndex() drops the
    * others unless it lists them.
    */
-  beginSync() {
+  beginSync({ restarted = false } = {}) {
     this.epoch += 1;
+    if (restarted) {
+      // Another slamd: a version it announces says nothing of the bitmaps of the last one, even
+      // when the numbers coincide. They stay on screen until their replacements arrive.
+      for (const tile of this.tiles.values()) tile.loaded = -1;
+    }
   }
 
   /**
@@ -139,6 +144,11 @@ export class MapView {
     return this.tiles.size;
   }
 
+  /** What the view holds of each tile, [{x, y, wanted, loaded}] (tests, the browser console). */
+  tileVersions() {
+    return [...this.tiles.values()].map(({ x, y, wanted, loaded }) => ({ x, y, wanted, loaded }));
+  }
+
   want(x, y, version, authoritative) {
     const key = `${x},${y}`;
     let tile = this.tiles.get(key);
@@ -147,8 +157,12 @@ export class MapView {
                epoch: this.epoch, dropped: false, failures: 0 };
       this.tiles.set(key, tile);
     }
-    // A restarted slamd numbers versions afresh: the index may go backwards, events may not.
-    tile.wanted = authoritative ? version : Math.max(tile.wanted, version);
+    // A restarted slamd numbers versions afresh: the index may go backwards, and so may the
+    // first announcement of a tile known only from before the resynchronisation began (a
+    // `tiles` event that lands between beginSync() and the index reply). Within one
+    // resynchronisation, versions only grow.
+    const fresh = authoritative || tile.epoch !== this.epoch;
+    tile.wanted = fresh ? version : Math.max(tile.wanted, version);
     tile.epoch = this.epoch;
     tile.failures = 0;
     if (tile.wanted !== tile.loaded) this.enqueue(tile);

@@ -111,10 +111,13 @@ export class LivePlots {
     this.plots.quality?.plot.destroy();
     this.elements.quality.replaceChildren();
     this.elements.qualityCaption.textContent = simulated
-      ? 'Pose error vs ground truth (m)' : 'Effective sample size';
+      ? 'Error vs ground truth (m), aligned over the run so far as the ATE is'
+      : 'Effective sample size';
     this.plots.quality = simulated
       ? new RollingPlot(this.elements.quality, 'm', [
-        { key: 'pose_error_m', label: 'pose error', format: (v) => v.toFixed(3) }])
+        { key: 'ate_m', label: 'ATE so far', format: (v) => v.toFixed(3) },
+        { key: 'pose_error_m', label: 'pose error', colour: '#ef6c00',
+          format: (v) => v.toFixed(3) }])
       : new RollingPlot(this.elements.quality, 'ESS', [
         { key: 'ess', label: 'ESS', format: (v) => v.toFixed(1) }]);
   }

@@ -14,6 +14,7 @@ export class TuningPanel {
     this.cancelButton = $('tune-cancel');
     this.job = null;
     this.plot = null;
+    this.available = true;  // slamd has experiments to tune on (status.features.tuning)
 
     form.addEventListener('submit', (event) => {
       event.preventDefault();
@@ -21,6 +22,19 @@ export class TuningPanel {
     });
     form.addEventListener('input', (event) => clearFieldErrors(form, `/${event.target.name}`));
     this.cancelButton.addEventListener('click', () => this.cancelOrForget());
+  }
+
+  /** Whether slamd can tune at all (it was started with --experiments): Start follows. */
+  setAvailable(available) {
+    this.available = available;
+    this.updateStart();
+  }
+
+  updateStart() {
+    const start = $('tune-start');
+    start.disabled = !this.available || this.job?.state === 'running';
+    start.title = this.available ? ''
+      : 'slamd was started without --experiments: there is nothing to tune on';
   }
 
   /** Shows the newest job slamd knows of, if any. */
@@ -97,7 +111,7 @@ export class TuningPanel {
     $('tune-job').hidden = !job;
     this.cancelButton.disabled = !job;
     this.cancelButton.textContent = job && job.state !== 'running' ? 'Forget' : 'Cancel';
-    $('tune-start').disabled = job?.state === 'running';
+    this.updateStart();
     if (!job) return;
 
     $('job-id').textContent = job.id;

@@ -7,11 +7,19 @@
 // drawn; the plots get metrics; zoom and fit work; a budget change made in the page's form
 // reaches slamd (GET /api/v1/budget, then /metrics slamd_ray_quota) and the status names the
 // shipped parameter set of the new budget; an out-of-range value shows
-// slamd's validation error next to the field. Writes ARTIFACT_DIR/slamd-page.png. Exit 1 with a
-// message on the first failure.
+// slamd's validation error next to the field; Save and tuning's Start are disabled (that slamd has
+// no --state-dir and no --experiments). Writes ARTIFACT_DIR/slamd-page.png.
+//
+// Then, with SLAMD_BIN and WEB_ROOT set, on slamds of its own: a page open while its slamd stops
+// shows the link and SLAM as unknown, not running; when another slamd starts on the same port
+// (another world, its versions numbered afresh), the page keeps no tile of the first, even when
+// the new slamd's `tiles` event comes before its map index (the index reply is delayed on
+// purpose). Exit 1 with a message on the first failure.
 
+import { spawn } from 'node:child_process';
 import { createRequire } from 'node:module';
 import fs from 'node:fs';
+import net from 'node:net';
 import path from 'node:path';
 
 const require = createRequire(new URL('../../web/package.json', import.meta.url));
@@ -215,6 +223,13 @@ async function run(browser) {
   check((await getJson('/api/v1/budget')).rays_per_scan === 20000,
         'an invalid PATCH changed the budget');
 
+  // This slamd has no --state-dir and no --experiments: the buttons that need them say so.
+  check(await page.isDisabled('#map-save'), 'Save map is enabled without --state-dir');
+  check(await page.isDisabled('#tune-start'), 'tuning Start is enabled without --experiments');
+  check((await page.getAttribute('#map-save', 'title')).includes('--state-dir'),
+        'the disabled Save map does not say why');
+  log('Save and tuning Start disabled, with the reason');
+
   // Let the page run a little more (more tiles, poses, plots) before the picture.
   await page.waitForTimeout(1500);
   fs.mkdirSync(artifactDir, { recursive: true });
@@ -225,6 +240,101 @@ async function run(browser) {
   checkNoProblems('during the test');
   await context.close();
   page = null;
+}
+
+// ---- a slamd that stops, and another on its port ------------------------------------------
+
+const children = [];
+
+async function freePort() {
+  return new Promise((resolve, reject) => {
+    const server = net.createServer();
+    server.on('error', reject);
+    server.listen(0, '127.0.0.1', () => {
+      const { port } = server.address();
+      server.close(() => resolve(port));
+    });
+  });
+}
+
+/** Starts slamd on `port` with `args`; resolves once /api/v1/health answers. */
+async function startSlamd(port, args) {
+  const child = spawn(process.env.SLAMD_BIN,
+                      ['--port', String(port), '--foxglove-port', '0', '--quiet',
+                       '--web-root', process.env.WEB_ROOT, ...args],
+                      { stdio: ['ignore', 'ignore', 'inherit'] });
+  children.push(child);
+  const url = `http://127.0.0.1:${port}/`;
+  await waitFor(`slamd ${args.join(' ')} answers on port ${port}`, 15000, async () => {
+    check(child.exitCode === null, `slamd ${args.join(' ')} exited (${child.exitCode})`);
+    try {
+      return (await fetch(`${url}api/v1/health`, { signal: AbortSignal.timeout(1000) })).ok;
+    } catch {
+      return false;
+    }
+  });
+  return { child, url };
+}
+
+async function stopSlamd(child) {
+  if (child.exitCode !== null) return;
+  const exited = new Promise((resolve) => child.once('exit', resolve));
+  child.kill('SIGTERM');
+  await exited;
+}
+
+async function runRestart(browser) {
+  const port = await freePort();
+  const first = await startSlamd(port, ['--source', 'sim:rooms', '--speed', '8']);
+  const context = await browser.newContext({ viewport: { width: 1000, height: 800 } });
+  page = await context.newPage();
+  page.setDefaultTimeout(10000);
+  // Quiet for this part: the stopped slamd makes requests fail, as it should.
+  await page.goto(first.url, { waitUntil: 'load', timeout: 15000 });
+  await waitFor('the first slamd maps at 8x for a while (tile versions above 100)', 20000,
+    async (seen) => {
+      const tiles = await page.evaluate(() => window.slamdPage.map.tileVersions());
+      seen.value = Math.max(0, ...tiles.map((t) => t.loaded));
+      return seen.value > 100;
+    });
+  await waitFor('the link badge shows running', 5000,
+                async () => (await page.textContent('#st-link')).trim() === 'running');
+
+  // The next map index is answered only after the new slamd's first `tiles` event is in.
+  await page.route('**/api/v1/map', async (route) => {
+    await new Promise((resolve) => setTimeout(resolve, 1500));
+    await route.continue().catch(() => {});
+  });
+  await stopSlamd(first.child);
+  await waitFor('the page shows slamd out of reach: link and SLAM not running', 8000,
+    async (seen) => {
+      seen.value = await page.evaluate(() => ({
+        connected: document.body.dataset.connected,
+        link: document.getElementById('st-link').className,
+        slam: document.getElementById('st-slam').className,
+      }));
+      return seen.value.connected === 'false' && !seen.value.link.includes('badge-ok') &&
+             !seen.value.slam.includes('badge-ok');
+    });
+  log('slamd stopped: the status shows link and SLAM unknown');
+
+  const second = await startSlamd(port, ['--source', 'sim:box', '--speed', '1']);
+  await waitFor('the page reconnects to the second slamd', 15000,
+                async () => (await dataset(page)).connected === 'true');
+  // Every tile the page holds is the second slamd's, at a version it has served.
+  await waitFor('no tile of the first slamd stays', 10000, async (seen) => {
+    const held = await page.evaluate(() => window.slamdPage.map.tileVersions());
+    const index = await (await fetch(`${second.url}api/v1/map`)).json();
+    const current = new Map(index.tiles.map((t) => [`${t.x},${t.y}`, t.version]));
+    const stale = held.filter((t) => !current.has(`${t.x},${t.y}`) ||
+                                     t.loaded > current.get(`${t.x},${t.y}`) || t.loaded < 0);
+    seen.value = { held: held.length, indexed: current.size, stale: stale.slice(0, 5) };
+    return held.length > 0 && stale.length === 0;
+  });
+  log('the second slamd\'s map replaced the first\'s: no stale tile');
+  await context.close();
+  page = null;
+  await stopSlamd(second.child);
 }
 
 let browser;
@@ -238,6 +348,8 @@ try {
     timeout: 20000,
   });
   await run(browser);
+  if (process.env.SLAMD_BIN && process.env.WEB_ROOT) await runRestart(browser);
+  else log('SLAMD_BIN or WEB_ROOT not set: the restart part is skipped');
   log('PASS');
 } catch (error) {
   const why = error instanceof TestFailure ? error.message : error.stack;
@@ -252,5 +364,6 @@ try {
   }
 } finally {
   await browser?.close().catch(() => {});
+  for (const child of children) if (child.exitCode === null) child.kill('SIGKILL');
 }
 process.exit(exitCode);
