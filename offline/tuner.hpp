@@ -34,7 +34,7 @@ struct TuningSettings {
   EvolutionConfig evolution;  // its seed also seeds every replay
   BudgetPolicy policy = BudgetPolicy::kFixed;
   int max_particles = BudgetSettings{}.max_particles;
-  SlamParams start;  // generation 0's first individual (Table II defaults)
+  SlamParams start;  // the first generation's first individual (Table II defaults)
   /// Racing (RunTuning): a new individual's evaluation stops as soon as it can no longer enter
   /// the elite. It never changes which individuals are elites, so neither the study's course
   /// nor its best sets; only the fitness of the individuals it stopped (a lower bound).
@@ -48,7 +48,7 @@ struct TuningSettings {
 };
 
 struct GenerationSummary {
-  int generation = 0;
+  int generation = 0;                  // 0-based (results.json); shown as generation + 1
   FiveNumbers fitness;                 // over the whole population
   Individual best;                     // best so far (elitism keeps it)
   std::vector<double> fitness_values;  // every individual's, in population order

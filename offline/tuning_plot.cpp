@@ -106,12 +106,18 @@ struct Layout {
   int width = 0;
   int height = 0;
   int left = 0, top = 0, right = 0, bottom = 0;  // plot area
-  double x_max = 1.0;                            // generations run from 0 to x_max
+  double x_max = 2.0;                            // generations run from 1 to x_max
   double y_min = 0.0, y_max = 1.0;
   std::vector<Tick> x_ticks, y_ticks;
   int legend_x = 0;
 
-  double X(double generation) const { return left + generation / x_max * (right - left); }
+  /// The pixel column of a generation numbered from 1, as slam-tune's console and table3.md
+  /// number them.
+  double X(double generation) const {
+    return left + (generation - 1.0) / (x_max - 1.0) * (right - left);
+  }
+  /// The pixel column of a series' `index`-th generation (0-based).
+  double XOfIndex(size_t index) const { return X(static_cast<double>(index) + 1.0); }
   double Y(double fitness) const {
     const double v = std::clamp(fitness, y_min, y_max);
     return bottom - (v - y_min) / (y_max - y_min) * (bottom - top);
@@ -185,12 +191,14 @@ Layout MakeLayout(const std::vector<TuningSeries>& series, const TuningPlotOptio
 
   for (const double v : y_values) layout.y_ticks.push_back({layout.Y(v), FormatFixed(v, decimals)});
 
-  // The x axis: integer generations, about one tick per 70 px.
-  layout.x_max = std::max(1.0, static_cast<double>(generations) - 1.0);
+  // The x axis: generations 1 .. n, ticks at 1 and at whole multiples of a nice step, about one
+  // per 70 px.
+  layout.x_max = std::max(2.0, static_cast<double>(generations));
   const double target_x_ticks = std::clamp((layout.right - layout.left) / 70, 2, 10);
-  const double x_step = std::max(1.0, NiceStep(layout.x_max / target_x_ticks));
-  for (double g = 0.0; g <= layout.x_max + 1e-9; g += x_step) {
-    layout.x_ticks.push_back({layout.X(g), FormatFixed(g, 0)});
+  const double x_step = std::max(1.0, NiceStep((layout.x_max - 1.0) / target_x_ticks));
+  layout.x_ticks.push_back({layout.X(1.0), "1"});
+  for (double g = x_step; g <= layout.x_max + 1e-9; g += x_step) {
+    if (g > 1.0) layout.x_ticks.push_back({layout.X(g), FormatFixed(g, 0)});
   }
   return layout;
 }
@@ -203,7 +211,7 @@ std::vector<PixelPoint> BandOutline(const TuningSeries& s, const Layout& layout)
   for (size_t g = 0; g < s.generations.size(); ++g) {
     const TuningBand& b = s.generations[g];
     if (!Finite(b.q1) || !Finite(b.q3)) continue;
-    const double x = layout.X(static_cast<double>(g));
+    const double x = layout.XOfIndex(g);
     upper.push_back({x, layout.Y(std::max(b.q1, b.q3))});
     lower.push_back({x, layout.Y(std::min(b.q1, b.q3))});
   }
@@ -221,7 +229,7 @@ std::vector<PixelPoint> MedianLine(const TuningSeries& s, const Layout& layout) 
   std::vector<PixelPoint> points;
   for (size_t g = 0; g < s.generations.size(); ++g) {
     const double m = s.generations[g].median;
-    if (Finite(m)) points.push_back({layout.X(static_cast<double>(g)), layout.Y(m)});
+    if (Finite(m)) points.push_back({layout.XOfIndex(g), layout.Y(m)});
   }
   return points;
 }

@@ -20,7 +20,8 @@ struct TuningBand {
   double q3 = 0.0;
 };
 
-/// One ray budget: its legend text and generations 0 .. n-1 (n may be 0 for a run not started).
+/// One ray budget: its legend text and its generations in order (none for a run not started);
+/// the plot numbers them from 1, as slam-tune does.
 struct TuningSeries {
   std::string label;
   std::vector<TuningBand> generations;

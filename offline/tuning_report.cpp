@@ -310,10 +310,12 @@ std::string Table3Markdown(const TuningState& state) {
     }
     md += "\n";
   }
+  // Generations are numbered from 1 where people read them, as on slam-tune's console and in
+  // Fig. 10 (results.json keeps the 0-based index it resumes from).
   md += "\nLast generations:";
   for (const BudgetRun* run : done) {
     md += " " + std::to_string(run->budget) + " at generation " +
-          std::to_string(run->generations.back().generation) + " (median " +
+          std::to_string(run->generations.back().generation + 1) + " (median " +
           Fixed(run->generations.back().fitness.median, 4) + ")" + (run == done.back() ? "." : ";");
   }
   return md + "\n";

@@ -448,15 +448,16 @@ TEST(TuningPlotSvgTest, YAxisCoversEveryQuartileWithNiceTicks) {
     EXPECT_NEAR(y.values[i] - y.values[i - 1], step, 1e-9);
     EXPECT_NEAR(y.values[i] / step, std::round(y.values[i] / step), 1e-6);
   }
-  // Generations 0 .. 39: integer ticks from 0, none past the last generation.
+  // Generations 1 .. 40 (numbered as slam-tune's console and table3.md number them): integer
+  // ticks from 1, none past the last generation.
   const Axis x = ReadAxis(xml, "x-tick", "x");
-  EXPECT_EQ(x.values.front(), 0.0);
-  EXPECT_LE(x.values.back(), 39.0);
+  EXPECT_EQ(x.values.front(), 1.0);
+  EXPECT_LE(x.values.back(), 40.0);
   EXPECT_GE(x.values.size(), 3u);
 }
 
 TEST(TuningPlotSvgTest, MedianMapsThroughTheAxis) {
-  // Known medians: -1 at generation 0, -3 at generation 10, -2 elsewhere; 21 generations.
+  // Known medians: -1 at generation 1, -3 at generation 11, -2 elsewhere; 21 generations.
   offline::TuningSeries s{"known", {}};
   for (int g = 0; g <= 20; ++g) {
     const double m = g == 0 ? -1.0 : (g == 10 ? -3.0 : -2.0);
@@ -468,9 +469,9 @@ TEST(TuningPlotSvgTest, MedianMapsThroughTheAxis) {
   const Axis y = ReadAxis(xml, "y-tick", "y");
   const std::vector<Point> points = ParsePoints(xml.WithClass("median")[0]->Attr("points"));
   ASSERT_EQ(points.size(), 21u);
-  EXPECT_NEAR(points[0].x, x.Pixel(0), 0.01);
-  EXPECT_NEAR(points[10].x, x.Pixel(10), 0.01);
-  EXPECT_NEAR(points[20].x, x.Pixel(20), 0.01);
+  EXPECT_NEAR(points[0].x, x.Pixel(1), 0.01);
+  EXPECT_NEAR(points[10].x, x.Pixel(11), 0.01);
+  EXPECT_NEAR(points[20].x, x.Pixel(21), 0.01);
   EXPECT_NEAR(points[0].y, y.Pixel(-1.0), 0.01);
   EXPECT_NEAR(points[10].y, y.Pixel(-3.0), 0.01);
   EXPECT_NEAR(points[5].y, y.Pixel(-2.0), 0.01);
@@ -577,10 +578,10 @@ TEST(TuningPlotImageTest, PngHasTheSizeTheSeriesColoursAndMediansWhereTheAxisPut
   EXPECT_EQ(CountColor(image, x0, y0, x1, y1, offline::TuningSeriesColor(3)), 0);
   EXPECT_GT(CountColor(image, x1, 0, image.width, image.height, offline::TuningSeriesColor(3)), 0);
 
-  // At generation 30 the medians are apart: each column holds its line within 2 px of the axis.
+  // At generation 31 the medians are apart: each column holds its line within 2 px of the axis.
   for (size_t k = 0; k < 2; ++k) {
     const offline::TuningBand& b = series[k].generations[30];
-    const auto column = static_cast<int>(std::lround(x.Pixel(30)));
+    const auto column = static_cast<int>(std::lround(x.Pixel(31)));
     int sum = 0, n = 0;
     for (int row = y0; row < y1; ++row) {
       if (Pixel(image, column, row) == offline::TuningSeriesColor(k)) {
