@@ -15,6 +15,7 @@
 #include <optional>
 
 #include "engine/io/atomic_file.hpp"
+#include "engine/io/params_json.hpp"
 #include "engine/thread_safety.hpp"
 #include "offline/carmen_log.hpp"
 #include "offline/replay.hpp"
@@ -87,6 +88,30 @@ std::vector<double> Column(const std::vector<EvaluationRun>& runs, int64_t budge
 }
 
 }  // namespace
+
+Result<ParamsDirectory> LoadParamsDirectory(const std::string& dir,
+                                            const std::vector<int64_t>& budgets) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) {
+    return Error(dir + ": not a directory of parameter sets" +
+                 (ec ? " (" + ec.message() + ")" : std::string()));
+  }
+  ParamsDirectory found;
+  for (const int64_t budget : budgets) {
+    const fs::path path = fs::path(dir) / (std::to_string(budget) + ".json");
+    // Missing only when nothing is there, not even a broken link: a file that exists but cannot
+    // be read is an error, never silently replaced by the shipped set.
+    if (fs::symlink_status(path, ec).type() == fs::file_type::not_found) {
+      found.shipped.push_back(budget);
+      continue;
+    }
+    const Result<SlamParams> loaded = io::LoadParams(path.string());
+    if (!loaded.ok()) return {loaded.errors(), loaded.error_context()};
+    found.by_budget[budget] = ParamsChoice(path.string(), loaded.value());
+  }
+  return found;
+}
 
 Result<std::vector<std::string>> FindExperimentDirs(const std::vector<std::string>& paths) {
   // An experiment directory holds can.log, or log.clf for a robot with a laser.

@@ -24,6 +24,18 @@ namespace slam::offline {
 /// an error naming the path that is neither.
 Result<std::vector<std::string>> FindExperimentDirs(const std::vector<std::string>& paths);
 
+/// The parameter sets of a directory as slam-tune writes them (<budget>.json), for `budgets`.
+struct ParamsDirectory {
+  std::map<int64_t, ParamsChoice> by_budget;  // the budgets with a file
+  std::vector<int64_t> shipped;               // the budgets without one: the shipped sets
+};
+
+/// Reads `dir`/<budget>.json for each budget (a study may have tuned only some of them); a
+/// budget without a file goes to `shipped`. An error names a file that exists but cannot be
+/// read or is not a valid parameter set, or a `dir` that is not a directory.
+Result<ParamsDirectory> LoadParamsDirectory(const std::string& dir,
+                                            const std::vector<int64_t>& budgets);
+
 struct EvaluationPlan {
   std::vector<int64_t> budgets{8125, 16250, 32500, 65000};
   bool slam = true;                                  // with phase B

@@ -34,6 +34,8 @@
 #include "server/state_store.hpp"
 #include "server/tune_jobs.hpp"
 #include "sim/virtual_marxbot.hpp"
+#include "sim/world.hpp"
+#include "tools/command_line.hpp"
 
 #ifndef SLAMD_WEB_ROOT
 #define SLAMD_WEB_ROOT ""
@@ -81,9 +83,9 @@ int main(int argc, char** argv) {
   bool quiet = false;
   app.add_option(
          "--source", source,
-         "sim:WORLD (box, rooms, cluttered or a world.json), candump:FILE, "
-         "slcan:DEVICE, udp:[ADDRESS:]PORT[,from=SENDER] (loopback unless ADDRESS is given) "
-         "or socketcan:IFACE")
+         "sim:WORLD (a built-in world: " + slam::sim::BuiltinWorldList() +
+             "; or a world.json), candump:FILE, slcan:DEVICE, udp:[ADDRESS:]PORT[,from=SENDER] "
+             "(loopback unless ADDRESS is given) or socketcan:IFACE")
       ->capture_default_str();
   app.add_option("--robot", robot_path, "robot description (robot.json)")->capture_default_str();
   app.add_option("--params", params_path,
@@ -137,7 +139,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_flag("--quiet", quiet, "no periodic status line on stderr");
   app.set_version_flag("--version", std::string("slamd ") + SLAMD_VERSION);
-  CLI11_PARSE(app, argc, argv);
+  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
 
   const auto robot = slam::io::LoadRobot(robot_path);
   if (!robot.ok()) return Fail(robot.Message());

@@ -4,6 +4,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <limits>
 #include <nlohmann/json.hpp>
@@ -225,6 +226,15 @@ World ClutteredArena() {
   world.circles.push_back({{1.0, 0.35}, 0.07});
   return world;
 }
+
+/// The arenas of the paper's size, built in code; with the files of BuiltinWorldFiles(), the one
+/// table of built-in worlds that the names, the lookup, help texts and errors all come from.
+struct BuiltinArena {
+  std::string_view name;
+  World (*make)();
+};
+constexpr BuiltinArena kBuiltinArenas[] = {
+    {"box", BoxArena}, {"rooms", RoomsArena}, {"cluttered", ClutteredArena}};
 
 }  // namespace
 
@@ -482,7 +492,11 @@ Result<void> SaveWorld(const std::string& path, const World& world) {
   return io::WriteFileAtomic(path, WorldToJson(world));
 }
 
-std::vector<std::string> BuiltinArenaNames() { return {"box", "rooms", "cluttered"}; }
+std::vector<std::string> BuiltinArenaNames() {
+  std::vector<std::string> names;
+  for (const BuiltinArena& arena : kBuiltinArenas) names.emplace_back(arena.name);
+  return names;
+}
 
 std::vector<std::string> BuiltinWorldNames() {
   std::vector<std::string> names = BuiltinArenaNames();
@@ -490,10 +504,16 @@ std::vector<std::string> BuiltinWorldNames() {
   return names;
 }
 
+std::string BuiltinWorldList() {
+  std::string list;
+  for (const std::string& name : BuiltinWorldNames()) list += (list.empty() ? "" : ", ") + name;
+  return list;
+}
+
 std::optional<World> BuiltinWorld(std::string_view name) {
-  if (name == "box") return BoxArena();
-  if (name == "rooms") return RoomsArena();
-  if (name == "cluttered") return ClutteredArena();
+  for (const BuiltinArena& arena : kBuiltinArenas) {
+    if (arena.name == name) return arena.make();
+  }
   for (const WorldFile& file : BuiltinWorldFiles()) {
     if (file.name != name) continue;
     // The files are parsed when used; a test parses every one of them.
@@ -506,6 +526,13 @@ std::optional<World> BuiltinWorld(std::string_view name) {
 
 Result<World> ResolveWorld(const std::string& name_or_path) {
   if (std::optional<World> world = BuiltinWorld(name_or_path)) return std::move(*world);
+  // A name that is no file either is most likely a mistyped or hoped-for built-in world: the
+  // error lists them rather than only "cannot open".
+  std::error_code ec;
+  if (!std::filesystem::exists(std::filesystem::symlink_status(name_or_path, ec))) {
+    return Error("'" + name_or_path + "' is neither a built-in world (" + BuiltinWorldList() +
+                 ") nor a world.json file (" + (ec ? ec.message() : std::strerror(ENOENT)) + ")");
+  }
   return LoadWorld(name_or_path);
 }
 

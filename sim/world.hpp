@@ -97,14 +97,18 @@ Result<void> SaveWorld(const std::string& path, const World& world);
 /// "cluttered".
 std::vector<std::string> BuiltinArenaNames();
 
-/// Names of every built-in world: the arenas, then the real-size rooms of sim/worlds/ ("flat",
-/// "corridor", "office", "studio", "lab").
+/// Names of every built-in world: the arenas, then the real-size worlds of sim/worlds/ in
+/// sim/CMakeLists.txt's order.
 std::vector<std::string> BuiltinWorldNames();
+
+/// BuiltinWorldNames() joined with ", " ("box, rooms, ..."), for help texts and errors.
+std::string BuiltinWorldList();
 
 /// A built-in world by name, nullopt for an unknown name.
 std::optional<World> BuiltinWorld(std::string_view name);
 
-/// A built-in world when `name_or_path` names one, else the world.json file at that path.
+/// A built-in world when `name_or_path` names one, else the world.json file at that path; when
+/// there is no such file, an error that lists every built-in world.
 Result<World> ResolveWorld(const std::string& name_or_path);
 
 }  // namespace slam::sim

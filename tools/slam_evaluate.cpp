@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -17,6 +18,7 @@
 #include "offline/evaluation.hpp"
 #include "offline/experiment_reader.hpp"
 #include "offline/replay.hpp"
+#include "tools/command_line.hpp"
 
 namespace {
 
@@ -58,8 +60,8 @@ int main(int argc, char** argv) {
   app.add_option(
       "--params", params_path,
       "SLAM parameters (JSON, Table II keys), or a directory of them per budget "
-      "(<budget>.json, as slam-tune writes in OUT/params) [the shipped set of each budget: "
-      "config/params/]");
+      "(<budget>.json, as slam-tune writes in OUT/params; a budget without a file keeps its "
+      "shipped set) [the shipped set of each budget: config/params/]");
   app.add_option("--policy", policy_name, "fixed (the paper's) or adaptive particle count")
       ->capture_default_str()
       ->check(CLI::IsMember({"fixed", "adaptive"}));
@@ -89,7 +91,7 @@ int main(int argc, char** argv) {
                "exit with status 3 unless SLAM beats odometry-only on every experiment at the "
                "largest budget, halves its mean ATE, and mean q improves with the budget");
   app.set_version_flag("--version", std::string("slam-evaluate ") + SLAM_VERSION);
-  CLI11_PARSE(app, argc, argv);
+  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
 
   slam::offline::EvaluationPlan plan;
   plan.resolution_m = plan_resolution;
@@ -109,13 +111,13 @@ int main(int argc, char** argv) {
   plan.policy = *slam::ParseBudgetPolicy(policy_name);
   plan.max_particles = max_particles;
   if (!params_path.empty() && fs::is_directory(params_path)) {
-    // One file per budget; a budget without one is an error, not a silent default.
-    for (int64_t budget : plan.budgets) {
-      const std::string path =
-          (fs::path(params_path) / (std::to_string(budget) + ".json")).string();
-      const auto loaded = slam::io::LoadParams(path);
-      if (!loaded.ok()) return Fail(loaded.Message());
-      plan.params_by_budget[budget] = slam::ParamsChoice(path, loaded.value());
+    // One file per budget; a budget the study did not tune keeps the shipped set, said aloud.
+    auto loaded = slam::offline::LoadParamsDirectory(params_path, plan.budgets);
+    if (!loaded.ok()) return Fail(loaded.Message());
+    plan.params_by_budget = std::move(loaded.value().by_budget);
+    for (const int64_t budget : loaded.value().shipped) {
+      std::cerr << "slam-evaluate: " << params_path << " has no " << budget << ".json: budget "
+                << budget << " uses the shipped set (config/params/)\n";
     }
   } else if (!params_path.empty()) {
     const auto loaded = slam::io::LoadParams(params_path);

@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <variant>
 #include <vector>
@@ -21,6 +22,8 @@
 #include "hw_link/link.hpp"
 #include "hw_link/status_json.hpp"
 #include "server/source_spec.hpp"
+#include "sim/world.hpp"
+#include "tools/command_line.hpp"
 
 namespace {
 
@@ -58,8 +61,10 @@ int main(int argc, char** argv) {
   bool events = false;
   bool as_fast = false;
   app.add_option("--source", spec,
-                 "sim:WORLD, candump:FILE, slcan:DEVICE, udp:[ADDRESS:]PORT[,from=SENDER] "
-                 "(loopback unless ADDRESS is given) or socketcan:IFACE")
+                 "sim:WORLD (a built-in world: " + slam::sim::BuiltinWorldList() +
+                     "; or a world.json), candump:FILE, slcan:DEVICE, "
+                     "udp:[ADDRESS:]PORT[,from=SENDER] (loopback unless ADDRESS is given) or "
+                     "socketcan:IFACE")
       ->required();
   app.add_option("--robot", robot_path, "robot description")->capture_default_str();
   app.add_option("--seconds", seconds, "stop after this many seconds (0: never)")
@@ -70,7 +75,7 @@ int main(int argc, char** argv) {
                "instead of paced through the link thread (needs a source that ends: a log, or "
                "sim with --seconds)");
   app.set_version_flag("--version", std::string("slam-link ") + SLAM_VERSION);
-  CLI11_PARSE(app, argc, argv);
+  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
 
   const auto robot = slam::io::LoadRobot(robot_path);
   if (!robot.ok()) {

@@ -7,13 +7,16 @@
 #include <filesystem>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "engine/io/atomic_file.hpp"
+#include "engine/io/text_fields.hpp"
 #include "engine/io/tum.hpp"
 #include "offline/relations.hpp"
 #include "offline/statistics.hpp"
+#include "tools/command_line.hpp"
 
 namespace {
 
@@ -57,14 +60,18 @@ int main(int argc, char** argv) {
                  "write each trajectory's per-relation errors to DIR/<n>-<name>.tsv (the columns "
                  "of slam-replay's relations.tsv, without dead reckoning's)");
   app.set_version_flag("--version", std::string("slam-relations ") + SLAM_VERSION);
-  CLI11_PARSE(app, argc, argv);
+  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
 
   auto relations = slam::offline::LoadRelations(relations_path);
   if (!relations.ok()) return Fail(relations.Message());
   // Every trajectory is read before any is scored: one bad file fails the run with its line.
   std::vector<std::vector<slam::TimedPose>> trajectories;
   for (const std::string& path : trajectory_paths) {
-    auto loaded = slam::io::LoadTum(path);
+    // Read, then parsed: an unreadable file is named with the reason (no such file, a
+    // directory, permission denied), a bad line with its number.
+    const slam::Result<std::string> text = slam::io::ReadTextFile(path);
+    if (!text.ok()) return Fail(text.Message());
+    auto loaded = slam::io::ParseTum(text.value(), path);
     if (!loaded.ok()) return Fail(loaded.Message());
     if (loaded.value().empty()) return Fail(path + ": no pose");
     trajectories.push_back(std::move(loaded).value());

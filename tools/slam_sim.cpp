@@ -14,6 +14,7 @@
 #include <iostream>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -24,14 +25,9 @@
 #include "sim/experiment_writer.hpp"
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
+#include "tools/command_line.hpp"
 
 namespace {
-
-std::string JoinNames(const std::vector<std::string>& names) {
-  std::string out;
-  for (const std::string& name : names) out += (out.empty() ? "" : ", ") + name;
-  return out;
-}
 
 struct Job {
   std::string world_name;  // built-in name or the file's stem
@@ -69,9 +65,8 @@ int main(int argc, char** argv) {
   double speed_m_s = slam::sim::ScenarioConfig{}.speed_m_s;
   double turn_rate_rad_s = slam::sim::ScenarioConfig{}.turn_rate_rad_s;
   std::string odometry = "tracked";
-  app.add_option(
-      "--world", world_spec,
-      "built-in world (" + JoinNames(slam::sim::BuiltinWorldNames()) + ") or a world.json file");
+  app.add_option("--world", world_spec,
+                 "built-in world (" + slam::sim::BuiltinWorldList() + ") or a world.json file");
   app.add_option("--duration", duration_s, "simulated seconds")
       ->capture_default_str()
       ->check(CLI::Range(0.1, 86400.0));
@@ -119,7 +114,7 @@ int main(int argc, char** argv) {
   dataset->add_option("--duration", duration_s, "simulated seconds per run instead of 300")
       ->check(CLI::Range(0.1, 86400.0));
   app.set_version_flag("--version", std::string("slam-sim ") + SLAM_VERSION);
-  CLI11_PARSE(app, argc, argv);
+  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
 
   auto robot = slam::io::LoadRobot(robot_path);
   if (!robot.ok()) {

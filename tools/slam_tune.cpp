@@ -27,6 +27,7 @@
 #include "offline/experiment_reader.hpp"
 #include "offline/tuner.hpp"
 #include "offline/tuning_report.hpp"
+#include "tools/command_line.hpp"
 
 namespace {
 
@@ -165,7 +166,7 @@ int Run(int argc, char** argv) {
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));
   app.add_option("--start", start_path,
-                 "parameters of generation 0's first individual [Table II defaults]");
+                 "parameters of the first generation's first individual [Table II defaults]");
   app.add_option(
          "--jobs", jobs,
          "evaluations at once, one thread each (0: one per core); results do not depend on it")
@@ -187,7 +188,7 @@ int Run(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    if (g_rank == 0) return app.exit(e);
+    if (g_rank == 0) return slam::cli::ReportParseError(app, e);
     return e.get_exit_code();
   }
   quiet = quiet || g_rank != 0;            // rank 0 alone reports

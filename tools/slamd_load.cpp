@@ -24,10 +24,12 @@
 #include <cctype>
 #include <fstream>
 #include <iostream>
+#include <optional>
 #include <sstream>
 #include <string>
 
 #include "loadgen/load_run.hpp"
+#include "tools/command_line.hpp"
 
 namespace {
 
@@ -78,7 +80,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 100));
   app.add_flag("--json", as_json, "print one JSON object on stdout (the table goes to stderr)");
   app.set_version_flag("--version", std::string("slamd-load ") + SLAM_VERSION);
-  CLI11_PARSE(app, argc, argv);
+  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
 
   const auto target = slam::loadgen::ParseUrl(url);
   if (!target) {
