@@ -5,7 +5,8 @@
 // The first input byte chooses whether the client may change the budget (odd) and whether the
 // source is simulated (bit 1: the /ground_truth channel); the rest is split at each newline
 // into messages (text without "\n" is one message); a message starting with a NUL byte is taken
-// as a binary message.
+// as a binary message, one starting with byte 1 as a message too long, discarded unread (its
+// length kMaxMessageBytes plus its own).
 //
 // Invariants: nothing escapes (an exception would end slamd's serving thread); every reply is a
 // status (level 0..2, a message) or a parameterValues whose parameters are the budget's own; at
@@ -56,8 +57,17 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     const slam::BudgetSettings before_budget = budget;
     fox::Effects effects;
     try {
-      // A message starting with a NUL byte stands for a binary one.
-      effects = !message.empty() && message[0] == '\0' ? client.OnBinary() : client.OnText(message);
+      // A message starting with a NUL byte stands for a binary one, byte 1 for one too long.
+      if (!message.empty() && message[0] == '\0') {
+        effects = client.OnBinary();
+      } else if (!message.empty() && message[0] == '\1') {
+        effects = client.OnTooLong(fox::kMaxMessageBytes + message.size());
+        Check(effects.refused && effects.replies.size() == 1 && effects.subscribed.empty() &&
+                  effects.unsubscribed.empty() && !effects.budget_changed,
+              "a message too long did more than one status error");
+      } else {
+        effects = client.OnText(message);
+      }
     } catch (...) {
       Check(false, "an exception escaped the Foxglove protocol");
     }

@@ -253,12 +253,22 @@ json PointCloud(const std::vector<Vec2>& points, double t_s) {
           {"data", Base64(data)}};
 }
 
-std::string MessageData(uint32_t subscription, uint64_t timestamp_ns, std::string_view payload) {
+std::array<char, kMessageDataHeaderBytes> MessageDataHeader(uint32_t subscription,
+                                                            uint64_t timestamp_ns) {
   std::string frame;
-  frame.reserve(13 + payload.size());
   frame.push_back(1);  // opcode: message data
   AppendLittleEndian(frame, subscription, 4);
   AppendLittleEndian(frame, timestamp_ns, 8);
+  std::array<char, kMessageDataHeaderBytes> header{};
+  std::copy(frame.begin(), frame.end(), header.begin());
+  return header;
+}
+
+std::string MessageData(uint32_t subscription, uint64_t timestamp_ns, std::string_view payload) {
+  const auto header = MessageDataHeader(subscription, timestamp_ns);
+  std::string frame;
+  frame.reserve(header.size() + payload.size());
+  frame.append(header.data(), header.size());
   frame.append(payload);
   return frame;
 }

@@ -5,6 +5,8 @@
 // (foxglove.Grid, foxglove.PoseInFrame, ...), the binary message-data frame, and the budget as
 // parameters. Pure functions of a snapshot: the server (foxglove_server.hpp) moves the bytes.
 
+#include <array>
+#include <cstddef>
 #include <cstdint>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -78,6 +80,14 @@ nlohmann::json PointCloud(const std::vector<Vec2>& points, double t_s);
 /// The binary message-data frame (opcode 1): subscription id and receive timestamp (ns), both
 /// little-endian, then the payload.
 std::string MessageData(uint32_t subscription, uint64_t timestamp_ns, std::string_view payload);
+
+/// The size of a message-data frame's header (opcode, subscription id, timestamp).
+inline constexpr size_t kMessageDataHeaderBytes = 13;
+
+/// The header of MessageData's frame alone: the server sends it before a payload that every
+/// subscriber shares, rather than a copy of the payload per client.
+std::array<char, kMessageDataHeaderBytes> MessageDataHeader(uint32_t subscription,
+                                                            uint64_t timestamp_ns);
 
 /// The budget's parameters: budget.mode, budget.rays_per_scan, budget.cpu_share, budget.policy,
 /// budget.max_particles (numbers with type "float64").

@@ -23,6 +23,15 @@ Effects ClientProtocol::OnBinary() {
   return out;
 }
 
+Effects ClientProtocol::OnTooLong(uint64_t bytes) {
+  Effects out;
+  out.refused = true;
+  out.replies.push_back(
+      Status(kError, "a message of " + std::to_string(bytes) + " bytes was discarded: at most " +
+                         std::to_string(kMaxMessageBytes / 1024) + " KiB a message"));
+  return out;
+}
+
 Effects ClientProtocol::OnText(std::string_view text) {
   Effects out;
   const Result<json> parsed = ParseJsonBounded(text);
@@ -83,32 +92,44 @@ Effects ClientProtocol::OnText(std::string_view text) {
 void ClientProtocol::Subscribe(const json& list, Effects& out) {
   if (!list.is_array())
     throw json::type_error::create(302, "subscriptions must be an array", &list);
-  for (const json& s : list) {
-    const auto id = s.at("id").get<uint32_t>();
-    const auto channel_id = s.at("channelId").get<uint32_t>();
-    const auto spec = std::find_if(channels_.begin(), channels_.end(), [&](const auto& c) {
-      return static_cast<uint32_t>(c.id) == channel_id;
-    });
-    if (spec == channels_.end()) {
-      out.refused = true;
-      out.replies.push_back(Status(kError, "no channel " + std::to_string(channel_id)));
-      continue;
+  size_t refusals = 0;
+  const auto refuse = [&](const std::string& why) {
+    out.refused = true;
+    if (refusals++ < kMaxRefusalsNamed) out.replies.push_back(Status(kError, why));
+  };
+  // The refusals beyond the first few in one status, also when a later entry is malformed.
+  const auto tell = [&] {
+    if (refusals <= kMaxRefusalsNamed) return;
+    out.replies.push_back(Status(kError, std::to_string(refusals - kMaxRefusalsNamed) +
+                                             " more subscriptions of this message refused"));
+  };
+  try {
+    for (const json& s : list) {
+      const auto id = s.at("id").get<uint32_t>();
+      const auto channel_id = s.at("channelId").get<uint32_t>();
+      const auto spec = std::find_if(channels_.begin(), channels_.end(), [&](const auto& c) {
+        return static_cast<uint32_t>(c.id) == channel_id;
+      });
+      if (spec == channels_.end()) {
+        refuse("no channel " + std::to_string(channel_id));
+        continue;
+      }
+      if (subscriptions_.count(id) != 0) {
+        refuse("subscription " + std::to_string(id) + " is already in use");
+        continue;
+      }
+      if (subscriptions_.size() >= kMaxSubscriptions) {
+        refuse("at most " + std::to_string(kMaxSubscriptions) + " subscriptions per client");
+        break;
+      }
+      subscriptions_[id] = spec->id;
+      out.subscribed.push_back(id);
     }
-    if (subscriptions_.count(id) != 0) {
-      out.refused = true;
-      out.replies.push_back(
-          Status(kError, "subscription " + std::to_string(id) + " is already in use"));
-      continue;
-    }
-    if (subscriptions_.size() >= kMaxSubscriptions) {
-      out.refused = true;
-      out.replies.push_back(Status(
-          kError, "at most " + std::to_string(kMaxSubscriptions) + " subscriptions per client"));
-      break;
-    }
-    subscriptions_[id] = spec->id;
-    out.subscribed.push_back(id);
+  } catch (const json::exception&) {
+    tell();
+    throw;
   }
+  tell();
 }
 
 void ClientProtocol::GetParameters(const json& message, Effects& out) const {

@@ -22,6 +22,15 @@ namespace slam::server::foxglove {
 /// to one more than once): a client cannot grow slamd's memory by subscribing without end.
 inline constexpr size_t kMaxSubscriptions = 64;
 
+/// A client message longer than this (text or binary) is read and discarded, not parsed: the
+/// client is answered with a status error and the connection stays.
+inline constexpr size_t kMaxMessageBytes = 64 * 1024;
+
+/// A subscribe message's refused parts are answered with a status error each up to this many,
+/// the rest with one status that counts them: a message of 1800 bad subscriptions costs a few
+/// short replies, not 1800 (which a client that does not read them piled up in slamd).
+inline constexpr size_t kMaxRefusalsNamed = 8;
+
 /// How a client reaches the budget.
 struct BudgetAccess {
   std::function<BudgetSettings()> get;
@@ -47,6 +56,8 @@ class ClientProtocol {
   Effects OnText(std::string_view text);
   /// A binary message from the client (slamd takes none: no client publishing).
   Effects OnBinary();
+  /// A message of `bytes` bytes, longer than kMaxMessageBytes, that was discarded unread.
+  Effects OnTooLong(uint64_t bytes);
 
   const std::map<uint32_t, Channel>& subscriptions() const { return subscriptions_; }
   /// The budget's parameters this client follows.

@@ -3,6 +3,11 @@
 // Boost.Beast (Debian's libboost-dev 1.74, header-only with Boost.Asio) rather than
 // websocketpp 0.8.2: Beast builds as C++20 with GCC 12 (websocketpp's headers do not), and its
 // explicit asynchronous writes are what a bounded per-client queue needs.
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
+#include <array>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/post.hpp>
 #include <boost/asio/steady_timer.hpp>
@@ -20,6 +25,7 @@
 #include <utility>
 
 #include "server/api_json.hpp"
+#include "server/connection_admission.hpp"
 #include "server/foxglove_messages.hpp"
 #include "server/foxglove_protocol.hpp"
 #include "server/request_guard.hpp"
@@ -47,9 +53,25 @@ using foxglove::Status;
 constexpr auto kTick = std::chrono::milliseconds(50);
 constexpr auto kHandshakeTimeout = std::chrono::seconds(10);
 constexpr double kDropWarningEverySeconds = 5.0;
-constexpr size_t kMaxClientMessageBytes = 64 * 1024;
 constexpr size_t kMaxTrajectoryPoses = 5000;
-constexpr int kMaxHandshakes = 64;
+/// Connections that have not finished their upgrade hold a socket each for up to the handshake
+/// timeout: at most this many of one address, and in all (connection_admission.hpp).
+constexpr size_t kMaxHandshakes = 64;
+constexpr size_t kMaxHandshakesPerAddress = 16;
+/// What a client's control messages (status, parameterValues, serverInfo, advertise) may hold
+/// unsent, at their cost in memory: a client that asks for more replies than it reads is
+/// disconnected. slamd's own control messages are few (parameter updates replace one another,
+/// drop warnings come every 5 s): only a client's own requests fill this.
+constexpr size_t kMaxControlQueueBytes = 256 * 1024;
+/// A message longer than foxglove::kMaxMessageBytes is read on in chunks of this size, discarded.
+constexpr size_t kDiscardChunkBytes = 16 * 1024;
+/// The queue key of spontaneous parameterValues (beyond every subscription id): a newer one
+/// replaces one still waiting (it holds every followed parameter's value).
+constexpr int64_t kParameterUpdatesKey = int64_t{1} << 32;
+/// After a client leaves, its queue's memory goes back to the system (malloc_trim), at most this
+/// often: glibc keeps freed small blocks in its arenas, so slamd kept hundreds of megabytes after
+/// clients that had filled their queues were gone (measured, issue 46).
+constexpr auto kTrimEvery = std::chrono::seconds(1);
 constexpr int kSocketSendBuffer = 256 * 1024;
 /// The web app of Foxglove: a page of that origin may change the budget (without a token).
 constexpr std::string_view kFoxgloveAppOrigin = "https://app.foxglove.dev";
@@ -88,14 +110,15 @@ struct FoxgloveServer::Impl {
   tcp::acceptor acceptor{io};
   asio::steady_timer ticker{io};
   asio::steady_timer accept_retry{io};
-  int handshaking = 0;  // connections accepted that are not yet WebSockets (serving thread)
   std::thread thread;
   std::thread watcher;  // hands every published snapshot to the serving thread
   std::atomic<bool> stopping{false};
   bool started = false;
 
   // The serving thread's own state.
-  std::vector<std::shared_ptr<Session>> sessions;
+  std::vector<std::shared_ptr<Session>> sessions;  // every connection, from its accept
+  bool trim_pending = false;  // a client left: return freed memory (kTrimEvery)
+  Clock::time_point last_trim{};
   std::string server_info;  // the serverInfo and advertise messages, as sent
   std::string advertise;
   std::vector<foxglove::ChannelSpec> channels;
@@ -111,8 +134,9 @@ struct FoxgloveServer::Impl {
 
   // Counters (read by /metrics from other threads).
   std::atomic<int64_t> clients{0};
-  std::atomic<uint64_t> connections{0}, refused{0}, messages_sent{0}, messages_dropped{0},
-      messages_replaced{0}, bytes_sent{0}, parameter_changes{0}, bad_requests{0};
+  std::atomic<uint64_t> connections{0}, refused{0}, evicted{0}, closed_unread{0}, messages_sent{0},
+      messages_dropped{0}, messages_replaced{0}, bytes_sent{0}, parameter_changes{0},
+      bad_requests{0};
 
   Impl(SlamService& s, PatchBudget patch, const FoxgloveOptions& o)
       : service(s), patch_budget(std::move(patch)), options(o) {
@@ -138,6 +162,7 @@ struct FoxgloveServer::Impl {
   std::shared_ptr<const std::string> TrajectoryPayload(const SlamSnapshot& s);
   void CloseAll();
   void Forget(const Session* session);
+  void TrimMemory();
 };
 
 /// One client: the upgrade, then its subscriptions and its bounded send queue. Lives on the
@@ -145,20 +170,32 @@ struct FoxgloveServer::Impl {
 struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
   Impl& server;
   websocket::stream<beast::tcp_stream> ws;
+  const std::string peer;  // the client's address
+  const Clock::time_point since = Clock::now();
   beast::flat_buffer buffer;
+  uint64_t message_bytes = 0;  // read of the client's message being read
   http::request_parser<http::empty_body> parser;
-  bool writer = false;  // may change the budget
-  bool open = false;    // the WebSocket is up
+  bool writer = false;    // may change the budget
+  bool admitted = false;  // a client: its upgrade passed every check (counts against max_clients)
+  bool open = false;      // the WebSocket is up
   bool closed = false;
   std::optional<foxglove::ClientProtocol> protocol;  // once the WebSocket is up
 
   struct Outgoing {
-    std::shared_ptr<const std::string> bytes;
-    bool binary;
-    int64_t latest_only = -1;  // a subscription whose older queued message this one replaces
+    std::shared_ptr<const std::string> payload;  // message data's is shared by every subscriber
+    std::array<char, foxglove::kMessageDataHeaderBytes> header{};  // message data's own
+    bool binary = false;       // message data (header, then payload)
+    bool control = false;      // not droppable: counted against kMaxControlQueueBytes
+    int64_t latest_only = -1;  // the key whose older queued message this one replaces
+    size_t cost = 0;           // what the entry holds in memory
   };
+  /// An entry's memory beyond its payload's capacity: the entry in the deque, the shared string's
+  /// control block and std::string (one allocation), and the allocator's headers and rounding.
+  /// Counting only payload bytes let 60-byte statuses cost three times what was counted.
+  static constexpr size_t kEntryOverheadBytes = sizeof(Outgoing) + 96;
   std::deque<Outgoing> queue;
-  size_t queued_bytes = 0;
+  size_t queued_cost = 0;   // every entry's cost
+  size_t control_cost = 0;  // the control entries' cost
   bool writing = false;
   uint64_t dropped_untold = 0;
   Clock::time_point last_drop_warning{};
@@ -170,7 +207,8 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
   };
   std::map<uint32_t, Sent> sent;
 
-  Session(Impl& s, tcp::socket socket) : server(s), ws(std::move(socket)) {}
+  Session(Impl& s, tcp::socket socket, std::string address)
+      : server(s), ws(std::move(socket)), peer(std::move(address)) {}
 
   void ReadRequest() {
     // A fixed kernel send buffer (no autotuning up to megabytes): what a client has not read
@@ -258,12 +296,32 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
                     "no Foxglove subprotocol offered (Sec-WebSocket-Protocol: "
                     "foxglove.websocket.v1 or foxglove.sdk.v1)");
     }
-    if (server.clients.load() >= server.options.max_clients) {
-      return Refuse(
-          http::status::service_unavailable,
-          "too many Foxglove clients (" + std::to_string(server.options.max_clients) + ")",
-          {{"Retry-After", "5"}});
+    // The caps: a newcomer displaces the oldest client of its own address at that address's
+    // cap, else the oldest of the address holding the most; a page of another site (rank 0)
+    // never displaces a client that may change the budget (rank 1).
+    std::vector<HeldConnection> held;
+    std::vector<std::shared_ptr<Session>> holders;
+    for (const std::shared_ptr<Session>& s : server.sessions) {
+      if (!s->admitted || s->closed) continue;
+      held.push_back({s->peer, s->since, s->writer ? 1 : 0});
+      holders.push_back(s);
     }
+    const Admission admission =
+        Admit(held, peer, writer ? 1 : 0,
+              {static_cast<size_t>(std::max(1, server.options.max_clients_per_address)),
+               static_cast<size_t>(std::max(1, server.options.max_clients))});
+    if (!admission.admit) {
+      return Refuse(http::status::service_unavailable,
+                    "too many Foxglove clients (" + std::to_string(server.options.max_clients) +
+                        " in all, " + std::to_string(server.options.max_clients_per_address) +
+                        " per address), and none that a page of another site may displace",
+                    {{"Retry-After", "5"}});
+    }
+    if (admission.evict) {
+      server.evicted.fetch_add(1);
+      holders[*admission.evict]->Close();
+    }
+    admitted = true;
     beast::get_lowest_layer(ws).expires_never();
     websocket::stream_base::timeout timeouts{};
     timeouts.handshake_timeout = kHandshakeTimeout;
@@ -274,7 +332,9 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
       res.set(http::field::sec_websocket_protocol, subprotocol);
       res.set(http::field::server, std::string("slamd/") + SLAMD_VERSION);
     }));
-    ws.read_message_max(kMaxClientMessageBytes);
+    // No limit on Beast's side (it would close with 1009): Read discards what is beyond
+    // foxglove::kMaxMessageBytes and answers with a status error, the connection stays.
+    ws.read_message_max(0);
     ws.async_accept(req, [self = shared_from_this()](beast::error_code ec) {
       if (ec) return self->Close();
       self->OnOpen();
@@ -283,11 +343,9 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
 
   void OnOpen() {
     open = true;
-    --server.handshaking;
     protocol.emplace(
         server.channels, writer,
         foxglove::BudgetAccess{[this] { return server.service.Budget(); }, server.patch_budget});
-    server.sessions.push_back(shared_from_this());
     server.clients.fetch_add(1);
     server.connections.fetch_add(1);
     buffer.clear();
@@ -301,10 +359,22 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
     Read();
   }
 
+  /// Reads the client's next message piece by piece: up to foxglove::kMaxMessageBytes kept, the
+  /// rest of a longer one read and discarded; then what it asked is done.
   void Read() {
-    ws.async_read(buffer, [self = shared_from_this()](beast::error_code ec, size_t) {
+    const size_t room = message_bytes > foxglove::kMaxMessageBytes
+                            ? kDiscardChunkBytes
+                            : foxglove::kMaxMessageBytes + 1 - buffer.size();
+    ws.async_read_some(buffer, room, [self = shared_from_this()](beast::error_code ec, size_t n) {
       if (ec) return self->Close();
-      self->Apply(self->ws.got_text()
+      self->message_bytes += n;
+      if (self->message_bytes > foxglove::kMaxMessageBytes) {
+        self->buffer.consume(self->buffer.size());
+      }
+      if (!self->ws.is_message_done()) return self->Read();
+      const uint64_t bytes = std::exchange(self->message_bytes, 0);
+      self->Apply(bytes > foxglove::kMaxMessageBytes ? self->protocol->OnTooLong(bytes)
+                  : self->ws.got_text()
                       ? self->protocol->OnText(beast::buffers_to_string(self->buffer.data()))
                       : self->protocol->OnBinary());
       self->buffer.consume(self->buffer.size());
@@ -312,44 +382,62 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
     });
   }
 
+  /// Closes the socket (the pending operations end with an error) and forgets the session; its
+  /// memory goes with the last of them.
   void Close() {
     if (closed) return;
     closed = true;
-    if (!open) --server.handshaking;
     beast::error_code ignored;
     beast::get_lowest_layer(ws).socket().close(ignored);
     if (open) {
       server.clients.fetch_sub(1);
-      server.Forget(this);
+      server.trim_pending = true;
     }
+    server.Forget(this);
   }
 
-  void SendText(const std::string& text) {
-    Enqueue(std::make_shared<const std::string>(text), false, false);
+  void SendText(const std::string& text, int64_t latest_only = -1) {
+    Outgoing entry;
+    entry.payload = std::make_shared<const std::string>(text);
+    entry.latest_only = latest_only;
+    Enqueue(std::move(entry), false);
   }
-  void SendJson(const json& message) { SendText(Dump(message)); }
+  void SendJson(const json& message, int64_t latest_only = -1) {
+    SendText(Dump(message), latest_only);
+  }
 
-  /// Queues a message; a droppable one (message data) is dropped when the queue is full. One
-  /// `latest_only` (a subscription's id: the map, the trajectory, of which Foxglove keeps only
-  /// the last) replaces the subscription's message still waiting in the queue, if any.
-  void Enqueue(std::shared_ptr<const std::string> bytes, bool binary, bool droppable,
-               int64_t latest_only = -1) {
+  void Account(const Outgoing& entry, bool add) {
+    const auto apply = [add](size_t& total, size_t cost) {
+      total = add ? total + cost : total - cost;
+    };
+    apply(queued_cost, entry.cost);
+    if (entry.control) apply(control_cost, entry.cost);
+  }
+
+  /// Queues a message; a droppable one (message data) is dropped when the queue is full; a
+  /// control message beyond kMaxControlQueueBytes disconnects the client instead. One with
+  /// `latest_only` (a subscription's id: the map, the trajectory, of which Foxglove keeps only the
+  /// last; or kParameterUpdatesKey) replaces the one of that key still waiting in the queue.
+  void Enqueue(Outgoing entry, bool droppable) {
     if (closed) return;
-    if (latest_only >= 0) {
+    entry.control = !droppable;
+    entry.cost = entry.payload->capacity() + kEntryOverheadBytes;
+    if (entry.latest_only >= 0) {
       // The front is being written when `writing`: only later entries may be replaced.
       for (size_t i = writing ? 1 : 0; i < queue.size(); ++i) {
-        if (queue[i].latest_only != latest_only) continue;
-        queued_bytes = queued_bytes - queue[i].bytes->size() + bytes->size();
-        queue[i].bytes = std::move(bytes);
-        server.messages_replaced.fetch_add(1);
+        if (queue[i].latest_only != entry.latest_only) continue;
+        Account(queue[i], false);
+        if (entry.binary) server.messages_replaced.fetch_add(1);
+        queue[i] = std::move(entry);
+        Account(queue[i], true);
         return;
       }
     }
-    const size_t limit = server.options.max_queued_bytes;
-    // The message being written is the socket's already: the limit is on what waits behind it
-    // (a map larger than the buffer does not make the poses after it drop).
-    const size_t waiting = queued_bytes - (writing ? queue.front().bytes->size() : 0);
-    if (droppable && waiting + bytes->size() > limit && waiting > 0) {
+    // The message being written is the socket's already: the limits are on what waits behind
+    // it (a map larger than the buffer does not make the poses after it drop).
+    const Outgoing* front = writing ? &queue.front() : nullptr;
+    const size_t waiting = queued_cost - (front ? front->cost : 0);
+    if (droppable && waiting + entry.cost > server.options.max_queued_bytes && waiting > 0) {
       server.messages_dropped.fetch_add(1);
       ++dropped_untold;
       const auto now = Clock::now();
@@ -362,36 +450,50 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
       }
       return;
     }
-    if (!droppable && waiting > 2 * limit) {
-      // A client that reads nothing at all: let it go rather than hold its messages.
+    const size_t control_waiting = control_cost - (front && front->control ? front->cost : 0);
+    if (!droppable && control_waiting + entry.cost > kMaxControlQueueBytes) {
+      // A client that asks for more than it reads: let it go rather than hold its replies.
+      server.closed_unread.fetch_add(1);
       return Close();
     }
-    if (binary) server.messages_sent.fetch_add(1);
-    queued_bytes += bytes->size();
-    queue.push_back({std::move(bytes), binary, latest_only});
+    if (entry.binary) server.messages_sent.fetch_add(1);
+    queue.push_back(std::move(entry));
+    Account(queue.back(), true);
     Pump();
   }
 
   void Pump() {
     if (writing || queue.empty() || closed) return;
     writing = true;
-    ws.binary(queue.front().binary);
-    ws.async_write(asio::buffer(*queue.front().bytes),
-                   [self = shared_from_this()](beast::error_code ec, size_t n) {
-                     self->writing = false;
-                     if (ec) return self->Close();
-                     self->server.bytes_sent.fetch_add(n);
-                     self->queued_bytes -= self->queue.front().bytes->size();
-                     self->queue.pop_front();
-                     self->Pump();
-                   });
+    const Outgoing& front = queue.front();
+    ws.binary(front.binary);
+    auto done = [self = shared_from_this()](beast::error_code ec, size_t n) {
+      self->writing = false;
+      if (ec) return self->Close();
+      self->server.bytes_sent.fetch_add(n);
+      self->Account(self->queue.front(), false);
+      self->queue.pop_front();
+      self->Pump();
+    };
+    // The deque keeps the front where it is while later entries come and go.
+    if (front.binary) {
+      ws.async_write(std::array<asio::const_buffer, 2>{asio::buffer(front.header),
+                                                       asio::buffer(*front.payload)},
+                     std::move(done));
+    } else {
+      ws.async_write(asio::buffer(*front.payload), std::move(done));
+    }
   }
 
-  void SendData(uint32_t subscription, double t_s, const std::string& payload,
+  /// A message-data frame of a payload shared with the other subscribers.
+  void SendData(uint32_t subscription, double t_s, std::shared_ptr<const std::string> payload,
                 bool latest_only = false) {
-    Enqueue(std::make_shared<const std::string>(
-                foxglove::MessageData(subscription, Nanoseconds(t_s), payload)),
-            true, true, latest_only ? int64_t{subscription} : -1);
+    Outgoing entry;
+    entry.payload = std::move(payload);
+    entry.header = foxglove::MessageDataHeader(subscription, Nanoseconds(t_s));
+    entry.binary = true;
+    entry.latest_only = latest_only ? int64_t{subscription} : -1;
+    Enqueue(std::move(entry), true);
   }
 
   /// Does what a client message asked: the replies, and the latest of each new subscription's
@@ -423,16 +525,26 @@ void FoxgloveServer::Impl::Accept() {
       });
       return;
     }
-    if (handshaking >= kMaxHandshakes) {
-      // Connections that have not finished their upgrade hold a socket each for up to the
-      // handshake timeout: beyond this many, new ones are closed at once.
-      refused.fetch_add(1);
-      beast::error_code ignored;
-      socket.close(ignored);
-    } else {
-      ++handshaking;
-      std::make_shared<Session>(*this, std::move(socket))->ReadRequest();
+    // The handshake caps (kMaxHandshakes): the oldest upgrade of the newcomer's address, or of
+    // the address holding the most, is closed to make room; the newcomer always gets its turn.
+    beast::error_code no_peer;
+    const tcp::endpoint remote = socket.remote_endpoint(no_peer);
+    std::string peer = no_peer ? std::string() : remote.address().to_string();
+    std::vector<HeldConnection> held;
+    std::vector<std::shared_ptr<Session>> holders;
+    for (const std::shared_ptr<Session>& s : sessions) {
+      if (s->admitted || s->closed) continue;
+      held.push_back({s->peer, s->since, 0});
+      holders.push_back(s);
     }
+    const Admission admission = Admit(held, peer, 0, {kMaxHandshakesPerAddress, kMaxHandshakes});
+    if (admission.evict) {
+      evicted.fetch_add(1);
+      holders[*admission.evict]->Close();
+    }
+    auto session = std::make_shared<Session>(*this, std::move(socket), std::move(peer));
+    sessions.push_back(session);
+    session->ReadRequest();
     Accept();
   });
 }
@@ -479,7 +591,7 @@ void FoxgloveServer::Impl::Publish(const std::shared_ptr<const SlamSnapshot>& sn
           if (!first && (sent.key == key || Seconds(now - sent.at) < period)) break;
           if (!is_map && !s.has_pose) break;
           const auto payload = is_map ? MapPayload(s) : TrajectoryPayload(s);
-          session->SendData(id, is_map ? map.t_s : trajectory.t_s, *payload, true);
+          session->SendData(id, is_map ? map.t_s : trajectory.t_s, payload, true);
           sent = {key, true, now};
           break;
         }
@@ -506,7 +618,7 @@ void FoxgloveServer::Impl::Publish(const std::shared_ptr<const SlamSnapshot>& sn
             if (!*payload) message = foxglove::PoseInFrame({s.pose.t, *s.truth});
           }
           if (!*payload) *payload = std::make_shared<const std::string>(Dump(message));
-          session->SendData(id, s.pose.t, **payload);
+          session->SendData(id, s.pose.t, *payload);
           sent = {s.sequence, true, now};
           break;
         }
@@ -530,9 +642,23 @@ void FoxgloveServer::Impl::Tick() {
             session->protocol->parameter_updates().count(p["name"].get<std::string>()) != 0)
           values.push_back(p);
       }
-      if (!values.empty()) session->SendJson({{"op", "parameterValues"}, {"parameters", values}});
+      if (!values.empty()) {
+        session->SendJson({{"op", "parameterValues"}, {"parameters", values}},
+                          kParameterUpdatesKey);
+      }
     }
   }
+  if (trim_pending && Clock::now() - last_trim >= kTrimEvery) TrimMemory();
+}
+
+void FoxgloveServer::Impl::TrimMemory() {
+  trim_pending = false;
+  last_trim = Clock::now();
+#if defined(__GLIBC__)
+  // Gives the free pages of every arena back (madvise); takes each arena's lock for the walk, a
+  // few milliseconds at most, and runs only after a client left, at most once a second.
+  malloc_trim(0);
+#endif
 }
 
 void FoxgloveServer::Impl::CloseAll() {
@@ -622,6 +748,8 @@ FoxgloveCounters FoxgloveServer::Counters() const {
   c.clients = s.clients.load();
   c.connections = s.connections.load();
   c.refused = s.refused.load();
+  c.evicted = s.evicted.load();
+  c.closed_unread = s.closed_unread.load();
   c.messages_sent = s.messages_sent.load();
   c.messages_dropped = s.messages_dropped.load();
   c.messages_replaced = s.messages_replaced.load();
@@ -643,6 +771,13 @@ std::string FoxgloveServer::MetricsText() const {
   metric("refused_total", "counter",
          "Foxglove WebSocket upgrades refused (not an upgrade, host, token, subprotocol, cap).",
          c.refused);
+  metric("evicted_total", "counter",
+         "Foxglove connections closed to make room for a newer one (the oldest of the same "
+         "address, or of the address holding the most).",
+         c.evicted);
+  metric("closed_unread_total", "counter",
+         "Foxglove clients disconnected because their replies waited unread beyond the bound.",
+         c.closed_unread);
   metric("messages_sent_total", "counter", "Foxglove message-data frames queued for clients.",
          c.messages_sent);
   metric("messages_dropped_total", "counter",

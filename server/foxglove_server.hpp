@@ -4,8 +4,11 @@
 // (foxglove.websocket.v1, or foxglove.sdk.v1), JSON-encoded with the Foxglove schemas, and the
 // budget as parameters. One thread of its own serves every client (Boost.Beast on Boost.Asio):
 // it reads the SLAM's published snapshots and never makes the SLAM thread wait. Each client has
-// a bounded send queue: a slow or stuck client loses messages (counted, and told once in a
-// while with a status message), never delays anyone else.
+// a bounded send queue, counted at what its entries cost in memory: a slow or stuck client loses
+// messages (counted, and told once in a while with a status message), never delays anyone else,
+// and one that leaves its replies unread is disconnected. Connections are admitted by the rule of
+// server/connection_admission.hpp (per address and in all, the oldest of the fullest address
+// giving way), both while they upgrade and once they are clients: no address locks others out.
 
 #include <atomic>
 #include <cstdint>
@@ -27,7 +30,8 @@ struct FoxgloveOptions {
   std::string token;  // when set, every connection must present it (Authorization: Bearer)
   /// Besides loopback names and IP addresses, the Host names it answers (--allow-host).
   std::vector<std::string> allowed_hosts;
-  int max_clients = 16;                       // connections beyond are refused (503)
+  int max_clients = 16;             // beyond: the oldest of the fullest address goes, or 503
+  int max_clients_per_address = 8;  // beyond: the oldest of the same address goes, or 503
   size_t max_queued_bytes = size_t{8} << 20;  // per client: messages beyond are dropped
   size_t max_grid_cells = size_t{1} << 20;    // /map is merged into larger cells beyond
   double map_period_s = 1.0;                  // /map at most this often while it changes
@@ -39,6 +43,8 @@ struct FoxgloveCounters {
   int64_t clients = 0;             // connected now
   uint64_t connections = 0;        // accepted since start
   uint64_t refused = 0;            // upgrades refused (bad request, host, token, cap)
+  uint64_t evicted = 0;            // connections closed to make room for a newer one
+  uint64_t closed_unread = 0;      // clients disconnected for leaving their replies unread
   uint64_t messages_sent = 0;      // message-data frames queued for sending
   uint64_t messages_dropped = 0;   // message-data frames dropped at a full queue
   uint64_t messages_replaced = 0;  // /map, /trajectory replaced in the queue by a newer one

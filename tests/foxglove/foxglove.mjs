@@ -290,13 +290,16 @@ async function openChecks() {
   check(update.parameters.every((q) => ['budget.rays_per_scan', 'budget.policy'].includes(q.name)), 'updates of parameters not followed');
   log('REST change seen by the parameter subscriber');
 
-  // A malformed message and an unsupported op: status errors, the connection stays.
+  // A malformed message, an unsupported op and one of more than 64 KiB: status errors, the
+  // connection stays.
   a.ws.send('{"op": "subscribe", "subscriptions": 7}');
   await expectStatusError(a, 'a malformed subscribe', 'subscribe');
   a.ws.send('not json');
   await expectStatusError(a, 'text that is not JSON', 'JSON');
   a.ws.send(JSON.stringify({ op: 'advertise', channels: [] }));
   await expectStatusError(a, 'client publishing', 'advertise');
+  a.ws.send(' '.repeat(65 * 1024) + '{}');
+  await expectStatusError(a, 'a message of 65 KiB', '64 KiB');
   const poses = count(a, '/pose');
   await waitFor('more poses after bad messages', 5000, () => count(a, '/pose') > poses);
 
