@@ -219,8 +219,20 @@ struct AbsentTile : Tile {
 const AbsentTile kAbsentTileStorage;
 const Tile& TileField::kAbsentTile = kAbsentTileStorage;
 
-inline bool UsesFastPath(double max_range_m, LogOdds occupied_above) {
-  return occupied_above >= kSummaryThreshold && max_range_m > 0;
+/// Whether FastRay may cast the ray: a threshold the summaries serve, a positive range, and both
+/// ends within kFastRayBound cells of the origin, where its int32 cells and its crossing times
+/// (relative to the first cell) are exact. Rays beyond (never in a map, which ends at
+/// kMapCellBound, but a caller may ask) go cell by cell through TraverseCells, which clips them
+/// to the map's bound: the same answers, in bounded time.
+inline constexpr double kFastRayBound = 1 << 24;
+inline bool UsesFastPath(const GridGeometry& geometry, const Vec2& origin, const Vec2& direction,
+                         double max_range_m, LogOdds occupied_above) {
+  if (!(occupied_above >= kSummaryThreshold && max_range_m > 0)) return false;
+  const Vec2 a = geometry.ToGrid(origin), b = geometry.ToGrid(origin + direction * max_range_m);
+  const auto near = [](const Vec2& p) {
+    return std::abs(p.x()) <= kFastRayBound && std::abs(p.y()) <= kFastRayBound;  // not NaN
+  };
+  return near(a) && near(b);
 }
 
 }  // namespace

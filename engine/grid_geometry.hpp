@@ -23,6 +23,9 @@ inline constexpr int kTileCells = kTileSize * kTileSize;
 /// written beyond it, so that no input (odometry gone wild, a crafted saved map) can make a grid
 /// or an export of it grow without bound: a grid's tile table is at most 256 x 256 entries (1 MiB).
 inline constexpr int32_t kMapTileBound = 128;
+/// The same bound in cells: cells (i, j) with -kMapCellBound <= i, j < kMapCellBound make the
+/// map; in grid coordinates (GridGeometry::ToGrid), the square [-kMapCellBound, kMapCellBound]^2.
+inline constexpr int32_t kMapCellBound = kMapTileBound * kTileSize;
 
 /// Integer coordinates of a cell.
 struct CellIndex {
@@ -55,10 +58,19 @@ class GridGeometry {
 
   /// Continuous grid coordinates (cells as unit squares) of a world point.
   Vec2 ToGrid(const Vec2& p) const { return p * inv_; }
-  /// The cell containing a world point.
+  /// The cell containing a world point; beyond kCellSaturation cells from the origin (and for
+  /// NaN), the cell at that distance on the point's side (0 for NaN): never an int32 overflow.
   CellIndex CellOf(const Vec2& p) const {
-    return {static_cast<int32_t>(std::floor(p.x() * inv_)),
-            static_cast<int32_t>(std::floor(p.y() * inv_))};
+    return {SaturatedFloor(p.x() * inv_), SaturatedFloor(p.y() * inv_)};
+  }
+  /// Far beyond the map's bound, far within int32: where CellOf saturates.
+  static constexpr int32_t kCellSaturation = int32_t{1} << 30;
+  /// Whether a world point is finite and inside the map's bound (the cells kMapCellBound
+  /// defines): where the engine accepts a pose.
+  bool InMapBound(const Vec2& p) const {
+    const double x = p.x() * inv_, y = p.y() * inv_;
+    constexpr double b = kMapCellBound;
+    return x >= -b && x < b && y >= -b && y < b;  // false for NaN
   }
   /// The world position of a cell's centre.
   Vec2 CellCenter(CellIndex c) const {
@@ -77,6 +89,13 @@ class GridGeometry {
   }
 
  private:
+  static int32_t SaturatedFloor(double v) {
+    constexpr double limit = kCellSaturation;
+    if (!(v > -limit)) return v < 0 ? -kCellSaturation : 0;  // NaN: 0
+    if (!(v < limit)) return kCellSaturation;
+    return static_cast<int32_t>(std::floor(v));
+  }
+
   double resolution_;
   double inv_;
 };

@@ -35,7 +35,7 @@ RayHit CastToObstaclePlain(const OccupancyGrid& grid, const Vec2& origin, const 
 
 RayHit CastToObstacle(const OccupancyGrid& grid, const Vec2& origin, const Vec2& direction,
                       double max_range_m, LogOdds occupied_above) {
-  if (!UsesFastPath(max_range_m, occupied_above)) {
+  if (!UsesFastPath(grid.geometry(), origin, direction, max_range_m, occupied_above)) {
     return CastToObstaclePlain(grid, origin, direction, max_range_m, occupied_above);
   }
   if (!grid.HasTiles()) return RayHit{max_range_m, max_range_m, false, 0, 0};  // nothing to hit
@@ -48,7 +48,8 @@ void CastToObstacles(const OccupancyGrid& grid, const std::vector<RayQuery>& ray
   CastInPairs(
       TileField(grid, occupied_above), grid.geometry(), rays, hits,
       [&](const RayQuery& q) {
-        return grid.HasTiles() && UsesFastPath(q.max_range_m, occupied_above);
+        return grid.HasTiles() &&
+               UsesFastPath(grid.geometry(), q.origin, q.direction, q.max_range_m, occupied_above);
       },
       [&](const RayQuery& q) {
         return CastToObstacle(grid, q.origin, q.direction, q.max_range_m, occupied_above);

@@ -218,6 +218,13 @@ std::optional<Pose2> FittedPeak(std::span<const Pose2> poses, std::span<const do
                NormalizeAngle(best.theta + step[2] * search.angle)};
 }
 
+/// `pose` with its position moved inside the map's bound where it is not (half a cell inside).
+Pose2 ClampToMapBound(const Pose2& pose, const GridGeometry& geometry) {
+  if (geometry.InMapBound(pose.translation())) return pose;
+  const double limit = (kMapCellBound - 0.5) * geometry.resolution();
+  return {std::clamp(pose.x, -limit, limit), std::clamp(pose.y, -limit, limit), pose.theta};
+}
+
 }  // namespace
 
 // The robot's path through one scan for one particle: the odometry path anchored at the particle's
@@ -381,7 +388,12 @@ Slam::Slam(const RobotDescription& robot, const SlamParams& params, const SlamCo
                     Particle{{}, 0.0, empty, nullptr});
 }
 
-void Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
+bool Slam::AcceptsPose(const Pose2& pose) const {
+  return std::isfinite(pose.theta) && geometry_.InMapBound(pose.translation());
+}
+
+bool Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
+  if (!AcceptsPose(pose)) return false;
   unmatched_var_pos_ = 0.0;
   unmatched_var_angle_ = 0.0;
   correction_var_angle_.reset();
@@ -393,6 +405,7 @@ void Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
     p.history = nullptr;
     p.heading_drift = 0.0;
   }
+  return true;
 }
 
 const Particle& Slam::Best() const {
@@ -616,10 +629,59 @@ struct Slam::MatchResult {
   bool interrupted = false;
 };
 
+const char* ToString(ScanRefusal refusal) {
+  switch (refusal) {
+    case ScanRefusal::kNotFinite:
+      return "not_finite";
+    case ScanRefusal::kImplausibleMotion:
+      return "implausible_motion";
+    case ScanRefusal::kOutsideMap:
+      return "outside_map";
+    default:
+      return "none";
+  }
+}
+
+ScanRefusal Slam::CheckScan(const Scan& scan) const {
+  const auto finite = [](const Pose2& p) {
+    return std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.theta);
+  };
+  if (!std::isfinite(scan.t_begin) || !std::isfinite(scan.t_end) || !finite(scan.odom_begin) ||
+      !finite(scan.odom_end)) {
+    return ScanRefusal::kNotFinite;
+  }
+  // Not OdometryIntegrator::MaxTravelM, which counts at most kMaxJumpWindowS between two
+  // readings: a scan spans a silence of the scanner, however long, and the odometry the
+  // assembler accepted over it is real motion.
+  const double travel =
+      robot_.base.max_speed_m_s * (std::max(0.0, scan.t_end - scan.t_begin) + kScanTravelSlackS);
+  // Written so that an overflow to infinity (poses 1e300 apart) is refused too.
+  const auto near = [&](const Pose2& p) {
+    return std::hypot(p.x - scan.odom_begin.x, p.y - scan.odom_begin.y) <= travel;
+  };
+  if (!near(scan.odom_end)) return ScanRefusal::kImplausibleMotion;
+  for (const ScanSample& sample : scan.samples) {
+    if (!std::isfinite(sample.t) || !finite(sample.odom)) return ScanRefusal::kNotFinite;
+    if (!near(sample.odom)) return ScanRefusal::kImplausibleMotion;
+  }
+  const Pose2 motion = Between(scan.odom_begin, scan.odom_end);
+  for (const Particle& p : particles_) {
+    if (!AcceptsPose(Compose(p.pose, motion))) return ScanRefusal::kOutsideMap;
+  }
+  return ScanRefusal::kNone;
+}
+
 ScanReport Slam::ProcessScan(const Scan& scan, const ScanPlan& plan) {
   const uint64_t step = static_cast<uint64_t>(scans_processed_);
   ScanReport report;
   report.scan = scan.index;
+  report.refused = CheckScan(scan);
+  if (report.refused != ScanRefusal::kNone) {
+    ++scans_refused_;
+    report.particles = static_cast<int>(particles_.size());
+    report.pose = Best().pose;
+    return report;
+  }
   report.resampled = StartScan(scan, plan, step);
 
   const std::vector<Measurement> usable = CollectMeasurements(scan);
@@ -818,6 +880,12 @@ Slam::WindowPlan Slam::PlanWindows(const Prediction& prediction,
              std::max({box[3], origin.y(), end.y() + turn})};
     }
     const double pad = 4.0 * prediction.search_pos + 3.0 * config_.resolution_m;
+    // Near the map's bound (or beyond it), no window: the rays go through the grid, which
+    // clips them to the bound.
+    if (!geometry_.InMapBound({box[0] - pad, box[1] - pad}) ||
+        !geometry_.InMapBound({box[2] + pad, box[3] + pad})) {
+      continue;
+    }
     const CellIndex lo = geometry_.CellOf({box[0] - pad, box[1] - pad});
     const CellIndex hi = geometry_.CellOf({box[2] + pad, box[3] + pad});
     const int64_t cells = (int64_t{hi.x} - lo.x + 1) * (int64_t{hi.y} - lo.y + 1);
@@ -1004,11 +1072,14 @@ size_t Slam::UpdateParticles(const Scan& scan, const std::vector<Measurement>& u
       if (t > scan.t_begin && (chunk->poses.empty() || t > chunk->poses.back().t))
         chunk->poses.push_back({t, path.SamplePose(i, correction)});
     }
+    // The odometry kept the particle inside the map's bound (CheckScan); its search's spread may
+    // not have: the pose stays inside, where the engine takes poses (AcceptsPose).
+    const Pose2 end = ClampToMapBound(match.chosen[p], geometry_);
     if (chunk->poses.empty() || chunk->poses.back().t < scan.t_end)
-      chunk->poses.push_back({scan.t_end, match.chosen[p]});
+      chunk->poses.push_back({scan.t_end, end});
     chunk->parent = std::move(particle.history);
     particle.history = std::move(chunk);
-    particle.pose = match.chosen[p];
+    particle.pose = end;
     particle.log_weight += match.chosen_ll[p];
   });
   return updates.size();

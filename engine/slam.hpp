@@ -88,6 +88,17 @@ struct ScanSummary {
 /// Phase B fits the log-likelihood's peak when a particle has at least this many candidates.
 inline constexpr int kPeakFitMinCandidates = 20;
 
+/// Why Slam::ProcessScan refused a scan: nothing was done with it, the particles hold where
+/// they were (as across a restart of the base's odometry).
+enum class ScanRefusal {
+  kNone,
+  kNotFinite,          // a time or an odometry pose is not finite
+  kImplausibleMotion,  // the odometry moves further than the robot drives in the scan's time
+  kOutsideMap,         // the odometry would take a particle beyond the map's bound
+};
+/// "none", "not_finite", "implausible_motion", "outside_map".
+const char* ToString(ScanRefusal refusal);
+
 /// What the engine did with one scan.
 struct ScanReport {
   int64_t scan = 0;
@@ -109,6 +120,8 @@ struct ScanReport {
   /// The interrupt flag (Slam::set_interrupt) cut the scan's refinement short: some candidates
   /// beyond each particle's first were not evaluated (nor counted in `rays`).
   bool interrupted = false;
+  /// Not kNone when the scan was refused (Slam::ProcessScan): then nothing else was done.
+  ScanRefusal refused = ScanRefusal::kNone;
 };
 
 /// History of a particle: one chunk per scan, shared with the ancestors it was copied from.
@@ -141,12 +154,23 @@ class Slam {
   /// Preconditions: Validate(robot), Validate(params) and config.Validate() are empty.
   Slam(const RobotDescription& robot, const SlamParams& params, const SlamConfig& config);
 
-  /// Runs phases A-D on one scan within `plan` and reports what was done.
+  /// Runs phases A-D on one scan within `plan` and reports what was done. A scan whose times or
+  /// odometry are not finite, whose odometry moves further than the robot drives in the scan's
+  /// time (kScanTravelSlackS beyond it), or would take a particle beyond the map's bound is
+  /// refused (ScanReport::refused, counted in scans_refused()): the particles hold.
   ScanReport ProcessScan(const Scan& scan, const ScanPlan& plan);
+  /// Time allowed beyond a scan's own duration in its odometry's plausible travel (the base's
+  /// max_speed_m_s over both): readings are stamped when they arrive, in batches.
+  static constexpr double kScanTravelSlackS = 1.0;
 
   /// Starts every particle from a known map and pose (a saved map, or a map drawn by hand);
-  /// the map's tiles are shared, not copied. Precondition: same resolution as the config.
-  void Restore(const OccupancyGrid& map, const Pose2& pose);
+  /// the map's tiles are shared, not copied. Refuses (false, nothing changed) a pose that
+  /// AcceptsPose refuses. Precondition: same resolution as the config.
+  bool Restore(const OccupancyGrid& map, const Pose2& pose);
+
+  /// Whether the engine takes `pose` as a particle's: finite, its position inside the map's
+  /// bound (GridGeometry::InMapBound at the config's resolution).
+  bool AcceptsPose(const Pose2& pose) const;
 
   /// Log-likelihood (eq. 2) of a scan's matching measurements on the best particle's map, if
   /// the scan ended at `end` (from the particle's current pose). For diagnostics and tests.
@@ -184,6 +208,8 @@ class Slam {
   /// A particle's history as one time-ordered trajectory (Trajectory() is the best one's).
   static std::vector<TimedPose> History(const Particle& particle);
   int64_t scans_processed() const { return scans_processed_; }
+  /// Scans ProcessScan refused (not counted in scans_processed()).
+  int64_t scans_refused() const { return scans_refused_; }
 
  private:
   struct Measurement;
@@ -200,6 +226,8 @@ class Slam {
   using WindowPlan = std::vector<std::optional<WindowBounds>>;
 
   // ProcessScan's steps, in order.
+  /// Whether the scan may move the particles (ScanRefusal::kNone), or why not.
+  ScanRefusal CheckScan(const Scan& scan) const;
   /// Gives every particle a history and applies the plan's particle count (drawn from the
   /// current weights); true when it resampled.
   bool StartScan(const Scan& scan, const ScanPlan& plan, uint64_t step);
@@ -255,6 +283,7 @@ class Slam {
   std::vector<SensorModel> sensor_models_;  // one per scanner sensor, in event word order
   std::vector<Particle> particles_;
   int64_t scans_processed_ = 0;
+  int64_t scans_refused_ = 0;
   int64_t scans_since_resampling_ = 0;
   // Variance of the drift the map has not corrected since the last informative match (position
   // m^2, heading rad^2): the search spreads that much wider when readings return.
