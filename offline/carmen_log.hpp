@@ -16,7 +16,9 @@
 // before the host name, is used). The same rules for bad input as the CAN logs: a line that does
 // not parse (wrong field count, a non-number, a non-finite value) is counted and skipped, and
 // the first few are kept as "file:line: detail" messages; message types this project does not
-// use (TRUEPOS, SONAR, NMEA, ...) and comment lines ('#') are counted and skipped.
+// use (TRUEPOS, SONAR, NMEA, ...) and comment lines ('#') are counted and skipped. So is a record
+// beyond the bounds below (too many readings, a pose too far away, a line too long): a file
+// costs memory for what it holds, never for what it claims.
 
 #include <cstddef>
 #include <cstdint>
@@ -30,6 +32,21 @@
 #include "engine/result.hpp"
 
 namespace slam::offline {
+
+/// Bounds of what a record may hold; a line beyond them is malformed (counted, skipped, named).
+/// Readings (or remissions) in one record: 65 536, ten times the densest 2D scanner's sweep (a
+/// SICK LMS5xx at 1/24 degree gives 4 561 beams, a slowly turning RPLIDAR S2 about 6 400), so
+/// that one record's scan stays within 3 MiB (a reading becomes a 48-byte ScanSample).
+inline constexpr size_t kCarmenMaxReadings = 65536;
+/// Bytes in one line: room for kCarmenMaxReadings readings and as many remissions at 32 bytes
+/// each. A longer line is never held whole (LoadCarmenLog reads the file line by line).
+inline constexpr size_t kCarmenMaxLineBytes = size_t{4} << 20;
+/// A pose's coordinates (odometry, laser and robot poses): 10 000 km from the origin, beyond
+/// any robot's run (and any UTM coordinate), far within what the engine's arithmetic keeps
+/// exact to the micrometre. Angles: a million radians (160 000 turns, for an odometry that
+/// never wraps its heading).
+inline constexpr double kCarmenMaxPoseM = 1e7;
+inline constexpr double kCarmenMaxAngleRad = 1e6;
 
 struct CarmenOdometry {
   size_t line = 0;
@@ -85,7 +102,8 @@ struct CarmenLog {
 /// no laser record at all (the errors then include the first bad lines).
 Result<CarmenLog> ParseCarmenLog(std::string_view text, const std::string& source);
 
-/// Reads and parses a CARMEN log file.
+/// Reads and parses a CARMEN log file, line by line (never more than one line of at most
+/// kCarmenMaxLineBytes in memory besides the records kept).
 Result<CarmenLog> LoadCarmenLog(const std::string& path);
 
 /// True when `path` looks like a CARMEN log rather than an experiment directory: a regular file

@@ -123,6 +123,7 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   result.rays_total = rays_total;
   result.rays_per_scan_max = rays_max;
   result.resamplings = resamplings;
+  result.scans_refused = engine.scans_refused();
   result.params_set = *in_use;
   result.params_switches = switches;
   result.plans = std::move(plans);

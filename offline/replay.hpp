@@ -68,6 +68,9 @@ struct ReplayResult {
   int64_t rays_total = 0;
   int64_t rays_per_scan_max = 0;
   int64_t resamplings = 0;
+  /// Scans the engine refused (Slam::ProcessScan: odometry not finite, faster than the robot
+  /// drives, or beyond the map's bound): the pose held across them.
+  int64_t scans_refused = 0;
   ParamsSet params_set;           // the parameter set of the last scan
   int64_t params_switches = 0;    // scans whose set differed from the previous scan's
   std::vector<PlanRecord> plans;  // one per scan: the scheduler's plan and what it used

@@ -203,6 +203,12 @@ int main(int argc, char** argv) {
   const slam::offline::ReplayResult run =
       slam::offline::Replay(experiment.robot, experiment.scans, experiment.ground_truth, options);
 
+  if (run.scans_refused > 0) {
+    std::fprintf(stderr,
+                 "note: %lld scans refused by the SLAM (odometry not finite, faster than the "
+                 "robot drives, or beyond the map's bound): the pose held across them\n",
+                 static_cast<long long>(run.scans_refused));
+  }
   slam::offline::ReplayOutputs outputs =
       slam::offline::WriteReplayOutputs(out_dir, experiment, run, no_refine, options.budget);
   Json summary = slam::offline::ReplaySummary(experiment, run, options);
