@@ -1,12 +1,14 @@
 // slamd's state directory against what others may plant in it (issue 46): links, FIFOs, devices
 // and oversized files in place of slamd.lock, state.json and the files it names, or of jobs/;
-// saved poses beyond the map's bound; tuning jobs that write their outputs there.
+// saved poses beyond the map's bound; tuning jobs that write their outputs there; whole-map
+// exports of a map spread over the whole bound; the map picture's size and scale bar.
 
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -19,10 +21,13 @@
 #include "engine/cell_encoding.hpp"
 #include "engine/grid_geometry.hpp"
 #include "engine/io/atomic_file.hpp"
+#include "engine/io/canvas.hpp"
+#include "engine/io/map_image.hpp"
 #include "engine/occupancy_grid.hpp"
 #include "server/state_store.hpp"
 #include "server/tune_jobs.hpp"
 #include "tests/experiment_support.hpp"
+#include "tests/map_file_support.hpp"
 #include "tests/test_support.hpp"
 
 namespace slam::server {
@@ -320,6 +325,196 @@ TEST_F(TuneJobOutputs, ALinkedJobsFolderIsRefusedNotWrittenThrough) {
   EXPECT_EQ(linked.value("state", ""), "failed") << linked.dump();
   EXPECT_TRUE(Contains(linked.value("error", ""), "jobs/1: is a symbolic link")) << linked.dump();
   EXPECT_TRUE(fs::is_empty(elsewhere.path()));
+}
+
+// --- whole-map exports ---------------------------------------------------------------------------
+
+/// A 1 cm grid with one tile at each of two opposite corners of the map's bound, each with an
+/// occupied cell and a free one.
+OccupancyGrid CornerGrid() {
+  OccupancyGrid grid(GridGeometry(0.01), kLogOddsLimit);
+  grid.BeginWrite();
+  const int32_t lo = -kMapTileBound * kTileSize;     // first cell of the bound
+  const int32_t hi = kMapTileBound * kTileSize - 1;  // last cell
+  grid.Add({lo + 5, lo + 7}, EncodeLogOdds(3.0));
+  grid.Add({lo + 20, lo + 7}, EncodeLogOdds(-3.0));
+  grid.Add({hi - 9, hi - 2}, EncodeLogOdds(3.0));
+  grid.Add({hi - 30, hi - 2}, EncodeLogOdds(-3.0));
+  return grid;
+}
+
+TEST(WholeMapExport, TwoTilesAtOppositeCornersGiveAnImageWithinTheCap) {
+  const OccupancyGrid grid = CornerGrid();
+  const io::GridImage image = io::MakeGridImage(grid);
+  // The box is 16384 cells a side (268 Mpx): 4 cells a pixel give 4096 x 4096.
+  EXPECT_EQ(image.cells_per_pixel, 4);
+  EXPECT_EQ(image.width, 4096);
+  EXPECT_EQ(image.height, 4096);
+  EXPECT_LE(int64_t{image.width} * image.height, io::kMaxGridImagePixels);
+  EXPECT_DOUBLE_EQ(image.resolution_m, 0.04);
+
+  // Saved: map.yaml's resolution and origin place each occupied cell's centre on a black pixel
+  // and each free cell's on a white one, as map_server would.
+  TempDir dir("corners");
+  SaveInputs in;
+  in.version = 3;
+  in.resolution_m = 0.01;
+  in.grid = &grid;
+  in.trajectory = {{0.5, {0, 0, 0}}};
+  const auto start = std::chrono::steady_clock::now();
+  const Result<SaveReport> saved = SaveState(dir.path().string(), in);
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  ASSERT_TRUE(saved.ok()) << saved.Message();
+  EXPECT_TRUE(saved.value().warnings.empty());
+  EXPECT_LT(seconds, 5.0);  // 6.9 s and 1.07 GB before; about 0.3 s now (Release)
+  const auto yaml = testing::ParseYaml(Contents(dir.File("map.yaml")));
+  const double resolution = std::stod(yaml.at("resolution"));
+  double ox = 0, oy = 0, oz = 1;
+  ASSERT_EQ(std::sscanf(yaml.at("origin").c_str(), "[%lf, %lf, %lf]", &ox, &oy, &oz), 3);
+  EXPECT_DOUBLE_EQ(resolution, 0.04);
+  EXPECT_DOUBLE_EQ(ox, -81.92);
+  EXPECT_DOUBLE_EQ(oy, -81.92);
+  const testing::Pgm pgm = testing::ParsePgm(Contents(dir.File("map.pgm")));
+  ASSERT_EQ(pgm.width, 4096);
+  ASSERT_EQ(pgm.height, 4096);
+  ASSERT_EQ(pgm.pixels.size(), size_t{4096} * 4096);
+  const auto pixel_at = [&](CellIndex c) {
+    const Vec2 centre = grid.geometry().CellCenter(c);
+    const auto col = static_cast<int64_t>(std::floor((centre.x() - ox) / resolution));
+    const auto row =
+        pgm.height - 1 - static_cast<int64_t>(std::floor((centre.y() - oy) / resolution));
+    EXPECT_TRUE(col >= 0 && col < pgm.width && row >= 0 && row < pgm.height);
+    return static_cast<uint8_t>(pgm.pixels[static_cast<size_t>(row * pgm.width + col)]);
+  };
+  const int32_t lo = -kMapTileBound * kTileSize, hi = kMapTileBound * kTileSize - 1;
+  EXPECT_EQ(pixel_at({lo + 5, lo + 7}), io::kOccupiedGray);
+  EXPECT_EQ(pixel_at({lo + 20, lo + 7}), io::kFreeGray);
+  EXPECT_EQ(pixel_at({hi - 9, hi - 2}), io::kOccupiedGray);
+  EXPECT_EQ(pixel_at({hi - 30, hi - 2}), io::kFreeGray);
+  EXPECT_EQ(pixel_at({0, 0}), io::kUnknownGray);
+  // Every pixel is one of the three values; 2 occupied and 2 free among them.
+  size_t occupied = 0, free = 0;
+  for (const char c : pgm.pixels) {
+    occupied += static_cast<uint8_t>(c) == io::kOccupiedGray;
+    free += static_cast<uint8_t>(c) == io::kFreeGray;
+  }
+  EXPECT_EQ(occupied, 2u);
+  EXPECT_EQ(free, 2u);
+  EXPECT_TRUE(fs::file_size(dir.File("map.png")) < (size_t{1} << 20));
+}
+
+TEST(WholeMapExport, MergedCellsTakeOccupiedOverFreeOverUnknown) {
+  // One tile (64 x 64 cells) under a cap of 32 x 32 pixels: 2 x 2 cells a pixel.
+  OccupancyGrid grid(GridGeometry(0.05), kLogOddsLimit);
+  grid.BeginWrite();
+  grid.Add({0, 0}, EncodeLogOdds(-3.0));  // pixel (0, 31): free and occupied
+  grid.Add({1, 1}, EncodeLogOdds(3.0));
+  grid.Add({2, 0}, EncodeLogOdds(-3.0));  // pixel (1, 31): free and unknown
+  grid.Add({3, 1}, EncodeLogOdds(0.2));
+  grid.Add({63, 63}, EncodeLogOdds(3.0));  // pixel (31, 0): occupied alone
+  const io::GridImage image = io::MakeGridImage(grid, 32 * 32);
+  ASSERT_EQ(image.cells_per_pixel, 2);
+  ASSERT_EQ(image.width, 32);
+  ASSERT_EQ(image.height, 32);
+  EXPECT_DOUBLE_EQ(image.resolution_m, 0.1);
+  const auto at = [&](int col, int row) {
+    return image.gray[static_cast<size_t>(row * image.width + col)];
+  };
+  EXPECT_EQ(at(0, 31), io::kOccupiedGray);
+  EXPECT_EQ(at(1, 31), io::kFreeGray);
+  EXPECT_EQ(at(31, 0), io::kOccupiedGray);
+  EXPECT_EQ(at(2, 31), io::kUnknownGray);
+  // A cap the box fits in keeps one pixel a cell; odd sizes round up.
+  EXPECT_EQ(io::MakeGridImage(grid, 64 * 64).cells_per_pixel, 1);
+  const io::GridImage thirds = io::MakeGridImage(grid, 22 * 22);
+  EXPECT_EQ(thirds.cells_per_pixel, 3);
+  EXPECT_EQ(thirds.width, 22);
+}
+
+// --- the map picture (slam-replay's map.png)
+// ------------------------------------------------------
+
+int CountRgb(const io::RgbImage& image, int x0, int y0, int x1, int y1, const io::Rgb& c) {
+  int n = 0;
+  for (int y = std::max(0, y0); y < std::min(y1, image.height); ++y) {
+    for (int x = std::max(0, x0); x < std::min(x1, image.width); ++x) {
+      const size_t k =
+          3 * (static_cast<size_t>(y) * static_cast<size_t>(image.width) + static_cast<size_t>(x));
+      n += image.rgb[k] == c[0] && image.rgb[k + 1] == c[1] && image.rgb[k + 2] == c[2];
+    }
+  }
+  return n;
+}
+
+TEST(MapPicture, ScaleBarsAreRoundLengths) {
+  const io::ScaleBar a = io::ChooseScaleBar(0.01, 41);
+  EXPECT_DOUBLE_EQ(a.length_m, 0.2);
+  EXPECT_EQ(a.length_px, 20);
+  EXPECT_EQ(a.label, "20 cm");
+  const io::ScaleBar b = io::ChooseScaleBar(0.01, 1000);
+  EXPECT_DOUBLE_EQ(b.length_m, 10.0);
+  EXPECT_EQ(b.length_px, 1000);
+  EXPECT_EQ(b.label, "10 m");
+  const io::ScaleBar c = io::ChooseScaleBar(0.01, 999);
+  EXPECT_DOUBLE_EQ(c.length_m, 5.0);
+  EXPECT_EQ(c.length_px, 500);
+  EXPECT_EQ(c.label, "5 m");
+  const io::ScaleBar d = io::ChooseScaleBar(0.05 / 3.0, 600);  // 5 cm cells at 3 px a cell
+  EXPECT_DOUBLE_EQ(d.length_m, 10.0);
+  EXPECT_EQ(d.length_px, 600);
+  EXPECT_EQ(io::ChooseScaleBar(0.001, 45).label, "2 cm");
+}
+
+TEST(MapPicture, ALayerThatDoesNotFitIsClippedAndTheMapKeepsItsSizeWithAScaleBar) {
+  // One tile of 1 cm cells; dead reckoning wanders 50 m away. The picture used to grow over it
+  // (to its 8192-pixel cap, the building a corner of it); now the map sets the size.
+  OccupancyGrid grid(GridGeometry(0.01), kLogOddsLimit);
+  grid.BeginWrite();
+  for (int x = 0; x < 64; ++x) grid.Add({x, 40}, EncodeLogOdds(3.0));
+  const io::Rgb grey{150, 150, 150}, red{230, 0, 0};
+  io::TrajectoryLayer odometry{"odometry only",
+                               {{0.0, {0.1, 0.1, 0.0}}, {1.0, {50.0, 0.1, 0.0}}},
+                               grey,
+                               /*fit=*/false};
+  io::TrajectoryLayer slam{"SLAM", {{0.0, {0.1, 0.2, 0.0}}, {1.0, {0.5, 0.2, 0.0}}}, red};
+  const int scale = 3;
+  const io::RgbImage picture = io::RenderMapPicture(grid, {odometry, slam}, scale);
+  const int map_height = 64 * scale;
+  EXPECT_EQ(picture.height, map_height + 2 * 11 + 4);
+  EXPECT_LT(picture.width, 400);  // the map's 192 pixels, the legend and the scale bar
+  // Dead reckoning drawn to the picture's right edge along y = 0.1 m.
+  const int row = map_height - static_cast<int>(0.1 / 0.01 * scale);
+  EXPECT_EQ(CountRgb(picture, 0, row - 2, 64 * scale, row + 2, grey), (64 * scale - 30) * 2);
+  EXPECT_GT(CountRgb(picture, 0, 0, picture.width, map_height, red), 100);
+
+  // The scale bar: 0.01 / 3 m a pixel, at most max(40, 192 / 5) pixels: 10 cm, 30 pixels, black,
+  // on the legend's first line at the right, its label after it.
+  const io::ScaleBar bar = io::ChooseScaleBar(0.01 / scale, 40);
+  EXPECT_EQ(bar.label, "10 cm");
+  EXPECT_EQ(bar.length_px, 30);
+  // The strip's layout at font size 1: the bar ends 2 + 30 + 3 pixels (gap, label, margin)
+  // short of the right edge, on the text's last row.
+  const int bar_x = picture.width - (30 + 2 + 30 + 3);
+  const int bar_y = map_height + 2 + 6;
+  EXPECT_EQ(CountRgb(picture, bar_x, bar_y, bar_x + 30, bar_y + 1, {0, 0, 0}), 30);
+  EXPECT_EQ(CountRgb(picture, bar_x, bar_y - 3, bar_x + 30, bar_y, {0, 0, 0}), 6);  // ticks
+}
+
+TEST(MapPicture, LinesFarOutsideCostOnlyWhatIsDrawn) {
+  // Ends a million pixels away each side: only the 100 pixels inside are drawn.
+  io::Canvas canvas(100, 100, {255, 255, 255});
+  const auto start = std::chrono::steady_clock::now();
+  for (int i = 0; i < 2000; ++i) canvas.Line(-1'000'000, 50, 1'000'000, 50, 3, {0, 0, 0});
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_LT(seconds, 0.5);  // 4e9 pen squares walked before, about 4 ms now
+  EXPECT_EQ(CountRgb(canvas.image(), 0, 0, 100, 100, {0, 0, 0}), 300);
+  // A diagonal through the picture from far outside lands on the diagonal's pixels.
+  io::Canvas diagonal(50, 50, {255, 255, 255});
+  diagonal.Line(-100'000, -100'000, 100'000, 100'000, 1, {0, 0, 0});
+  for (int k = 0; k < 50; ++k) EXPECT_EQ(diagonal.Get(k, k), (io::Rgb{0, 0, 0})) << k;
+  EXPECT_EQ(CountRgb(diagonal.image(), 0, 0, 50, 50, {0, 0, 0}), 50);
 }
 
 }  // namespace

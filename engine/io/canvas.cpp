@@ -133,12 +133,69 @@ void Canvas::Blend(int64_t x, int64_t y, const Rgb& c, double alpha) {
 }
 
 void Canvas::FillRect(int64_t x, int64_t y, int64_t w, int64_t h, const Rgb& c) {
-  for (int64_t j = 0; j < h; ++j) {
-    for (int64_t i = 0; i < w; ++i) Set(x + i, y + j, c);
+  // Clipped first: a rectangle far outside (a trajectory point off the picture) costs nothing.
+  const int64_t x0 = std::max<int64_t>(x, 0), y0 = std::max<int64_t>(y, 0);
+  const int64_t x1 = std::min<int64_t>(x + w, image_.width);
+  const int64_t y1 = std::min<int64_t>(y + h, image_.height);
+  for (int64_t j = y0; j < y1; ++j) {
+    for (int64_t i = x0; i < x1; ++i) Set(i, j, c);
   }
 }
 
+namespace {
+
+/// Liang-Barsky: shortens the segment a-b to its part inside [lo, hi] on both axes; false when
+/// no part is inside.
+bool ClipSegment(double& ax, double& ay, double& bx, double& by, double lo_x, double lo_y,
+                 double hi_x, double hi_y) {
+  double t0 = 0.0, t1 = 1.0;
+  const double dx = bx - ax, dy = by - ay;
+  const double p[4] = {-dx, dx, -dy, dy};
+  const double q[4] = {ax - lo_x, hi_x - ax, ay - lo_y, hi_y - ay};
+  for (int k = 0; k < 4; ++k) {
+    if (p[k] == 0.0) {
+      if (q[k] < 0.0) return false;  // parallel to this edge and outside it
+      continue;
+    }
+    const double t = q[k] / p[k];
+    if (p[k] < 0.0) {
+      t0 = std::max(t0, t);
+    } else {
+      t1 = std::min(t1, t);
+    }
+    if (t0 > t1) return false;
+  }
+  const double sx = ax, sy = ay;
+  ax = sx + t0 * dx;
+  ay = sy + t0 * dy;
+  bx = sx + t1 * dx;
+  by = sy + t1 * dy;
+  return true;
+}
+
+}  // namespace
+
 void Canvas::Line(int64_t x0, int64_t y0, int64_t x1, int64_t y1, int thickness, const Rgb& c) {
+  // A segment reaching outside the picture (a trajectory wandering off the map) is first cut to
+  // the picture and a margin of the pen's width, so that its cost is the pixels drawn. Segments
+  // inside are walked exactly as given.
+  const int64_t margin = std::max(thickness, 1) + 1;
+  const auto outside = [&](int64_t x, int64_t y) {
+    return x < -margin || y < -margin || x > image_.width + margin || y > image_.height + margin;
+  };
+  if (outside(x0, y0) || outside(x1, y1)) {
+    auto ax = static_cast<double>(x0), ay = static_cast<double>(y0);
+    auto bx = static_cast<double>(x1), by = static_cast<double>(y1);
+    if (!ClipSegment(ax, ay, bx, by, static_cast<double>(-margin), static_cast<double>(-margin),
+                     static_cast<double>(image_.width + margin),
+                     static_cast<double>(image_.height + margin))) {
+      return;
+    }
+    x0 = std::llround(ax);
+    y0 = std::llround(ay);
+    x1 = std::llround(bx);
+    y1 = std::llround(by);
+  }
   const int64_t dx = std::abs(x1 - x0), dy = -std::abs(y1 - y0);
   const int64_t sx = x0 < x1 ? 1 : -1, sy = y0 < y1 ? 1 : -1;
   const int64_t half = (thickness - 1) / 2;

@@ -45,7 +45,8 @@ class Canvas {
   /// Fills the w x h rectangle whose top-left pixel is (x, y).
   void FillRect(int64_t x, int64_t y, int64_t w, int64_t h, const Rgb& c);
 
-  /// A line of `thickness` pixels between two pixel positions (Bresenham, square pen).
+  /// A line of `thickness` pixels between two pixel positions (Bresenham, square pen); what lies
+  /// outside the image costs nothing, however far the ends are.
   void Line(int64_t x0, int64_t y0, int64_t x1, int64_t y1, int thickness, const Rgb& c);
 
   /// Fills a polygon (even-odd rule: a pixel is inside when its centre is) with opacity `alpha`,

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <csetjmp>
 #include <cstdio>
+#include <type_traits>
 
 #include "engine/cell_encoding.hpp"
 #include "engine/grid_geometry.hpp"
@@ -134,7 +135,7 @@ constexpr Rgb kLegendText{0, 0, 0};
 
 }  // namespace
 
-GridImage MakeGridImage(const OccupancyGrid& grid) {
+GridImage MakeGridImage(const OccupancyGrid& grid, int64_t max_pixels) {
   const std::vector<TileRef> tiles = grid.Tiles();
   const CellWindow window = TileWindow(tiles);
   GridImage image;
@@ -144,21 +145,51 @@ GridImage MakeGridImage(const OccupancyGrid& grid) {
     image.gray = {kUnknownGray};
     return image;
   }
-  image.width = static_cast<int>(window.width);
-  image.height = static_cast<int>(window.height);
+  // The smallest whole number of cells per pixel side that keeps the picture within the cap.
+  // The window is at most 2 * kMapTileBound tiles a side, so n stays small (at most the side).
+  max_pixels = std::max<int64_t>(1, max_pixels);
+  int64_t n = 1;
+  const auto pixels = [&](int64_t k) {
+    return ((window.width + k - 1) / k) * ((window.height + k - 1) / k);
+  };
+  while (pixels(n) > max_pixels) ++n;
+  image.cells_per_pixel = static_cast<int>(n);
+  image.resolution_m = grid.geometry().resolution() * static_cast<double>(n);
+  image.width = static_cast<int>((window.width + n - 1) / n);
+  image.height = static_cast<int>((window.height + n - 1) / n);
+  // The pixel grid starts at the window's lower-left cell; the top row and right column may
+  // reach past the window (cells no tile holds: unknown).
   image.origin_m = grid.geometry().CellCorner(
       {static_cast<int32_t>(window.x0), static_cast<int32_t>(window.y0)});
-  image.gray.assign(static_cast<size_t>(window.width * window.height), kUnknownGray);
-  ForEachTileCell(tiles, window, [&](int64_t col, int64_t row, LogOdds value) {
-    const double p = OccupancyProbability(value);
-    uint8_t gray = kUnknownGray;
-    if (p >= kOccupiedThreshold) {
-      gray = kOccupiedGray;
-    } else if (p <= kFreeThreshold) {
-      gray = kFreeGray;
+  image.gray.assign(static_cast<size_t>(image.width) * static_cast<size_t>(image.height),
+                    kUnknownGray);
+  // Each log odds' map_server value, once (the thresholds cost an exp per cell otherwise).
+  static_assert(std::is_same_v<LogOdds, int16_t>, "the table covers 16-bit log odds");
+  std::vector<uint8_t> value_of(size_t{1} << 16);
+  for (int v = INT16_MIN; v <= INT16_MAX; ++v) {
+    const double p = OccupancyProbability(static_cast<LogOdds>(v));
+    value_of[static_cast<uint16_t>(v)] = p >= kOccupiedThreshold ? kOccupiedGray
+                                         : p <= kFreeThreshold   ? kFreeGray
+                                                                 : kUnknownGray;
+  }
+  // Cells merge into a pixel by precedence: occupied over free over unknown. Only tiles are
+  // visited, so the time is the tiles', not the box's.
+  for (const TileRef& t : tiles) {
+    const CellIndex origin = GridGeometry::TileOrigin(t.index);
+    for (int j = 0; j < kTileSize; ++j) {
+      const int64_t row = image.height - 1 - (origin.y + j - window.y0) / n;
+      uint8_t* line =
+          image.gray.data() + static_cast<size_t>(row) * static_cast<size_t>(image.width);
+      for (int i = 0; i < kTileSize; ++i) {
+        const uint8_t value =
+            value_of[static_cast<uint16_t>(t.tile->cells[static_cast<size_t>(j * kTileSize + i)])];
+        uint8_t& pixel = line[(origin.x + i - window.x0) / n];
+        if (value == kOccupiedGray || (value == kFreeGray && pixel == kUnknownGray)) {
+          pixel = value;
+        }
+      }
     }
-    image.gray[static_cast<size_t>(row * window.width + col)] = gray;
-  });
+  }
   return image;
 }
 
@@ -220,6 +251,33 @@ Result<void> WritePng(const std::string& path, const RgbImage& image) {
   return WriteFileAtomic(path, std::string(png.value().begin(), png.value().end()));
 }
 
+ScaleBar ChooseScaleBar(double metres_per_pixel, int max_px) {
+  max_px = std::max(1, max_px);
+  if (!(metres_per_pixel > 0.0) || !std::isfinite(metres_per_pixel)) return {0.0, 0, ""};
+  const double longest_m = metres_per_pixel * max_px;
+  double decade = std::pow(10.0, std::floor(std::log10(longest_m)));
+  double length_m = decade;
+  for (const double step : {5.0, 2.0, 1.0}) {
+    if (step * decade <= longest_m * (1.0 + 1e-9)) {
+      length_m = step * decade;
+      break;
+    }
+  }
+  ScaleBar bar;
+  bar.length_m = length_m;
+  bar.length_px = std::clamp(static_cast<int>(std::lround(length_m / metres_per_pixel)), 1, max_px);
+  char label[32];
+  if (length_m >= 1.0) {
+    std::snprintf(label, sizeof(label), "%g m", length_m);
+  } else if (length_m >= 0.01) {
+    std::snprintf(label, sizeof(label), "%g cm", length_m * 100.0);
+  } else {
+    std::snprintf(label, sizeof(label), "%g mm", length_m * 1000.0);
+  }
+  bar.label = label;
+  return bar;
+}
+
 RgbImage RenderMapPicture(const OccupancyGrid& grid, const std::vector<TrajectoryLayer>& layers,
                           int scale) {
   scale = std::max(1, scale);
@@ -232,18 +290,24 @@ RgbImage RenderMapPicture(const OccupancyGrid& grid, const std::vector<Trajector
   int64_t y0 = window.height > 0 ? window.y0 : INT64_MAX;
   int64_t x1 = window.width > 0 ? window.x0 + window.width : INT64_MIN;
   int64_t y1 = window.height > 0 ? window.y0 + window.height : INT64_MIN;
-  for (const TrajectoryLayer& layer : layers) {
-    for (const TimedPose& p : layer.poses) {
-      if (!std::isfinite(p.pose.x) || !std::isfinite(p.pose.y)) continue;
-      const Vec2 g = geometry.ToGrid(p.pose.translation());
-      const auto cx = static_cast<int64_t>(std::floor(std::clamp(g.x(), -1e9, 1e9)));
-      const auto cy = static_cast<int64_t>(std::floor(std::clamp(g.y(), -1e9, 1e9)));
-      x0 = std::min(x0, cx - 2);
-      y0 = std::min(y0, cy - 2);
-      x1 = std::max(x1, cx + 3);
-      y1 = std::max(y1, cy + 3);
+  // Layers that fit first; the others only when nothing else gives the picture a size.
+  const auto grow_over = [&](bool fitting_only) {
+    for (const TrajectoryLayer& layer : layers) {
+      if (fitting_only && !layer.fit) continue;
+      for (const TimedPose& p : layer.poses) {
+        if (!std::isfinite(p.pose.x) || !std::isfinite(p.pose.y)) continue;
+        const Vec2 g = geometry.ToGrid(p.pose.translation());
+        const auto cx = static_cast<int64_t>(std::floor(std::clamp(g.x(), -1e9, 1e9)));
+        const auto cy = static_cast<int64_t>(std::floor(std::clamp(g.y(), -1e9, 1e9)));
+        x0 = std::min(x0, cx - 2);
+        y0 = std::min(y0, cy - 2);
+        x1 = std::max(x1, cx + 3);
+        y1 = std::max(y1, cy + 3);
+      }
     }
-  }
+  };
+  grow_over(true);
+  if (x0 >= x1 || y0 >= y1) grow_over(false);
   if (x0 >= x1 || y0 >= y1) {
     x0 = y0 = 0;
     x1 = y1 = 1;
@@ -265,9 +329,14 @@ RgbImage RenderMapPicture(const OccupancyGrid& grid, const std::vector<Trajector
     const int text_width = Canvas::TextWidth(layer.name, font);
     legend_width = std::max(legend_width, swatch + text_width + 8 * font);
   }
+  // The scale bar, right of the legend's first line: a round length near a fifth of the map's
+  // width (at least 40 pixels), with its label after it.
+  const ScaleBar bar = ChooseScaleBar(geometry.resolution() / scale, std::max(40, map_width / 5));
+  const int bar_width = bar.length_px + 2 * font + Canvas::TextWidth(bar.label, font) + 3 * font;
   const int legend_height =
-      layers.empty() ? 0 : static_cast<int>(layers.size()) * line_height + 4 * font;
-  Canvas canvas(std::max(map_width, legend_width), map_height + legend_height, kLegendBackground);
+      static_cast<int>(std::max<size_t>(layers.size(), 1)) * line_height + 4 * font;
+  const int width = std::max(map_width, legend_width + 4 * font + bar_width);
+  Canvas canvas(width, map_height + legend_height, kLegendBackground);
 
   // The map: unknown where nothing was ever observed, else grey from the probability.
   canvas.FillRect(0, 0, map_width, map_height, kUnknownColor);
@@ -302,6 +371,14 @@ RgbImage RenderMapPicture(const OccupancyGrid& grid, const std::vector<Trajector
     canvas.FillRect(3 * font, y + 2 * font, swatch, 3 * font, layers[k].color);
     canvas.Text(3 * font + swatch + 2 * font, y, layers[k].name, font, kLegendText);
   }
+  // The bar: a line with a tick at each end, on the baseline of the first line's text.
+  const int bar_x = width - bar_width;
+  const int bar_y = map_height + 2 * font + (Canvas::kGlyphHeight - 1) * font;
+  canvas.FillRect(bar_x, bar_y, bar.length_px, font, kLegendText);
+  canvas.FillRect(bar_x, bar_y - 3 * font, font, 3 * font, kLegendText);
+  canvas.FillRect(bar_x + bar.length_px - font, bar_y - 3 * font, font, 3 * font, kLegendText);
+  canvas.Text(bar_x + bar.length_px + 2 * font, map_height + 2 * font, bar.label, font,
+              kLegendText);
   return canvas.Take();
 }
 
