@@ -77,6 +77,17 @@ void CheckTum(const std::string& text) {
           "a parsed pose is not finite");
     Check(i == 0 || poses[i - 1].t < p.t, "parsed times are not strictly increasing");
   }
+  // Within a bound (the map's at 1 cm cells, as LoadState gives it): accepted exactly when every
+  // pose is inside, and then the same poses.
+  const io::PositionBound bound{-81.92, 81.92, "the map's bound"};
+  bool inside = true;
+  for (const TimedPose& p : poses) {
+    inside = inside && p.pose.x >= bound.lo_m && p.pose.x < bound.hi_m && p.pose.y >= bound.lo_m &&
+             p.pose.y < bound.hi_m;
+  }
+  const auto bounded = io::ParseTum(text, "fuzz.tum", bound);
+  Check(bounded.ok() == inside, "ParseTum's bound accepts a pose outside or refuses one inside");
+  if (bounded.ok()) Check(bounded.value().size() == poses.size(), "bounded parse lost poses");
   // Formatting rounds to microseconds, which may merge times closer than that: only count.
   auto again = io::ParseTum(io::FormatTum(poses), "again.tum");
   if (again.ok()) {
