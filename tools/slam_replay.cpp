@@ -23,6 +23,7 @@
 #include "offline/relations.hpp"
 #include "offline/replay.hpp"
 #include "offline/replay_report.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
 
 namespace {
 
@@ -108,7 +109,7 @@ int main(int argc, char** argv) {
                  "config/params/]");
   app.add_option("--budget", budget, "rays per scan (paper: 8125, 16250, 32500, 65000)")
       ->capture_default_str()
-      ->check(CLI::Range(int64_t{1}, int64_t{1'000'000'000}));
+      ->check(CLI::Range(int64_t{1}, slam::kMaxRaysPerScan));  // slamd's bound
   app.add_option("--cpu-share", cpu_share,
                  "quota as a share of one core instead of rays per scan (0.125 ... 1.0), through "
                  "the measured cost per ray; the engine then runs serially on one thread")
@@ -119,7 +120,7 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"fixed", "adaptive"}));
   app.add_option("--max-particles", max_particles, "adaptive policy: most particles")
       ->capture_default_str()
-      ->check(CLI::Range(1, 1000));
+      ->check(CLI::Range(1, slam::kMaxParticlesCap));
   app.add_flag("--no-refine", no_refine,
                "phase B off: odometry-only mapping (the paper's Fig. 9 bottom)");
   app.add_option("--seed", seed, "seed of the particle filter")->capture_default_str();
