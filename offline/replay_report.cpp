@@ -162,7 +162,9 @@ ReplayOutputs WriteReplayOutputs(const std::string& dir, const offline::Experime
   // The picture: odometry for comparison, the aligned ground truth, then the estimate on top.
   std::vector<io::TrajectoryLayer> layers;
   if (!odometry_only) {
-    layers.push_back({"odometry only", DeadReckoning(experiment.scans), {150, 150, 150}});
+    // Drawn, clipped, but not fitted: a real log's dead reckoning wanders far off the building.
+    layers.push_back(
+        {"odometry only", DeadReckoning(experiment.scans), {150, 150, 150}, /*fit=*/false});
   }
   if (run.quality) {
     layers.push_back(

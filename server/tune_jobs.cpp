@@ -331,7 +331,7 @@ nlohmann::json JobManager::ToJson(const Job& job) const {
                       {"error", job.error}};
   nlohmann::json history = nlohmann::json::array();
   for (const offline::GenerationSummary& g : job.generations) {
-    history.push_back({{"generation", g.generation},
+    history.push_back({{"generation", g.generation + 1},  // 1..N, as the console and table3.md
                        {"min", g.fitness.min},
                        {"q1", g.fitness.q1},
                        {"median", g.fitness.median},

@@ -1591,7 +1591,10 @@ TEST_F(JobsSlamd, SmallJobReportsProgressAndFinishes) {
   EXPECT_EQ(finished.value("evaluations_done", 0), finished.value("evaluations_total", -1));
   EXPECT_DOUBLE_EQ(finished.value("progress", 0.0), 1.0);
   ASSERT_FALSE(finished["history"].empty());
+  int number = 0;
   for (const auto& generation : finished["history"]) {
+    // Numbered 1..N, as slam-tune's console, table3.md and Fig. 10 number them.
+    EXPECT_EQ(generation.value("generation", -1), ++number) << generation.dump();
     for (const char* key : {"min", "q1", "median", "q3", "max"}) {
       EXPECT_TRUE(generation[key].is_number()) << key << " in " << generation.dump();
     }
