@@ -44,8 +44,8 @@ ConfigErrors Validate(const BudgetSettings& settings) {
   }
   if (settings.max_particles < 1 || settings.max_particles > kMaxParticlesCap) {
     errors.push_back({"/max_particles", std::to_string(settings.max_particles) +
-                                            " is outside [1, " +
-                                            std::to_string(kMaxParticlesCap) + "]"});
+                                            " is outside [1, " + std::to_string(kMaxParticlesCap) +
+                                            "]"});
   }
   return errors;
 }

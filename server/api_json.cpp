@@ -140,10 +140,9 @@ Result<BudgetSettings> BudgetFromJson(const json& body) {
     // Beyond the int range, the bound's message names what was sent, not what it was cut to.
     const int64_t n = SaturatedInt64(particles);
     if (n > std::numeric_limits<int>::max() || n < std::numeric_limits<int>::min()) {
-      errors.push_back({"/max_particles",
-                        particles.dump() + " is outside [1, " +
-                            std::to_string(kMaxParticlesCap) + "]",
-                        0});
+      errors.push_back(
+          {"/max_particles",
+           particles.dump() + " is outside [1, " + std::to_string(kMaxParticlesCap) + "]", 0});
     } else {
       b.max_particles = static_cast<int>(n);
     }

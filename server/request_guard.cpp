@@ -115,8 +115,8 @@ Result<void> CheckFraming(std::string_view head) {
         std::snprintf(hex, sizeof(hex), "0x%02X", byte);
         return std::string(byte == '\r'   ? "a bare CR"
                            : byte == '\n' ? "a bare LF"
-                           : byte == 0   ? "a NUL"
-                                         : "the control character " + std::string(hex));
+                           : byte == 0    ? "a NUL"
+                                          : "the control character " + std::string(hex));
       }
     }
     return std::nullopt;
@@ -158,7 +158,8 @@ Result<void> CheckFraming(std::string_view head) {
       std::string_view value = line.substr(colon + 1);
       while (!value.empty() && (value.front() == ' ' || value.front() == '\t'))
         value.remove_prefix(1);
-      while (!value.empty() && (value.back() == ' ' || value.back() == '\t')) value.remove_suffix(1);
+      while (!value.empty() && (value.back() == ' ' || value.back() == '\t'))
+        value.remove_suffix(1);
       if (value.empty() || !std::all_of(value.begin(), value.end(), [](char c) {
             return std::isdigit(static_cast<unsigned char>(c)) != 0;
           })) {

@@ -53,9 +53,8 @@ struct TruthErrors {
 std::optional<TruthErrors> ErrorsAgainstTruth(const std::vector<TimedPose>& estimate,
                                               const std::vector<TimedPose>& truth) {
   if (estimate.size() < 2 || truth.empty()) return std::nullopt;
-  const auto first = std::lower_bound(
-      truth.begin(), truth.end(), estimate.front().t,
-      [](const TimedPose& p, double t) { return p.t < t; });
+  const auto first = std::lower_bound(truth.begin(), truth.end(), estimate.front().t,
+                                      [](const TimedPose& p, double t) { return p.t < t; });
   const auto end = std::upper_bound(truth.begin(), truth.end(), estimate.back().t,
                                     [](double t, const TimedPose& p) { return t < p.t; });
   if (end - first < 2) return std::nullopt;

@@ -354,12 +354,10 @@ TEST_F(OpenSlamd, AmbiguousFramingIsRefusedAndTheConnectionClosed) {
       // A signed Content-Length ("+2" is 2 to strtoull), a bare CR and a NUL inside a header
       // value: accepted before, though a front proxy may frame or forward them otherwise.
       {"a signed Content-Length",
-       "POST /api/v1/map/save HTTP/1.1\r\n" + host + json + "Content-Length: +2\r\n\r\n{}" +
-           inner,
+       "POST /api/v1/map/save HTTP/1.1\r\n" + host + json + "Content-Length: +2\r\n\r\n{}" + inner,
        "not a decimal number"},
       {"a bare CR in a header value",
-       "GET /api/v1/health HTTP/1.1\r\n" + host + "X-Note: a\rContent-Length: 5\r\n\r\n" +
-           inner,
+       "GET /api/v1/health HTTP/1.1\r\n" + host + "X-Note: a\rContent-Length: 5\r\n\r\n" + inner,
        "a bare CR"},
       {"a NUL in a header value",
        "GET /api/v1/health HTTP/1.1\r\n" + host + "X-Note: a" + std::string(1, '\0') + "b\r\n\r\n" +

@@ -452,8 +452,11 @@ TEST(Security, HostNameOfAHostHeader) {
 TEST(BudgetRequest, IntegersBeyondInt64AreNamedAsSentNotWrapped) {
   // 2^64 - 1 is an unsigned JSON number: read as int64 it was -1 ("-1 is outside [1, 1000]").
   const auto errors_of = [](const std::string& text) {
-    nlohmann::json body = {{"mode", "rays"}, {"rays_per_scan", 65000}, {"cpu_share", 0.25},
-                           {"policy", "adaptive"}, {"max_particles", 16}};
+    nlohmann::json body = {{"mode", "rays"},
+                           {"rays_per_scan", 65000},
+                           {"cpu_share", 0.25},
+                           {"policy", "adaptive"},
+                           {"max_particles", 16}};
     const nlohmann::json patch = nlohmann::json::parse(text);
     body.update(patch);
     const Result<BudgetSettings> b = BudgetFromJson(body);

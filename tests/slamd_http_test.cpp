@@ -1128,13 +1128,13 @@ TEST_F(EventStreamSlamd, ConnectGivesHelloTilesThenLiveEvents) {
   const auto poses = [](const json& rows) {
     std::vector<slam::TimedPose> out;
     for (const auto& r : rows) {
-      out.push_back({r[0].get<double>(), {r[1].get<double>(), r[2].get<double>(),
-                                          r[3].get<double>()}});
+      out.push_back(
+          {r[0].get<double>(), {r[1].get<double>(), r[2].get<double>(), r[3].get<double>()}});
     }
     return out;
   };
-  const auto offline = slam::EvaluateTrajectory(poses(trajectory["slam"]),
-                                          poses(trajectory["ground_truth"]));
+  const auto offline =
+      slam::EvaluateTrajectory(poses(trajectory["slam"]), poses(trajectory["ground_truth"]));
   ASSERT_TRUE(offline.has_value()) << trajectory.dump().substr(0, 300);
   ASSERT_GE(last_ate_m, 0.0);
   EXPECT_NEAR(last_ate_m, offline->ate_rmse_m, 0.005 + 0.25 * offline->ate_rmse_m);
