@@ -159,16 +159,20 @@ SLAM_AVX2_BODY void RelaxRowBody(uint8_t* row, size_t width, bool from_below, bo
   std::copy(row, row + width, src);
   for (size_t s = 1; s < width && s <= kPad; s <<= 1) {
     const auto step = static_cast<uint8_t>(s);
+    // The row s before and s after (inside the padding): src[x - s] with an unsigned x - s
+    // would wrap, which is undefined for a pointer.
+    const uint8_t* below = src - s;
+    const uint8_t* above = src + s;
     if (from_below && from_above) {
       for (size_t x = 0; x < width; ++x) {
-        dst[x] = std::min(src[x], static_cast<uint8_t>(std::min(src[x - s], src[x + s]) + step));
+        dst[x] = std::min(src[x], static_cast<uint8_t>(std::min(below[x], above[x]) + step));
       }
     } else if (from_below) {
       for (size_t x = 0; x < width; ++x)
-        dst[x] = std::min(src[x], static_cast<uint8_t>(src[x - s] + step));
+        dst[x] = std::min(src[x], static_cast<uint8_t>(below[x] + step));
     } else if (from_above) {
       for (size_t x = 0; x < width; ++x)
-        dst[x] = std::min(src[x], static_cast<uint8_t>(src[x + s] + step));
+        dst[x] = std::min(src[x], static_cast<uint8_t>(above[x] + step));
     } else {
       break;
     }
