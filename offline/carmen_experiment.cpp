@@ -264,8 +264,11 @@ RobotDescription DeriveCarmenRobot(const CarmenLog& log, const std::string& name
 Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOptions& options) {
   Result<CarmenLog> parsed = LoadCarmenLog(path);
   if (!parsed.ok()) return {parsed.errors(), path};
-  const CarmenLog& log = parsed.value();
+  return CarmenExperiment(parsed.value(), path, options);
+}
 
+Result<Experiment> CarmenExperiment(const CarmenLog& log, const std::string& path,
+                                    const CarmenOptions& options) {
   Experiment experiment;
   experiment.dir = path;
   experiment.meta.name = std::filesystem::path(path).stem().string();

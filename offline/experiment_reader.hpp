@@ -96,6 +96,9 @@ struct CarmenOptions {
 /// lines), ranges as RangeToRaw. Malformed lines are counted (counters.bad_lines) and skipped;
 /// meta.name is the file's name, meta.source "robot". No ground truth.
 Result<Experiment> LoadCarmenExperiment(const std::string& path, const CarmenOptions& options = {});
+/// The same from a log already parsed (ParseCarmenLog), `path` naming it in messages.
+Result<Experiment> CarmenExperiment(const CarmenLog& log, const std::string& path,
+                                    const CarmenOptions& options = {});
 
 /// Where a CARMEN log's front laser sits on its robot (robot frame: x ahead, y left, theta
 /// counter-clockwise), and what says so, or why the centre (words for the user).
