@@ -281,6 +281,7 @@ json HttpServer::Impl::StatusJson() {
   json slam = {{"state", ToString(c.state)},
                {"scans", c.scans},
                {"late_scans", c.late_scans},
+               {"refused_scans", c.refused_scans},
                {"resets", c.resets},
                {"particles", snapshot->last ? snapshot->last->particles : 0},
                {"map_version", snapshot->map_version},
@@ -322,6 +323,9 @@ std::string HttpServer::Impl::MetricsText() {
   metric("late_scans_total", "counter",
          "Scans whose result came later than one scan period after the scan was complete.",
          c.late_scans);
+  metric("refused_scans_total", "counter",
+         "Scans the SLAM refused: odometry not finite, implausibly fast, or beyond the map's bound.",
+         c.refused_scans);
   metric("rays_planned_total", "counter", "Rays planned by the scheduler.", c.rays_planned);
   metric("rays_used_total", "counter", "Rays cast by the engine.", c.rays_used);
   const ScanMetrics last = snapshot->last.value_or(ScanMetrics{});

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <ctime>
 #include <utility>
 
@@ -188,7 +189,16 @@ void SlamService::BuildEngine() {
     Pose2 pose;
     if (!options_.resume_at_origin && !saved.trajectory.empty())
       pose = saved.trajectory.back().pose;
-    engine_->Restore(grid, pose);
+    // LoadState refuses saved poses beyond the map's bound; one that got here anyway (another
+    // resolution, say) would leave the engine without the map: keep the map, start at the
+    // origin, and say so.
+    if (!engine_->Restore(grid, pose)) {
+      std::fprintf(stderr,
+                   "slamd: the saved pose (%g, %g, %g) is outside the map's bound: resuming the "
+                   "saved map at its origin\n",
+                   pose.x, pose.y, pose.theta);
+      engine_->Restore(grid, Pose2{});
+    }
   }
 }
 
@@ -357,6 +367,11 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
   const ScanSummary summary = engine_->Summarize(scan);
   const ScanPlan plan = scheduler_.Plan(summary, period, engine_->params());
   const ScanReport report = engine_->ProcessScan(scan, plan);
+  if (report.refused != ScanRefusal::kNone) {
+    MutexLock lock(mutex_);
+    ++counters_.refused_scans;
+    return;
+  }
   const double cpu_s = ThreadCpuSeconds() - cpu_start;
   // For viewers (Foxglove's /scan): a few hundred points, outside the scan's CPU account.
   if (options_.scan_points) {

@@ -95,6 +95,9 @@ struct ServiceCounters {
   SlamState state = SlamState::kWaiting;
   int64_t scans = 0;
   int64_t late_scans = 0;
+  /// Scans the engine refused (odometry not finite, implausibly fast, or beyond the map's
+  /// bound): nothing was done with them and the pose held.
+  int64_t refused_scans = 0;
   int64_t rays_planned = 0;
   int64_t rays_used = 0;
   int64_t resets = 0;

@@ -107,7 +107,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(16, 1 << 20))
       ->capture_default_str();
   auto* budget_opt = app.add_option("--budget", budget_rays, "ray budget per scan (default 65000)")
-                         ->check(CLI::Range(int64_t{1}, int64_t{100000000}));
+                         ->check(CLI::Range(int64_t{1}, slam::kMaxRaysPerScan));
   auto* share_opt = app.add_option("--cpu-share", cpu_share,
                                    "budget as a share of one core (0..1] instead of rays per scan");
   budget_opt->excludes(share_opt);

@@ -11,6 +11,7 @@
 
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/params_json.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
 #include "engine/thread_safety.hpp"
 #include "offline/evaluation.hpp"
 #include "offline/experiment_reader.hpp"
@@ -89,7 +90,7 @@ Result<TuneRequest> ParseTuneRequest(const nlohmann::json& body,
       errors.push_back({"/" + key, "unknown field", 0});
     }
   }
-  ReadInt<int64_t>(body, "budget", 1, 100000000, request.budget, errors);
+  ReadInt<int64_t>(body, "budget", 1, kMaxRaysPerScan, request.budget, errors);
   ReadInt<int>(body, "population", 2, kMaxPopulation, request.population, errors);
   ReadInt<int>(body, "generations", 1, kMaxGenerations, request.generations, errors);
   ReadInt<uint64_t>(body, "seed", 0, uint64_t{1} << 53, request.seed, errors);

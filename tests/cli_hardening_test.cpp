@@ -124,6 +124,7 @@ TEST(CommandLineTest, EveryToolAnswersAMistypedOptionWithTheNearestOfItsOwn) {
   const fs::path dir = Scratch("typos");
   const std::vector<Typo> typos = {
       {SLAMD_BIN, {"--budgte", "100"}, "unknown option --budgte (did you mean --budget?)"},
+      {SLAM_REPLAY_BIN, {"--budgte", "100"}, "unknown option --budgte (did you mean --budget?)"},
       {SLAM_SIM_BIN, {"--wrold", "rooms"}, "unknown option --wrold (did you mean --world?)"},
       {SLAM_SIM_BIN,
        {"dataset", "--st", "all", "--out", "x"},

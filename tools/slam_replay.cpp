@@ -24,6 +24,7 @@
 #include "offline/replay.hpp"
 #include "offline/replay_report.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
+#include "tools/command_line.hpp"
 
 namespace {
 
@@ -136,7 +137,7 @@ int main(int argc, char** argv) {
                  "output directory");
   app.add_flag("--quiet", quiet, "no progress line on stderr");
   app.set_version_flag("--version", std::string("slam-replay ") + SLAM_VERSION);
-  CLI11_PARSE(app, argc, argv);
+  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
 
   slam::ParamsChoice params;  // the shipped set of the quota
   if (!params_path.empty()) {
