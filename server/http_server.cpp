@@ -323,9 +323,10 @@ std::string HttpServer::Impl::MetricsText() {
   metric("late_scans_total", "counter",
          "Scans whose result came later than one scan period after the scan was complete.",
          c.late_scans);
-  metric("refused_scans_total", "counter",
-         "Scans the SLAM refused: odometry not finite, implausibly fast, or beyond the map's bound.",
-         c.refused_scans);
+  metric(
+      "refused_scans_total", "counter",
+      "Scans the SLAM refused: odometry not finite, implausibly fast, or beyond the map's bound.",
+      c.refused_scans);
   metric("rays_planned_total", "counter", "Rays planned by the scheduler.", c.rays_planned);
   metric("rays_used_total", "counter", "Rays cast by the engine.", c.rays_used);
   const ScanMetrics last = snapshot->last.value_or(ScanMetrics{});

@@ -11,11 +11,11 @@
 
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/params_json.hpp"
-#include "scheduler/ray_budget_scheduler.hpp"
 #include "engine/thread_safety.hpp"
 #include "offline/evaluation.hpp"
 #include "offline/experiment_reader.hpp"
 #include "offline/tuning_report.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
 
 namespace slam::server {
 namespace {
