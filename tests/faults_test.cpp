@@ -33,18 +33,6 @@
 #include <random>
 #include <sstream>
 
-// Resident memory measures slamd's own memory only without a sanitizer's allocator: under
-// AddressSanitizer freed memory sits in quarantine (up to 256 MB), and under ThreadSanitizer every
-// byte the program touches maps several bytes of shadow and history besides. The Release run
-// checks memory; the sanitized runs check everything else.
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)  // GCC
-#define SLAMD_RSS_UNMEASURABLE 1
-#elif defined(__has_feature)  // Clang
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-#define SLAMD_RSS_UNMEASURABLE 1
-#endif
-#endif
-
 namespace slamd_test {
 namespace {
 

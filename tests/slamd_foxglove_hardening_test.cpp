@@ -335,8 +335,10 @@ TEST(FoxgloveMemory, ClientsThatNeverReadTheirRepliesStayBoundedAndTheirMemoryRe
       "(%d messages of 1800 bad subscriptions sent)\n",
       start_mib, peak_mib, after_mib, sent.load());
   EXPECT_GT(sent.load(), 100) << "the clients barely flooded";
+#if !defined(SLAMD_RSS_UNMEASURABLE)
   EXPECT_LT(peak_mib - start_mib, 64.0);
   EXPECT_LT(after_mib - start_mib, 16.0);
+#endif
 
   // One that asks for replies with small messages and never reads them is disconnected.
   Client asker;
