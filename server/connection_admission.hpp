@@ -2,7 +2,7 @@
 // Which connection gives way when one more arrives: the rule of slamd's Foxglove port, in the
 // shape of the HTTP gate's (server/bounded_server.cpp: at most so many waiting connections per
 // address, the oldest of that address closed first), kept free of sockets so that it is tested
-// on its own (tests/foxglove_hardening_test.cpp).
+// on its own (tests/slamd_foxglove_hardening_test.cpp).
 //
 // Connections are grouped by the client's address: one address holds at most `per_address`
 // connections, all addresses together at most `total`. A newcomer beyond its address's cap
