@@ -27,15 +27,6 @@ std::string Dump(const json& body) {
   return body.dump(-1, ' ', false, json::error_handler_t::replace);
 }
 
-int64_t SaturatedInt64(const json& integer) {
-  if (integer.is_number_unsigned()) {
-    const auto n = integer.get<uint64_t>();
-    constexpr auto kMax = static_cast<uint64_t>(std::numeric_limits<int64_t>::max());
-    return n > kMax ? std::numeric_limits<int64_t>::max() : static_cast<int64_t>(n);
-  }
-  return integer.get<int64_t>();
-}
-
 void SendJson(httplib::Response& res, const json& body, int status) {
   res.status = status;
   res.set_content(Dump(body), kJson);
@@ -80,6 +71,20 @@ json BudgetJson(const BudgetSettings& b) {
           {"max_particles", b.max_particles}};
 }
 
+namespace {
+
+// A JSON integer as int64, or nothing beyond its range: 2^64 - 1 arrives as an unsigned number,
+// which get<int64_t>() would wrap to -1. Precondition: is_number_integer().
+std::optional<int64_t> Int64Of(const json& integer) {
+  if (integer.is_number_unsigned() &&
+      integer.get<uint64_t>() > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) {
+    return std::nullopt;
+  }
+  return integer.get<int64_t>();
+}
+
+}  // namespace
+
 Result<BudgetSettings> BudgetFromJson(const json& body) {
   ConfigErrors errors;
   if (!body.is_object()) return ConfigErrors{{"", "must be a JSON object", 0}};
@@ -119,12 +124,13 @@ Result<BudgetSettings> BudgetFromJson(const json& body) {
   if (!rays.is_number_integer()) {
     errors.push_back({"/rays_per_scan", "must be an integer", 0});
   } else {
-    if (rays.is_number_unsigned() && rays.get<uint64_t>() > uint64_t{1} << 62) {
+    const std::optional<int64_t> n = Int64Of(rays);
+    if (!n) {
       errors.push_back({"/rays_per_scan",
                         rays.dump() + " is outside [1, " + std::to_string(kMaxRaysPerScan) + "]",
                         0});
     } else {
-      b.rays_per_scan = SaturatedInt64(rays);
+      b.rays_per_scan = *n;
     }
   }
   const json& share = body["cpu_share"];
@@ -138,13 +144,13 @@ Result<BudgetSettings> BudgetFromJson(const json& body) {
     errors.push_back({"/max_particles", "must be an integer", 0});
   } else {
     // Beyond the int range, the bound's message names what was sent, not what it was cut to.
-    const int64_t n = SaturatedInt64(particles);
-    if (n > std::numeric_limits<int>::max() || n < std::numeric_limits<int>::min()) {
+    const std::optional<int64_t> n = Int64Of(particles);
+    if (!n || *n > std::numeric_limits<int>::max() || *n < std::numeric_limits<int>::min()) {
       errors.push_back(
           {"/max_particles",
            particles.dump() + " is outside [1, " + std::to_string(kMaxParticlesCap) + "]", 0});
     } else {
-      b.max_particles = static_cast<int>(n);
+      b.max_particles = static_cast<int>(*n);
     }
   }
   // Ranges of the values whose type was right (a mistyped value has no range to check).

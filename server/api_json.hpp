@@ -34,10 +34,6 @@ Result<nlohmann::json> ParseJsonBounded(std::string_view text, int max_depth = 3
 /// error, say) become U+FFFD instead of throwing.
 std::string Dump(const nlohmann::json& body);
 
-/// A JSON integer as int64, saturated: 2^64 - 1 arrives as an unsigned number, which
-/// get<int64_t>() would wrap to -1. Precondition: is_number_integer().
-int64_t SaturatedInt64(const nlohmann::json& integer);
-
 /// `body` as the response, application/json.
 void SendJson(httplib::Response& res, const nlohmann::json& body, int status = 200);
 
