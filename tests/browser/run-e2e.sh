@@ -34,6 +34,10 @@ artifact_dir=$(cd "$artifact_dir" && pwd)
 stdout_log=$artifact_dir/slamd.stdout
 stderr_log=$artifact_dir/slamd.stderr
 
+# Created first: the background job opens them when it is scheduled, maybe after the first read
+# (a missing file fails sed, and set -e the script).
+: > "$stdout_log"
+: > "$stderr_log"
 "$slamd_bin" --port 0 --foxglove-port 0 --speed 4 --quiet --web-root "$web_root" > "$stdout_log" 2> "$stderr_log" &
 slamd_pid=$!
 

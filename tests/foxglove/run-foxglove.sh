@@ -62,6 +62,10 @@ start() {
   local port
   port=$(node -e 'const s = require("net").createServer().listen(0, "127.0.0.1", () => {
                     console.log(s.address().port); s.close(); });')
+  # Created first: the background job opens them when it is scheduled, maybe after the first
+  # read (a missing file fails sed, and set -e the script).
+  : > "$work_dir/$name.stdout"
+  : > "$work_dir/$name.stderr"
   "$slamd_bin" --port 0 --foxglove-port "$port" --speed 4 --quiet "$@" \
     > "$work_dir/$name.stdout" 2> "$work_dir/$name.stderr" &
   local pid=$!
