@@ -327,6 +327,73 @@ TEST_F(TuneJobOutputs, ALinkedJobsFolderIsRefusedNotWrittenThrough) {
   EXPECT_TRUE(fs::is_empty(elsewhere.path()));
 }
 
+/// An experiment folder `dir` of a CARMEN log (FLASER records of 181 readings of 2 m, one every
+/// 0.2 s, odometry and laser pose at x = step_m * i) and the same poses as ground truth.
+void WriteRunAlongX(const fs::path& dir, int records, double step_m) {
+  fs::create_directories(dir);
+  std::string log, truth;
+  for (int i = 0; i < records; ++i) {
+    const double t = 1.0 + 0.2 * i, x = step_m * i;
+    log += "FLASER 181";
+    for (int b = 0; b < 181; ++b) log += " 2.0";
+    char rest[200];
+    std::snprintf(rest, sizeof(rest), " %.17g 0 0 %.17g 0 0 %.3f host %.3f\n", x, x, t, t);
+    log += rest;
+    std::snprintf(rest, sizeof(rest), "%.3f %.17g 0 0 0 0 0 1\n", t, x);
+    truth += rest;
+  }
+  WriteText((dir / "log.clf").string(), log);
+  WriteText((dir / "groundtruth.tum").string(), truth);
+}
+
+TEST_F(TuneJobOutputs, AJobOverPosesFarBeyondTheMapEndsAndTheNextJobStarts) {
+  // The probe's case: a tuning job over a run whose poses leave the map's bound hung the engine
+  // for good (DELETE answered 202, the job stayed running, every new job was refused with 409).
+  // Two such runs: the probe's own log (odometry and poses of 1e300 m: the reader refuses its
+  // records, so the job fails naming them), and one the reader takes (250 km a step, within its
+  // 1e7 m, far beyond the map: the engine refuses the scans, the job ends).
+  TempDir experiments("tune_far_experiments");
+  fs::create_directories(experiments.path() / "probe");
+  WriteText((experiments.path() / "probe" / "log.clf").string(),
+            "ODOM 1e300 -1e300 1e300 0 0 0 1.0 host 1.0\n"
+            "FLASER 3 1.0 1.0 1.0 1e300 -1e300 1e300 1e300 -1e300 1e300 1.1 host 1.1\n"
+            "FLASER 3 1.0 1.0 1.0 -1e300 1e300 -1e300 -1e300 1e300 -1e300 1.2 host 1.2\n"
+            "FLASER 3 1.0 1.0 1.0 1 1 0 1e6 1e6 1e300 1.3 host 1.3\n");
+  WriteText((experiments.path() / "probe" / "groundtruth.tum").string(),
+            "1.1 0 0 0 0 0 0 1\n1.2 0 0 0 0 0 0 1\n1.3 0 0 0 0 0 0 1\n");
+  WriteRunAlongX(experiments.path() / "far", 40, 2.5e5);
+
+  for (const char* name : {"probe", "far"}) {
+    SCOPED_TRACE(name);
+    JobManager jobs(experiments.path().string(), "");
+    const Result<TuneRequest> request = ParseTuneRequest(
+        nlohmann::json::parse(std::string(R"({"population": 2, "generations": 1, "budget": 2000,
+                                               "experiments": [")") +
+                              name + "\"]}"),
+        jobs.Experiments());
+    ASSERT_TRUE(request.ok()) << request.Message();
+    for (int round = 0; round < 2; ++round) {  // the second job starts: nothing is left running
+      const Result<nlohmann::json> started = jobs.Start(request.value());
+      ASSERT_TRUE(started.ok()) << "round " << round << ": " << started.Message();
+      const std::string id = started.value().value("id", "");
+      const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+      nlohmann::json job;
+      do {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        job = *jobs.Get(id);
+      } while (job.value("state", "") == "running" &&
+               std::chrono::steady_clock::now() < deadline);
+      if (std::string(name) == "probe") {
+        EXPECT_EQ(job.value("state", ""), "failed") << job.dump();
+        EXPECT_TRUE(Contains(job.value("error", ""), "no laser record")) << job.dump();
+        EXPECT_TRUE(Contains(job.value("error", ""), "beyond")) << job.dump();
+      } else {
+        EXPECT_EQ(job.value("state", ""), "done") << job.dump();
+      }
+    }
+  }
+}
+
 // --- whole-map exports ---------------------------------------------------------------------------
 
 /// A 1 cm grid with one tile at each of two opposite corners of the map's bound, each with an
