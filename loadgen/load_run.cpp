@@ -167,9 +167,11 @@ Result<json> RunLoad(const LoadOptions& options) {
       std::max(Clock::now(), *std::max_element(last_done.begin(), last_done.end()));
   const int viewers_connected = viewer_stats.connected.load();
   const int foxglove_connected = foxglove_stats.connected.load();
+  // The memory is sampled under load only: once the clients leave, slamd returns the pages
+  // their buffers held, and a last sample then would hide growth over the second half.
+  rss.Stop();
   stop = true;
   for (auto& thread : viewer_threads) thread.join();
-  rss.Stop();
 
   const auto metrics_after = probe.Get("/metrics");
   if (!metrics_after || metrics_after->status != 200) {
