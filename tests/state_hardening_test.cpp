@@ -381,8 +381,7 @@ TEST_F(TuneJobOutputs, AJobOverPosesFarBeyondTheMapEndsAndTheNextJobStarts) {
       do {
         std::this_thread::sleep_for(std::chrono::milliseconds(50));
         job = *jobs.Get(id);
-      } while (job.value("state", "") == "running" &&
-               std::chrono::steady_clock::now() < deadline);
+      } while (job.value("state", "") == "running" && std::chrono::steady_clock::now() < deadline);
       if (std::string(name) == "probe") {
         EXPECT_EQ(job.value("state", ""), "failed") << job.dump();
         EXPECT_TRUE(Contains(job.value("error", ""), "no laser record")) << job.dump();
