@@ -1064,8 +1064,8 @@ size_t Slam::UpdateParticles(const Scan& scan, const std::vector<Measurement>& u
     // refreshes it when a scan casts through them.
     if (plan.refine) particle.map.RefreshSummaries(/*clearance=*/windows.empty() || !windows[p]);
     auto chunk = std::make_shared<TrajectoryChunk>();
-    chunk->poses.reserve(scan.samples.size() + 1);
-    for (size_t i = 0; i < scan.samples.size(); ++i) {
+    chunk->poses.reserve(config_.history_samples ? scan.samples.size() + 1 : 1);
+    for (size_t i = 0; config_.history_samples && i < scan.samples.size(); ++i) {
       // A sample at the scan's start is the previous end pose, already in the history; samples
       // that share a time (a laser's sweep, read at one pose) give one pose.
       const double t = scan.samples[i].t;

@@ -51,6 +51,11 @@ struct SlamConfig {
   /// phase B.
   bool fit_peak = true;
   uint64_t seed = 1;
+  /// A particle's history keeps a pose at every reading's time (true: offline evaluation
+  /// interpolates the ground truth's poses there) or only each scan's end (false: a server
+  /// that serves and saves scan ends, whose history then costs one pose a scan, not one a
+  /// reading, over a long run).
+  bool history_samples = true;
   bool parallel = true;  // oneTBB across particles and candidates; results equal the serial path
 
   /// Empty when valid.

@@ -132,6 +132,8 @@ SlamService::SlamService(hw::Link& link, const sim::VirtualMarxbotSource* truth_
       assembler_(options.robot, options.assembler),
       params_(options.params.ForRobot(options.robot)) {
   options_.config.parallel = false;
+  // slamd serves, saves and evaluates scan ends only (ScanEndTrajectory).
+  options_.config.history_samples = false;
   {
     MutexLock lock(mutex_);
     revised_params_ = params_.For(scheduler_.Quota(last_period_s_));

@@ -708,6 +708,34 @@ TEST(Parallel, SerialAndParallelPathsGiveIdenticalResults) {
   for (size_t i = 0; i < traj_a.size(); ++i) EXPECT_EQ(traj_a[i].pose.x, traj_b[i].pose.x);
 }
 
+TEST(History, WithoutSamplePosesItKeepsTheSameScanEndsAtOnePoseAScan) {
+  // slamd keeps scan ends only (history_samples = false): the filter is the same, bit for bit,
+  // and the history holds the start and one pose a scan instead of one a reading.
+  const SimRun run = Simulate(8.0, 3);
+  SlamParams params;
+  params.particles = 3;
+  params.resampling_period_scans = 2;
+  SlamConfig samples;
+  SlamConfig ends;
+  ends.history_samples = false;
+  const auto [a, rays_a] = RunSlam(run, params, samples, 16250, true);
+  const auto [b, rays_b] = RunSlam(run, params, ends, 16250, true);
+  EXPECT_EQ(rays_a.total(), rays_b.total());
+  const auto full = a.Trajectory(), kept = b.Trajectory();
+  ASSERT_EQ(kept.size(), run.scans.size() + 1);  // the start and each scan's end
+  EXPECT_GT(full.size(), 4 * kept.size());       // a reading's pose each, several a scan
+  size_t j = 0;
+  for (const TimedPose& end : kept) {
+    while (j < full.size() && full[j].t < end.t) ++j;
+    ASSERT_LT(j, full.size()) << "no pose at t = " << end.t;
+    EXPECT_EQ(full[j].t, end.t);
+    EXPECT_EQ(full[j].pose.x, end.pose.x);
+    EXPECT_EQ(full[j].pose.y, end.pose.y);
+    EXPECT_EQ(full[j].pose.theta, end.pose.theta);
+  }
+  EXPECT_EQ(kept.back().t, run.scans.back().t_end);
+}
+
 // End to end on a world built here: noisy odometry and gyro along the simulated wander, readings
 // through the Sharp curves; SLAM's trajectory error must be well below odometry-only mapping.
 TEST(EndToEnd, SlamBeatsOdometryOnlyOnASimulatedRun) {
