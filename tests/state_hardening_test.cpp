@@ -255,11 +255,13 @@ class TuneJobOutputs : public ::testing::Test {
     experiments_ = nullptr;
   }
 
-  /// Runs the smallest job to its end; the job's last JSON.
-  static nlohmann::json RunSmallJob(JobManager& jobs) {
-    const Result<TuneRequest> request = ParseTuneRequest(
-        nlohmann::json::parse(R"({"population": 2, "generations": 1, "budget": 2000})"),
-        jobs.Experiments());
+  /// Runs a job (the smallest unless `request_json` says otherwise) to its end, for at most
+  /// 60 s; the job's last JSON.
+  static nlohmann::json RunSmallJob(
+      JobManager& jobs,
+      const std::string& request_json = R"({"population": 2, "generations": 1, "budget": 2000})") {
+    const Result<TuneRequest> request =
+        ParseTuneRequest(nlohmann::json::parse(request_json), jobs.Experiments());
     EXPECT_TRUE(request.ok()) << request.Message();
     const Result<nlohmann::json> started = jobs.Start(request.value());
     EXPECT_TRUE(started.ok()) << started.Message();
@@ -366,22 +368,12 @@ TEST_F(TuneJobOutputs, AJobOverPosesFarBeyondTheMapEndsAndTheNextJobStarts) {
   for (const char* name : {"probe", "far"}) {
     SCOPED_TRACE(name);
     JobManager jobs(experiments.path().string(), "");
-    const Result<TuneRequest> request = ParseTuneRequest(
-        nlohmann::json::parse(std::string(R"({"population": 2, "generations": 1, "budget": 2000,
-                                               "experiments": [")") +
-                              name + "\"]}"),
-        jobs.Experiments());
-    ASSERT_TRUE(request.ok()) << request.Message();
+    const std::string request = std::string(R"({"population": 2, "generations": 1, "budget": 2000,
+                                                 "experiments": [")") +
+                                name + "\"]}";
     for (int round = 0; round < 2; ++round) {  // the second job starts: nothing is left running
-      const Result<nlohmann::json> started = jobs.Start(request.value());
-      ASSERT_TRUE(started.ok()) << "round " << round << ": " << started.Message();
-      const std::string id = started.value().value("id", "");
-      const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-      nlohmann::json job;
-      do {
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-        job = *jobs.Get(id);
-      } while (job.value("state", "") == "running" && std::chrono::steady_clock::now() < deadline);
+      SCOPED_TRACE(round);
+      const nlohmann::json job = RunSmallJob(jobs, request);
       if (std::string(name) == "probe") {
         EXPECT_EQ(job.value("state", ""), "failed") << job.dump();
         EXPECT_TRUE(Contains(job.value("error", ""), "no laser record")) << job.dump();
