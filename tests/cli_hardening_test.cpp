@@ -239,6 +239,25 @@ TEST(BuiltinWorldsTest, EveryHelpThatTakesAWorldListsEveryBuiltinOne) {
   }
 }
 
+// Every option slamd's --help lists is in docs/http-api.md's "Starting slamd" synopsis or text.
+TEST(DocsTest, EverySlamdOptionIsInTheApiDocument) {
+  const fs::path dir = Scratch("slamd-options");
+  const ToolRun help = RunTool({SLAMD_BIN, "--help"}, dir);
+  ASSERT_EQ(help.status, 0);
+  const std::string doc = ReadAll(fs::path(SLAM_SOURCE_DIR) / "docs/http-api.md");
+  ASSERT_FALSE(doc.empty());
+  // CLI11 lists each option at the start of a line: "  --port INT ...", "  -h,--help ...".
+  const std::regex option(R"((?:^|\n)\s+(?:-[A-Za-z],)?(--[a-z][a-z0-9-]*))");
+  int options = 0;
+  for (std::sregex_iterator m(help.out.begin(), help.out.end(), option), end; m != end; ++m) {
+    const std::string name = (*m)[1].str();
+    ++options;
+    const std::regex named(name + "(?![a-z0-9-])");
+    EXPECT_TRUE(std::regex_search(doc, named)) << name << " is not in docs/http-api.md";
+  }
+  EXPECT_GE(options, 20);
+}
+
 // --- slam-evaluate --params DIR of a study of some budgets -----------------------------------
 
 TEST(EvaluateParamsTest, ADirectoryKeepsTheShippedSetForTheBudgetsItLacks) {

@@ -825,6 +825,28 @@ TEST_F(SharedSlamd, MetricsAreTextFormatWithEveryDocumentedName) {
   EXPECT_GT(Metric(samples, "slamd_link_frames_total").value_or(0.0), 0.0);
 }
 
+// Every family slamd exports is named in docs/http-api.md's metrics list, as `name`, `name{...}`
+// or `name (...)`: a metric added without its line there fails here.
+TEST_F(SharedSlamd, EveryExportedMetricFamilyIsInTheApiDocument) {
+  const Reply reply = http().Get("/metrics");
+  ASSERT_EQ(reply.status, 200) << reply;
+  const std::string doc = ReadFile(fs::path(SLAM_SOURCE_DIR) / "docs/http-api.md");
+  ASSERT_FALSE(doc.empty());
+  std::istringstream lines(reply.body);
+  int families = 0;
+  for (std::string line; std::getline(lines, line);) {
+    const std::string type = "# TYPE slamd_";
+    if (line.compare(0, type.size(), type) != 0) continue;
+    const std::string name = line.substr(type.size(), line.find(' ', type.size()) - type.size());
+    ++families;
+    const bool named = doc.find("`" + name + "`") != std::string::npos ||
+                       doc.find("`" + name + "{") != std::string::npos ||
+                       doc.find("`" + name + " (") != std::string::npos;
+    EXPECT_TRUE(named) << "slamd_" << name << " is not in docs/http-api.md";
+  }
+  EXPECT_GE(families, 20);
+}
+
 TEST_F(SharedSlamd, MetricsScansTotalGrows) {
   const double first = Metric(GetMetrics(http()), "slamd_scans_total").value_or(-1.0);
   ASSERT_GE(first, 0.0);
