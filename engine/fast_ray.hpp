@@ -2,8 +2,8 @@
 // Internal to the engine's matching rays (matching_rays.cpp, match_window.cpp): the fast
 // traversal of one matching ray over a field of cells (the grid's tiles or a MatchWindow's
 // free squares), and the loop that keeps two rays in flight. In an unnamed namespace: each of
-// the two files gets its own copy, as when it lived in one file, so the compiler inlines it the
-// same way; include it nowhere else.
+// the two files gets its own copy, which the compiler inlines into its callers; include it
+// nowhere else.
 
 #include <algorithm>
 #include <array>
@@ -249,8 +249,8 @@ RayHit CastOne(const Field& field, const GridGeometry& geometry, const RayQuery&
 
 /// hits[i] for every rays[i]: two at a time through `field` where fast(rays[i]) holds for
 /// both, else one at a time by single(rays[i]). Two rays in flight: the processor overlaps
-/// their independent chains (more lanes cost more in bookkeeping than they gain, measured
-/// with BM_MatchingRayBatch).
+/// their independent chains (more lanes cost more in bookkeeping than they gain: see
+/// BM_MatchingRayBatch).
 template <typename Field, typename Fast, typename Single>
 void CastInPairs(const Field& field, const GridGeometry& geometry,
                  const std::vector<RayQuery>& rays, std::vector<RayHit>& hits, const Fast& fast,

@@ -334,7 +334,7 @@ SLAM_WIDE_TARGET void CastEight(const MatchWindow& window, const std::vector<Ray
     covered += static_cast<size_t>(_mm_popcnt_u32(inside));
   }
 
-  // Advancing them (one group of eight lanes: two groups side by side measured slower).
+  // Advancing them (one group of eight lanes: two groups side by side are slower).
   const WideStep step{window.free_squares(), res};
   WideLanes lanes;
   const auto count = static_cast<int32_t>(covered);
@@ -539,7 +539,7 @@ struct Avx2Lanes {
   // Sixteen vector registers for the state and the step's temporaries: pairs of 32-bit
   // quantities share one register (u in the low half, v in the high one; the steps alike; cells
   // in the low 16 bits of `counts`, jumps in the high ones: a window's ray crosses far fewer
-  // than 65 536 cells), or the lanes' state spills to the stack (measured 15 % slower).
+  // than 65 536 cells), or the lanes' state spills to the stack, which is slower.
   __m256d ox, oy, ax, ay, ix, iy, length, t;
   __m256i uv, steps;
   __m128i base, counts, ray;

@@ -859,8 +859,8 @@ Slam::WindowPlan Slam::PlanWindows(const Prediction& prediction,
   // all of it by 4 sigma_pos (candidates drawn farther cast through the map). The rays' own
   // ends rather than the longest ray all around: near a wall, the window stops a little
   // beyond it instead of a ray's length beyond (about 40 % fewer cells in the arenas).
-  // Same answers either way; what pays is measured by BM_MatchWindowBuild (about 1.5 ns per
-  // cell) and BM_MatchingRayWindow (some 30 to 60 ns saved per ray) on this machine.
+  // Same answers either way; what a window costs per cell and saves per ray is measured by
+  // BM_MatchWindowBuild and BM_MatchingRayWindow (bench/).
   constexpr int64_t kCellsPerRayPaid = 16;
   constexpr double kWindowTurnSigmas = 2.0;
   WindowPlan windows(n_particles);

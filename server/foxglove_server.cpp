@@ -69,8 +69,8 @@ constexpr size_t kDiscardChunkBytes = 16 * 1024;
 /// replaces one still waiting (it holds every followed parameter's value).
 constexpr int64_t kParameterUpdatesKey = int64_t{1} << 32;
 /// After a client leaves, its queue's memory goes back to the system (malloc_trim), at most this
-/// often: glibc keeps freed small blocks in its arenas, so slamd kept hundreds of megabytes after
-/// clients that had filled their queues were gone (measured, issue 46).
+/// often: glibc keeps freed small blocks in its arenas, so without it slamd keeps hundreds of
+/// megabytes after clients that had filled their queues are gone (RELIABILITY.md, round three).
 constexpr auto kTrimEvery = std::chrono::seconds(1);
 constexpr int kSocketSendBuffer = 256 * 1024;
 /// The web app of Foxglove: a page of that origin may change the budget (without a token).

@@ -434,7 +434,7 @@ void HttpServer::Impl::Setup() {
   });
   // Counted in the post-routing handler, which the library calls for every answer (its own 400
   // and 404 included) just before writing it, not in the logger, which it calls after: a client
-  // reading /metrics right after an answer came could miss it (it failed a CI run once).
+  // reading /metrics right after an answer came could miss it.
   server.set_post_routing_handler([this](const Request& req, Response& res) {
     // The method as a label only when it is one of HTTP's: whatever else a client sends as a
     // method (httplib answers 400) would grow the counters without bound and go into /metrics

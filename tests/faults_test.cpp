@@ -227,8 +227,8 @@ TEST(SlamdFaults, SignalsStopSlamdCleanlyWithinASecondWhateverItsSourceDoes) {
 }
 
 TEST(SlamdFaults, SigtermStopsSlamdWithinASecondInTheMiddleOfAScanOfSeconds) {
-  // At 1e8 rays per scan a scan takes seconds here; the SLAM thread finished it before seeing
-  // the stop request (1.5 s measured). The scan now skips its remaining candidates.
+  // At 1e8 rays per scan a scan takes seconds; the SLAM thread used to finish it before seeing
+  // the stop request. The scan now skips its remaining candidates.
   for (int round = 0; round < 3; ++round) {
     SlamdProcess slamd;
     std::string error;
