@@ -2,8 +2,8 @@
 // slamd's connections on top of cpp-httplib 0.11 (docs/design.md appendix C).
 //
 // Bounded requests: cpp-httplib 0.11 bounds each header line (8 KiB) but not their number, nor
-// the time a request may take to arrive: a client streaming header lines could grow slamd by
-// gigabytes in seconds, and one sending a byte every few seconds held a pool thread for ever.
+// the time a request may take to arrive: a client streaming header lines grew slamd by over a
+// gigabyte in seconds, and one sending a byte every few seconds held a pool thread for ever.
 // BoundedServer replaces the library's connection loop with the same loop over a stream that
 // gives each request a byte budget (head plus the largest body allowed) and a deadline; past
 // either, reads fail and the library answers 400 and closes the connection.
