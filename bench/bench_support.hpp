@@ -96,7 +96,8 @@ inline Slam MappedEngine(const SimulatedRun& run, size_t scans, int64_t budget, 
   Slam engine(ShippedRobot(), ParamsWith(particles), BenchConfig(parallel));
   for (size_t i = 0; i < scans && i < run.scans.size(); ++i) {
     const Scan& scan = run.scans[i];
-    engine.ProcessScan(scan, FixedPlan(engine.Summarize(scan), budget, engine.params()));
+    const PreparedScan prepared = engine.Prepare(scan);
+    engine.ProcessScan(prepared, FixedPlan(prepared.summary, budget, engine.params()));
   }
   return engine;
 }

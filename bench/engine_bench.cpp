@@ -534,8 +534,8 @@ void BM_Scan(benchmark::State& state) {
       next = kWarmScans;
       state.ResumeTiming();
     }
-    const Scan& scan = scans[next++];
-    rays += engine->ProcessScan(scan, FixedPlan(engine->Summarize(scan), budget, engine->params()))
+    const PreparedScan prepared = engine->Prepare(scans[next++]);
+    rays += engine->ProcessScan(prepared, FixedPlan(prepared.summary, budget, engine->params()))
                 .rays.total();
     ++done;
   }

@@ -1,7 +1,8 @@
 #pragma once
 // FastSLAM 2.0 on a log-odds occupancy grid, adapted to the marXbot's rotating scanner
-// (paper section V): per scan, phase A motion, B matching and pose refinement, C grid update,
-// D resampling. Its cost is counted in rays and bounded by the plan given for each scan.
+// (paper section V): per scan, phase A motion (motion_model.hpp, drift_tracker.hpp), B matching
+// and pose refinement (scan_matcher.hpp), C grid update, D resampling (particle_set.hpp). Its
+// cost is counted in rays and bounded by the plan given for each scan.
 
 #include <atomic>
 #include <cstdint>
@@ -10,16 +11,18 @@
 #include <optional>
 #include <vector>
 
+#include "engine/drift_tracker.hpp"
 #include "engine/occupancy_grid.hpp"
 #include "engine/params.hpp"
+#include "engine/particle_set.hpp"
 #include "engine/pose.hpp"
 #include "engine/robot.hpp"
 #include "engine/scan.hpp"
+#include "engine/scan_matcher.hpp"
+#include "engine/scan_path.hpp"
 #include "engine/sensor_model.hpp"
 
 namespace slam {
-
-class MatchWindow;
 
 /// Engine settings that are not tuned by the evolution strategy.
 struct SlamConfig {
@@ -62,14 +65,18 @@ struct SlamConfig {
   ConfigErrors Validate() const;
 };
 
+/// Which readings phase B matches: the set's thinning, or the lighter thinning of a range
+/// scanner whose heading search has narrowed (ScanSummary::matching_available).
+enum class SearchMode { kSet, kNarrowed };
+
 /// What the engine may spend on one scan (produced by the scheduler).
 struct ScanPlan {
   static constexpr int kUnlimited = std::numeric_limits<int>::max();
   int particles = 1;                       // particle count from this scan on (a change
                                            // resamples before the scan)
   int candidates = 1;                      // pose candidates per particle (1 = no refinement)
-  int matching_measurements = kUnlimited;  // cap on measurements matched per candidate (above
-                                           // the set's thinning: a narrowed search's readings)
+  SearchMode search = SearchMode::kSet;    // the readings the candidates match
+  int matching_measurements = kUnlimited;  // cap on those matched per candidate
   int update_rays = kUnlimited;            // cap on grid-update rays per particle
   bool refine = true;                      // false: phase B off, odometry-only mapping
 };
@@ -85,13 +92,25 @@ struct ScanSummary {
   int usable_measurements = 0;    // readings inside their sensor's use window (update rays)
   int matching_measurements = 0;  // of those, kept for matching after thinning by angle
   // Kept after the lighter thinning of a range scanner whose heading search has narrowed
-  // (Slam::LeastSearchAngle): a narrower search needs fewer candidates, so a plan may match
-  // more readings with each (SplitQuota). Not above matching_measurements otherwise.
+  // (Slam::LeastSearchAngle; SearchMode::kNarrowed): a narrower search needs fewer candidates,
+  // so a plan may match more readings with each (SplitQuota). Not above matching_measurements
+  // otherwise.
   int matching_available = 0;
+  // A narrowed search keeps at least this many candidates per particle: what phase B's peak
+  // fit needs.
+  int narrowed_candidates_min = kPeakFitMinCandidates;
 };
 
-/// Phase B fits the log-likelihood's peak when a particle has at least this many candidates.
-inline constexpr int kPeakFitMinCandidates = 20;
+/// A scan prepared for Slam::ProcessScan: its usable readings measured once, their thinnings
+/// for matching and its summary. It refers to `scan`, which must outlive it, and holds for the
+/// next ProcessScan with the same parameters (the thinning follows the heading search).
+struct PreparedScan {
+  const Scan* scan = nullptr;
+  std::vector<Measurement> usable;  // inside their sensor's use window (the update rays)
+  std::vector<size_t> thinned;      // indices into usable: the set's thinning
+  std::vector<size_t> narrowed;     // the narrowed search's thinning; empty when not narrower
+  ScanSummary summary;
+};
 
 /// Why Slam::ProcessScan refused a scan: nothing was done with it, the particles hold where
 /// they were (as across a restart of the base's odometry).
@@ -129,40 +148,26 @@ struct ScanReport {
   ScanRefusal refused = ScanRefusal::kNone;
 };
 
-/// History of a particle: one chunk per scan, shared with the ancestors it was copied from.
-struct TrajectoryChunk {
-  std::vector<TimedPose> poses;  // the scan's sample poses and its end pose, time-ordered
-  mutable std::shared_ptr<const TrajectoryChunk> parent;  // mutable: unlinked on destruction
-  ~TrajectoryChunk();  // iterative, so that long histories do not overflow the stack
-};
-
-struct Particle {
-  Pose2 pose;
-  double log_weight = 0.0;
-  OccupancyGrid map;
-  std::shared_ptr<const TrajectoryChunk> history;
-  // The heading drift of the odometry as this particle's matches have measured it
-  // (counter-clockwise positive); its prediction takes it out. Where the heading comes from a
-  // gyro it is the gyro's bias, per second; where it comes from the encoders, the wheels'
-  // systematic error, per metre driven (RobotDescription's base.heading_from_gyro).
-  double heading_drift = 0.0;
-};
-
 class Slam {
  public:
   /// Share of a match's correction that moves the whole scan, from its first sample on; the
-  /// rest grows linearly over the scan (docs/design.md, phase B). Chosen on the validation
-  /// worlds among 0 (the paper's: the start stays where the previous match put it), 0.3, 0.5,
-  /// 0.7 and 1.
+  /// rest grows linearly over the scan (ScanPath; docs/design.md, phase B). Chosen on the
+  /// validation worlds among 0 (the paper's: the start stays where the previous match put it),
+  /// 0.3, 0.5, 0.7 and 1.
   static constexpr double kStartShare = 0.7;
 
   /// Preconditions: Validate(robot), Validate(params) and config.Validate() are empty.
   Slam(const RobotDescription& robot, const SlamParams& params, const SlamConfig& config);
 
-  /// Runs phases A-D on one scan within `plan` and reports what was done. A scan whose times or
-  /// odometry are not finite, whose odometry moves further than the robot drives in the scan's
-  /// time (kScanTravelSlackS beyond it), or would take a particle beyond the map's bound is
-  /// refused (ScanReport::refused, counted in scans_refused()): the particles hold.
+  /// Measures a scan once for Summarize's numbers, ProcessScan and ReadingPoints.
+  PreparedScan Prepare(const Scan& scan) const;
+
+  /// Runs phases A-D on one prepared scan within `plan` and reports what was done. A scan whose
+  /// times or odometry are not finite, whose odometry moves further than the robot drives in the
+  /// scan's time (kScanTravelSlackS beyond it), or would take a particle beyond the map's bound
+  /// is refused (ScanReport::refused, counted in scans_refused()): the particles hold.
+  ScanReport ProcessScan(const PreparedScan& prepared, const ScanPlan& plan);
+  /// ProcessScan(Prepare(scan), plan).
   ScanReport ProcessScan(const Scan& scan, const ScanPlan& plan);
   /// Time allowed beyond a scan's own duration in its odometry's plausible travel (the base's
   /// max_speed_m_s over both): readings are stamped when they arrive, in batches.
@@ -181,15 +186,15 @@ class Slam {
   /// the scan ended at `end` (from the particle's current pose). For diagnostics and tests.
   double ScoreScan(const Scan& scan, const Pose2& end) const;
 
-  /// Counts what a scan offers, for the scheduler to plan with. For a range scanner it also
-  /// depends on the corrections earlier matches made (matching_available): it holds for the
-  /// next ProcessScan with the same parameters.
+  /// Counts what a scan offers, for the scheduler to plan with (Prepare(scan).summary). For a
+  /// range scanner it also depends on the corrections earlier matches made
+  /// (matching_available): it holds for the next ProcessScan with the same parameters.
   ScanSummary Summarize(const Scan& scan) const;
 
   /// Where the scan's readings (those inside their sensor's use window) lie in the robot's
   /// frame at the scan's end, each placed by the odometry from its sample to the end: the scan
   /// as a viewer draws it around the robot.
-  std::vector<Vec2> ReadingPoints(const Scan& scan) const;
+  std::vector<Vec2> ReadingPoints(const PreparedScan& prepared) const;
 
   /// While `flag` (may be null) is true, a scan evaluates each particle's first candidate only
   /// and skips the rest: a scan of a huge budget (seconds of work) then ends within
@@ -207,27 +212,15 @@ class Slam {
 
   const std::vector<Particle>& particles() const { return particles_; }
   /// The particle with the largest weight (lowest index on ties).
-  const Particle& Best() const;
+  const Particle& Best() const { return particles_[BestIndex(particles_)]; }
   /// The best particle's trajectory, time-ordered, starting at the origin.
-  std::vector<TimedPose> Trajectory() const;
-  /// A particle's history as one time-ordered trajectory (Trajectory() is the best one's).
-  static std::vector<TimedPose> History(const Particle& particle);
+  std::vector<TimedPose> Trajectory() const { return History(Best()); }
   int64_t scans_processed() const { return scans_processed_; }
   /// Scans ProcessScan refused (not counted in scans_processed()).
   int64_t scans_refused() const { return scans_refused_; }
 
  private:
-  struct Measurement;
-  class ScanPath;
-  /// Eq. (2) of a candidate: its rays cast through `window` when there is one, else `map`.
-  double LogLikelihood(const OccupancyGrid& map, const MatchWindow* window, const ScanPath& path,
-                       const Pose2& correction,
-                       const std::vector<const Measurement*>& matching) const;
   struct Prediction;
-  struct MatchResult;
-  struct WindowBounds {
-    CellIndex lo, hi;  // inclusive
-  };
   using WindowPlan = std::vector<std::optional<WindowBounds>>;
 
   // ProcessScan's steps, in order.
@@ -238,9 +231,8 @@ class Slam {
   bool StartScan(const Scan& scan, const ScanPlan& plan, uint64_t step);
   /// The readings inside their sensor's use window (the update rays).
   std::vector<Measurement> CollectMeasurements(const Scan& scan) const;
-  /// Those kept for matching: thinned by platform angle ("angle between scans"), then capped.
-  std::vector<const Measurement*> SelectMatching(const Scan& scan,
-                                                 const std::vector<Measurement>& usable,
+  /// Those kept for matching: the plan's search mode's thinning, then capped.
+  std::vector<const Measurement*> SelectMatching(const PreparedScan& prepared,
                                                  const ScanPlan& plan) const;
   /// The readings kept for matching: the first, then each at least `step` (rad) of platform
   /// angle past the last kept.
@@ -250,11 +242,8 @@ class Slam {
   /// search (the set's times LeastSearchAngle over the set's minimum angle uncertainty).
   double ThinningStep() const;
   double NarrowedThinningStep(const Scan& scan) const;
-  /// Deviation of the heading's drift over the scan (rad): the motion model's for its
-  /// odometry, plus the drift left uncorrected since the last informative match.
-  double DriftAngle(const Scan& scan) const;
   /// Phase A: each particle's path through the scan and its end pose sampled from the motion
-  /// model (noise-free without refinement: odometry-only mapping).
+  /// model (noise-free without refinement: odometry-only mapping), and phase B's search spread.
   Prediction PredictMotion(const Scan& scan, bool refine, uint64_t step) const;
   /// Whether phase B runs: refinement on, readings to match, and more than one pose to weigh.
   bool MatchesScan(const ScanPlan& plan, size_t matching) const;
@@ -263,7 +252,7 @@ class Slam {
   WindowPlan PlanWindows(const Prediction& prediction,
                          const std::vector<const Measurement*>& matching,
                          const ScanPlan& plan) const;
-  /// Phase B: eq. (2) for each candidate pose around each prediction; the best one wins.
+  /// Phase B: the scan matcher over every particle.
   MatchResult MatchScan(const Prediction& prediction,
                         const std::vector<const Measurement*>& matching, const ScanPlan& plan,
                         const WindowPlan& windows, uint64_t step) const;
@@ -278,7 +267,7 @@ class Slam {
   /// Phase D: the effective sample size, then resampling every resampling_period_scans.
   void FinishScan(const MatchResult& match, uint64_t step, ScanReport& report);
   /// Draws `wanted` particles in proportion to their weights (random stream `stream` of scan
-  /// `step`); the drawn particles share maps and histories with their parents.
+  /// `step`).
   void Resample(size_t wanted, uint64_t step, uint64_t stream);
 
   RobotDescription robot_;
@@ -286,17 +275,12 @@ class Slam {
   SlamConfig config_;
   GridGeometry geometry_;
   std::vector<SensorModel> sensor_models_;  // one per scanner sensor, in event word order
+  ScanMatcher matcher_;
   std::vector<Particle> particles_;
+  DriftTracker drift_;
   int64_t scans_processed_ = 0;
   int64_t scans_refused_ = 0;
   int64_t scans_since_resampling_ = 0;
-  // Variance of the drift the map has not corrected since the last informative match (position
-  // m^2, heading rad^2): the search spreads that much wider when readings return.
-  double unmatched_var_pos_ = 0.0;
-  double unmatched_var_angle_ = 0.0;
-  // Mean square of the heading corrections of a range scanner's informative matches (rad^2),
-  // averaged over the last scans; none before the first.
-  std::optional<double> correction_var_angle_;
   const std::atomic<bool>* interrupt_ = nullptr;
 };
 

@@ -1,24 +1,15 @@
 #include "offline/replay.hpp"
 
-#include <time.h>
-
 #include <algorithm>
 #include <chrono>
-#include <ctime>
 #include <limits>
+
+#include "scheduler/budgeted_step.hpp"
 
 namespace slam::offline {
 namespace {
 
 constexpr double kNoStop = std::numeric_limits<double>::infinity();
-
-/// CPU time so far: the whole process's when the engine may use worker threads, else this
-/// thread's (so that replays running side by side each measure their own).
-double CpuSeconds(bool whole_process) {
-  timespec now{};
-  ::clock_gettime(whole_process ? CLOCK_PROCESS_CPUTIME_ID : CLOCK_THREAD_CPUTIME_ID, &now);
-  return static_cast<double>(now.tv_sec) + 1e-9 * static_cast<double>(now.tv_nsec);
-}
 
 }  // namespace
 
@@ -52,17 +43,21 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   // The set of the first scan's quota builds the engine; later scans switch sets when their quota
   // (a CPU share's) calls for another one.
   const ParamsChoice params = options.params.ForRobot(robot);  // a laser's shipped family
-  const ParamsSet* in_use = &params.For(
+  const ParamsSet& first = params.For(
       scheduler.Quota(scans.empty() ? 0.0 : scans.front().t_end - scans.front().t_begin));
   SlamConfig config = options.config;
   if (config.resolution_m == 0.0) config.resolution_m = DefaultResolution(robot);
-  Slam engine(robot, in_use->params, config);
+  Slam engine(robot, first.params, config);
   engine.set_interrupt(options.cancel);  // a scan of a huge budget ends soon after a cancel
-  int64_t rays_total = 0, rays_max = 0, resamplings = 0, switches = 0;
+  // The whole process's CPU time when the engine may use worker threads, else this thread's (so
+  // that replays running side by side each measure their own).
+  const CpuClock clock = options.config.parallel ? CpuClock::kProcess : CpuClock::kThread;
+  BudgetedStep stepper(engine, scheduler, params, first, clock);
+  int64_t rays_total = 0, rays_max = 0, resamplings = 0;
   std::vector<PlanRecord> plans;
   plans.reserve(scans.size());
   const auto wall_start = std::chrono::steady_clock::now();
-  const double cpu_start = CpuSeconds(options.config.parallel);
+  const double cpu_start = CpuSeconds(clock);
   size_t done = 0;
   bool cancelled = false, stopped_early = false;
   double e_lower_bound = 0.0;
@@ -74,33 +69,18 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
       cancelled = true;
       break;
     }
-    const Scan& scan = scans[k];
-    const double scan_cpu_start = CpuSeconds(options.config.parallel);
-    const ParamsSet& set = params.For(scheduler.Quota(scan.t_end - scan.t_begin));
-    if (set.name != in_use->name) {
-      engine.SetParams(set.params);
-      in_use = &set;
-      ++switches;
-    }
-    ScanSummary summary = engine.Summarize(scan);
-    if (!options.refine) {  // phase B off: nothing to match
-      summary.matching_measurements = 0;
-      summary.matching_available = 0;
-    }
-    ScanPlan plan = scheduler.Plan(summary, scan.t_end - scan.t_begin, engine.params());
-    plan.refine = options.refine;
-    const ScanReport report = engine.ProcessScan(scan, plan);
-    plans.push_back(scheduler.Record(report, CpuSeconds(options.config.parallel) - scan_cpu_start));
-    rays_total += report.rays.total();
-    rays_max = std::max(rays_max, report.rays.total());
-    resamplings += report.resampled ? 1 : 0;
+    const BudgetedStep::Result step = stepper.Run(scans[k], options.refine);
+    if (step.record) plans.push_back(*step.record);
+    rays_total += step.report.rays.total();
+    rays_max = std::max(rays_max, step.report.rays.total());
+    resamplings += step.report.resampled ? 1 : 0;
     done = k + 1;
     if (options.progress) options.progress(k + 1, scans.size());
     if (bound_checks && done < scans.size() && done % check_every == 0) {
       // The final trajectory is the history of a particle descending from one of today's.
       double bound = kNoStop;
       for (const Particle& particle : engine.particles()) {
-        bound = std::min(bound, ErrorLowerBound(Slam::History(particle), ground_truth));
+        bound = std::min(bound, ErrorLowerBound(History(particle), ground_truth));
       }
       if (bound > options.stop_above_e) {
         stopped_early = true;
@@ -109,7 +89,7 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
       }
     }
   }
-  const double cpu_s = CpuSeconds(options.config.parallel) - cpu_start;
+  const double cpu_s = CpuSeconds(clock) - cpu_start;
   const double wall_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
 
@@ -124,8 +104,8 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   result.rays_per_scan_max = rays_max;
   result.resamplings = resamplings;
   result.scans_refused = engine.scans_refused();
-  result.params_set = *in_use;
-  result.params_switches = switches;
+  result.params_set = stepper.in_use();
+  result.params_switches = stepper.switches();
   result.plans = std::move(plans);
   result.wall_s = wall_s;
   result.cpu_s = cpu_s;

@@ -8,8 +8,9 @@ int64_t PlannedRays(const ScanPlan& plan, const ScanSummary& summary) {
   const int64_t particles = std::max(1, plan.particles);
   const int64_t updates = std::min(plan.update_rays, summary.usable_measurements);
   const int64_t matching =
-      std::min(plan.matching_measurements,
-               std::max(summary.matching_measurements, summary.matching_available));
+      std::min(plan.matching_measurements, plan.search == SearchMode::kNarrowed
+                                               ? summary.matching_available
+                                               : summary.matching_measurements);
   // The engine skips matching when there is nothing to choose between.
   const bool matches = plan.refine && matching > 0 && (plan.candidates > 1 || particles > 1);
   return particles * (updates + (matches ? int64_t{std::max(1, plan.candidates)} * matching : 0));
@@ -53,9 +54,9 @@ ScanPlan SplitQuota(const ScanSummary& summary, int64_t quota, int particles) {
   // its thinning keeps more readings (the candidates' density over the search stays), each
   // matching more of them, as long as the peak fit keeps the candidates it needs.
   const int64_t available = summary.matching_available;
-  if (available > matching && candidates > kPeakFitMinCandidates) {
-    const int64_t wanted =
-        std::max<int64_t>(kPeakFitMinCandidates, candidates * matching / available);
+  const int64_t least = summary.narrowed_candidates_min;
+  if (available > matching && candidates > least) {
+    const int64_t wanted = std::max<int64_t>(least, candidates * matching / available);
     measurements = std::min(available, left / wanted);
     candidates = left / measurements;
   }
@@ -66,6 +67,8 @@ ScanPlan SplitQuota(const ScanSummary& summary, int64_t quota, int particles) {
   }
   plan.candidates = static_cast<int>(candidates);
   plan.matching_measurements = static_cast<int>(measurements);
+  // More readings than the set's thinning keeps: the narrowed search's.
+  if (measurements > matching) plan.search = SearchMode::kNarrowed;
   return plan;
 }
 

@@ -17,7 +17,7 @@ namespace slam {
 /// candidates per particle fit, matching measurements are thinned first, then update rays.
 /// A range scanner whose heading search has narrowed (summary.matching_available above
 /// summary.matching_measurements) gets as many times fewer candidates as it has more readings,
-/// each matching more of them, down to kPeakFitMinCandidates.
+/// each matching more of them (SearchMode::kNarrowed), down to summary.narrowed_candidates_min.
 ScanPlan SplitQuota(const ScanSummary& summary, int64_t quota, int particles);
 
 /// The paper's policy: SplitQuota with the particle count of `params`.

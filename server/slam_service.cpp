@@ -17,12 +17,6 @@ namespace {
 constexpr double kTruthPeriodS = 0.1;   // ground truth kept at 10 Hz
 constexpr double kTruthWindowS = 30.0;  // world-frame truth kept for alignment and errors
 
-double ThreadCpuSeconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + static_cast<double>(ts.tv_nsec) * 1e-9;
-}
-
 int64_t SteadyNs() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(
              std::chrono::steady_clock::now().time_since_epoch())
@@ -171,15 +165,17 @@ int SlamService::encoded_logodds_limit() const {
 
 void SlamService::BuildEngine() {
   double period = 0.0;
+  ParamsChoice choice;
   {
     MutexLock lock(mutex_);
-    engine_choice_ = params_;
+    choice = params_;
     params_changed_ = false;
     period = last_period_s_;
   }
-  const ParamsSet& set = engine_choice_.For(scheduler_.Quota(period));
-  engine_set_ = set;
+  const ParamsSet set = choice.For(scheduler_.Quota(period));
   engine_ = std::make_unique<Slam>(options_.robot, set.params, options_.config);
+  step_ = std::make_unique<BudgetedStep>(*engine_, scheduler_, std::move(choice), set,
+                                         CpuClock::kThread);
   engine_->set_interrupt(&stop_);  // a scan of a huge budget ends soon after Stop()
   if (options_.resume) {
     const SavedState& saved = *options_.resume;
@@ -238,10 +234,40 @@ void SlamService::UseShippedParams() {
   ReviseParams();
 }
 
+SlamService::RevisedBudget SlamService::BudgetRevised() const {
+  MutexLock lock(budget_mutex_);
+  return {scheduler_.settings(), budget_revision_};
+}
+
+SlamService::BudgetChange SlamService::ChangeBudget(
+    const std::function<bool(uint64_t revision)>& precondition,
+    const std::function<Result<BudgetSettings>(const BudgetSettings&)>& change) {
+  MutexLock budget_lock(budget_mutex_);
+  BudgetChange out;
+  out.budget = scheduler_.settings();
+  out.revision = budget_revision_;
+  if (!precondition(budget_revision_)) {
+    out.precondition_failed = true;
+    return out;
+  }
+  const Result<BudgetSettings> changed = change(out.budget);
+  if (!changed.ok()) {
+    out.errors = changed.errors();
+    return out;
+  }
+  if (!(changed.value() == out.budget)) {
+    scheduler_.SetSettings(changed.value());
+    out.budget = changed.value();
+    out.revision = ++budget_revision_;
+    MutexLock lock(mutex_);
+    ReviseParams();  // another quota may call for another shipped set
+  }
+  return out;
+}
+
 void SlamService::SetBudget(const BudgetSettings& settings) {
-  scheduler_.SetSettings(settings);
-  MutexLock lock(mutex_);
-  ReviseParams();
+  ChangeBudget([](uint64_t) { return true; },
+               [&](const BudgetSettings&) -> Result<BudgetSettings> { return settings; });
 }
 
 void SlamService::ReviseParams() {
@@ -251,12 +277,7 @@ void SlamService::ReviseParams() {
   ++params_revision_;
 }
 
-void SlamService::FollowParams(double scan_period_s) {
-  const ParamsSet& set = engine_choice_.For(scheduler_.Quota(scan_period_s));
-  if (set != engine_set_) {
-    engine_->SetParams(set.params);
-    engine_set_ = set;
-  }
+void SlamService::FollowPeriod(double scan_period_s) {
   MutexLock lock(mutex_);
   last_period_s_ = scan_period_s;
   ReviseParams();  // a CPU share's quota moves with the measured cost per ray
@@ -315,7 +336,7 @@ void SlamService::ApplyCommands() {
     BuildEngine();
     Publish(std::nullopt);
   } else if (params) {
-    engine_choice_ = *params;  // the next scan takes the set of its quota
+    step_->SetChoice(*params);  // the next scan takes the set of its quota
   }
 }
 
@@ -363,23 +384,21 @@ void SlamService::UpdateGroundTruth() {
 
 void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
   const int64_t wall_start = SteadyNs();
-  const double cpu_start = ThreadCpuSeconds();
   const double period = scan.t_end - scan.t_begin;
-  FollowParams(period);
-  const ScanSummary summary = engine_->Summarize(scan);
-  const ScanPlan plan = scheduler_.Plan(summary, period, engine_->params());
-  const ScanReport report = engine_->ProcessScan(scan, plan);
-  if (report.refused != ScanRefusal::kNone) {
+  FollowPeriod(period);
+  const BudgetedStep::Result step = step_->Run(scan);
+  if (!step.record) {  // refused by the engine
     MutexLock lock(mutex_);
     ++counters_.refused_scans;
     return;
   }
-  const double cpu_s = ThreadCpuSeconds() - cpu_start;
+  const ScanReport& report = step.report;
+  const PlanRecord& record = *step.record;
+  const double cpu_s = step.cpu_s;
   // For viewers (Foxglove's /scan): a few hundred points, outside the scan's CPU account.
   if (options_.scan_points) {
-    scan_points_ = std::make_shared<const std::vector<Vec2>>(engine_->ReadingPoints(scan));
+    scan_points_ = std::make_shared<const std::vector<Vec2>>(engine_->ReadingPoints(step.prepared));
   }
-  const PlanRecord record = scheduler_.Record(report, cpu_s);
   const int64_t now = SteadyNs();
 
   ScanMetrics m;

@@ -9,6 +9,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -20,11 +21,13 @@
 #include "engine/params.hpp"
 #include "engine/pose.hpp"
 #include "engine/quality.hpp"
+#include "engine/result.hpp"
 #include "engine/robot.hpp"
 #include "engine/scan_assembler.hpp"
 #include "engine/slam.hpp"
 #include "engine/thread_safety.hpp"
 #include "hw_link/link.hpp"
+#include "scheduler/budgeted_step.hpp"
 #include "scheduler/params_catalog.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 #include "server/state_store.hpp"
@@ -152,8 +155,29 @@ class SlamService {
   std::shared_ptr<const SlamSnapshot> WaitNewer(uint64_t sequence,
                                                 std::chrono::milliseconds timeout) const;
 
-  /// Budget settings (applied from the next scan). Precondition of Set: valid.
+  /// Budget settings (applied from the next scan).
   BudgetSettings Budget() const { return scheduler_.settings(); }
+  /// The budget with its revision, read together: bumped by every change of the budget, and only
+  /// then (the budget's ETag). Thread-safe.
+  struct RevisedBudget {
+    BudgetSettings budget;
+    uint64_t revision = 0;
+  };
+  RevisedBudget BudgetRevised() const;
+  /// What ChangeBudget did.
+  struct BudgetChange {
+    bool precondition_failed = false;  // nothing changed: the precondition refused the revision
+    ConfigErrors errors;               // nothing changed: what the change found wrong
+    BudgetSettings budget;             // the budget after
+    uint64_t revision = 0;             // and its revision
+  };
+  /// Replaces the budget with `change(current)` (a validated budget, or what is wrong) if
+  /// `precondition(revision)` holds, atomically with every other change of the budget (HTTP,
+  /// Foxglove). Thread-safe.
+  BudgetChange ChangeBudget(
+      const std::function<bool(uint64_t revision)>& precondition,
+      const std::function<Result<BudgetSettings>(const BudgetSettings&)>& change);
+  /// ChangeBudget to `settings`, unconditionally. Precondition: valid.
   void SetBudget(const BudgetSettings& settings);
   /// The parameter set the next scan runs with: the one given, or the shipped set of the
   /// current quota.
@@ -183,8 +207,8 @@ class SlamService {
 
  private:
   void Run();
-  /// Before a scan: switches the engine to the set of the scan's quota when it changed.
-  void FollowParams(double scan_period_s);
+  /// Before a scan: its period sets a CPU share's quota, and with it Params().
+  void FollowPeriod(double scan_period_s);
   /// Bumps params_revision_ if Params() is no longer what it was at the last revision.
   void ReviseParams() SLAM_REQUIRES(mutex_);
   void ProcessScan(const Scan& scan, int64_t receive_ns);
@@ -217,14 +241,16 @@ class SlamService {
   std::shared_ptr<const SlamSnapshot> snapshot_ SLAM_GUARDED_BY(mutex_);
   ServiceCounters counters_ SLAM_GUARDED_BY(mutex_);
   std::vector<TimedPose> truth_map_ SLAM_GUARDED_BY(mutex_);  // map frame
+  // Serialises changes of the budget; taken before mutex_, never after.
+  mutable Mutex budget_mutex_;
+  uint64_t budget_revision_ SLAM_GUARDED_BY(budget_mutex_) = 1;
   ParamsChoice params_ SLAM_GUARDED_BY(mutex_);
   bool params_changed_ SLAM_GUARDED_BY(mutex_) = false;
   uint64_t params_revision_ SLAM_GUARDED_BY(mutex_) = 1;
   ParamsSet revised_params_ SLAM_GUARDED_BY(mutex_);    // Params() at the last revision
   double last_period_s_ SLAM_GUARDED_BY(mutex_) = 0.0;  // of the last scan: a CPU share's quota
-  // SLAM thread only: the choice and the set the engine runs.
-  ParamsChoice engine_choice_;
-  ParamsSet engine_set_;
+  // SLAM thread only: each scan through the budget (the engine's set included).
+  std::unique_ptr<BudgetedStep> step_;
   bool reset_requested_ SLAM_GUARDED_BY(mutex_) = false;
 
   std::atomic<bool> stop_{false};

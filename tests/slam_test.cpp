@@ -323,7 +323,7 @@ TEST(Matching, ALasersHeadingSearchFollowsTheCorrectionsItsMatchesMake) {
     Outcome out;
     out.good = drive(1.5, 120, true);
     // What a set thinning to one reading in 4 degrees keeps now, and what the narrowed search
-    // gives a plan asking for more readings than that.
+    // gives a plan asking for it.
     SlamParams thinning = params;
     thinning.angle_between_scans_deg = 4.0;
     slam.SetParams(thinning);
@@ -332,6 +332,7 @@ TEST(Matching, ALasersHeadingSearchFollowsTheCorrectionsItsMatchesMake) {
     out.narrowed = slam.Summarize(still);
     ScanPlan more = plan;
     more.candidates = 20;
+    more.search = SearchMode::kNarrowed;
     more.matching_measurements = out.narrowed.matching_available + 10;
     const ScanReport report = slam.ProcessScan(still, more);
     out.matched = report.matching_measurements;

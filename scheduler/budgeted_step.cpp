@@ -1,0 +1,50 @@
+#include "scheduler/budgeted_step.hpp"
+
+#include <time.h>
+
+#include <utility>
+
+namespace slam {
+
+BudgetedStep::BudgetedStep(Slam& engine, RayBudgetScheduler& scheduler, ParamsChoice choice,
+                           ParamsSet in_use, CpuClock clock)
+    : engine_(engine),
+      scheduler_(scheduler),
+      choice_(std::move(choice)),
+      in_use_(std::move(in_use)),
+      clock_(clock) {}
+
+double CpuSeconds(CpuClock clock) {
+  timespec now{};
+  ::clock_gettime(clock == CpuClock::kProcess ? CLOCK_PROCESS_CPUTIME_ID : CLOCK_THREAD_CPUTIME_ID,
+                  &now);
+  return static_cast<double>(now.tv_sec) + 1e-9 * static_cast<double>(now.tv_nsec);
+}
+
+BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
+  Result result;
+  const double cpu_start = CpuSeconds(clock_);
+  const double period = scan.t_end - scan.t_begin;
+  // A CPU share's quota moves with the measured cost per ray, and may call for another set.
+  const ParamsSet& set = choice_.For(scheduler_.Quota(period));
+  if (set != in_use_) {
+    engine_.SetParams(set.params);
+    in_use_ = set;
+    ++switches_;
+  }
+  result.prepared = engine_.Prepare(scan);
+  ScanSummary summary = result.prepared.summary;
+  if (!refine) {  // phase B off: nothing to match
+    summary.matching_measurements = 0;
+    summary.matching_available = 0;
+  }
+  ScanPlan plan = scheduler_.Plan(summary, period, engine_.params());
+  plan.refine = refine;
+  result.report = engine_.ProcessScan(result.prepared, plan);
+  result.cpu_s = CpuSeconds(clock_) - cpu_start;
+  if (result.report.refused == ScanRefusal::kNone)
+    result.record = scheduler_.Record(result.report, result.cpu_s);
+  return result;
+}
+
+}  // namespace slam

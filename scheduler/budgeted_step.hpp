@@ -1,0 +1,57 @@
+#pragma once
+// One scan through the ray budget: the sequence every user of the engine runs (offline replay,
+// slamd). The parameter set the scan's quota calls for, the scan prepared once, planned by the
+// scheduler within its quota, processed by the engine, and the engine's report given back to the
+// scheduler (what the rays cost, what the filter's belief looks like).
+
+#include <cstdint>
+#include <optional>
+
+#include "engine/scan.hpp"
+#include "engine/slam.hpp"
+#include "scheduler/params_catalog.hpp"
+#include "scheduler/ray_budget_scheduler.hpp"
+
+namespace slam {
+
+/// How CPU time is counted: the whole process's (an engine with worker threads, run alone) or
+/// the calling thread's (engines running side by side, each on its own thread).
+enum class CpuClock { kProcess, kThread };
+/// CPU seconds so far on `clock`.
+double CpuSeconds(CpuClock clock);
+
+class BudgetedStep {
+ public:
+  /// `engine` and `scheduler` must outlive the step. `choice` gives the set of each quota;
+  /// `in_use` is the set the engine runs now.
+  BudgetedStep(Slam& engine, RayBudgetScheduler& scheduler, ParamsChoice choice, ParamsSet in_use,
+               CpuClock clock);
+
+  /// The sets to choose from, from the next scan on.
+  void SetChoice(ParamsChoice choice) { choice_ = std::move(choice); }
+  /// The set the engine runs with.
+  const ParamsSet& in_use() const { return in_use_; }
+  /// How many times a scan's quota switched the engine to another set.
+  int64_t switches() const { return switches_; }
+
+  struct Result {
+    PreparedScan prepared;  // the scan as the engine measured it (refers to the scan)
+    ScanReport report;
+    /// The scheduler's record of the scan; none when the engine refused it (the scheduler
+    /// learns nothing from a scan that did nothing).
+    std::optional<PlanRecord> record;
+    double cpu_s = 0.0;  // the whole step's
+  };
+  /// Runs one scan; `refine` false maps on the odometry alone (phase B off, nothing matched).
+  Result Run(const Scan& scan, bool refine = true);
+
+ private:
+  Slam& engine_;
+  RayBudgetScheduler& scheduler_;
+  ParamsChoice choice_;
+  ParamsSet in_use_;
+  CpuClock clock_;
+  int64_t switches_ = 0;
+};
+
+}  // namespace slam

@@ -1,0 +1,83 @@
+// One scan through the budget (BudgetedStep), as replay and slamd run it, on a short simulated run.
+
+#include "scheduler/budgeted_step.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+#include "sim/scenario.hpp"
+#include "sim/world.hpp"
+#include "test_support.hpp"
+
+namespace slam {
+namespace {
+
+using testing::ShippedRobot;
+
+std::vector<Scan> RoomScans(double duration_s) {
+  sim::ScenarioConfig config;
+  config.duration_s = duration_s;
+  config.seed = 3;
+  const sim::ScenarioOutput out =
+      sim::RunScenario(*sim::BuiltinWorld("rooms"), ShippedRobot(), config);
+  return sim::BuildScans(ShippedRobot(), out.odometry, out.scanner);
+}
+
+TEST(BudgetedStep, PlansEachScanWithinItsQuotaSwitchesSetsAndSkipsWhatTheEngineRefuses) {
+  const std::vector<Scan> scans = RoomScans(30.0);
+  ASSERT_GT(scans.size(), 40u);
+  BudgetSettings settings;
+  settings.rays_per_scan = 8125;
+  RayBudgetScheduler scheduler(settings);
+  const ParamsChoice choice;  // the infrared scanner's shipped sets
+  const ParamsSet first = choice.For(8125);
+  SlamConfig config;
+  config.parallel = false;
+  Slam engine(ShippedRobot(), first.params, config);
+  BudgetedStep step(engine, scheduler, choice, first, CpuClock::kThread);
+
+  size_t k = 0;
+  for (; k < 20; ++k) {
+    const BudgetedStep::Result r = step.Run(scans[k]);
+    ASSERT_TRUE(r.record) << k;
+    EXPECT_EQ(r.report.usable_measurements, r.prepared.summary.usable_measurements);
+    EXPECT_EQ(r.record->used_rays, r.report.rays.total());
+    EXPECT_EQ(r.record->planned_rays, r.record->used_rays) << k;  // the engine's own accounting
+    EXPECT_LE(r.record->used_rays, 8125);
+  }
+  EXPECT_GT(scheduler.totals().rays_used, 20 * 8125 * 9 / 10);  // and fills it
+  EXPECT_EQ(step.switches(), 0);
+
+  // A larger budget calls for its own set from the next scan on.
+  settings.rays_per_scan = 65000;
+  scheduler.SetSettings(settings);
+  const BudgetedStep::Result bigger = step.Run(scans[k++]);
+  ASSERT_TRUE(bigger.record);
+  EXPECT_EQ(step.switches(), 1);
+  EXPECT_EQ(step.in_use(), choice.For(65000));
+  EXPECT_NE(step.in_use(), first);
+  EXPECT_EQ(engine.params().particles, choice.For(65000).params.particles);
+  EXPECT_GT(bigger.record->used_rays, 8125);
+
+  // A scan the engine refuses did nothing: the scheduler learns nothing from it.
+  Scan broken = scans[k];
+  broken.odom_end.x = std::numeric_limits<double>::quiet_NaN();
+  const int64_t recorded = scheduler.totals().scans;
+  const BudgetedStep::Result refused = step.Run(broken);
+  EXPECT_FALSE(refused.record);
+  EXPECT_EQ(refused.report.refused, ScanRefusal::kNotFinite);
+  EXPECT_EQ(scheduler.totals().scans, recorded);
+  EXPECT_EQ(engine.scans_refused(), 1);
+
+  // Odometry-only mapping: nothing matched, every usable reading updates.
+  const BudgetedStep::Result mapping = step.Run(scans[k], /*refine=*/false);
+  ASSERT_TRUE(mapping.record);
+  EXPECT_EQ(mapping.report.rays.matching, 0);
+  EXPECT_EQ(mapping.report.update_rays, mapping.prepared.summary.usable_measurements);
+  EXPECT_EQ(mapping.record->planned_rays, mapping.record->used_rays);
+}
+
+}  // namespace
+}  // namespace slam
