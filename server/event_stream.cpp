@@ -118,13 +118,13 @@ void HttpServer::Impl::HandleEvents(const httplib::Request& req, httplib::Respon
         }
         s.sequence = snapshot->sequence;
         {
-          MutexLock lock(revision_mutex);
-          if (s.budget_revision != budget_revision) {
-            if (s.budget_revision != 0) {
-              out += SseEvent("budget", s.covered, BudgetJson(service.Budget()));
-            }
-            s.budget_revision = budget_revision;
+          const SlamService::RevisedBudget budget = service.BudgetRevised();
+          if (s.budget_revision != budget.revision) {
+            if (s.budget_revision != 0)
+              out += SseEvent("budget", s.covered, BudgetJson(budget.budget));
+            s.budget_revision = budget.revision;
           }
+          MutexLock lock(params_mutex);
           const uint64_t params_revision = service.ParamsRevision();
           if (s.params_revision != params_revision) {
             if (s.params_revision != 0) {

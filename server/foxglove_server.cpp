@@ -24,6 +24,7 @@
 #include <thread>
 #include <utility>
 
+#include "server/access_policy.hpp"
 #include "server/api_json.hpp"
 #include "server/connection_admission.hpp"
 #include "server/foxglove_messages.hpp"
@@ -104,7 +105,6 @@ struct FoxgloveServer::Impl {
   struct Session;
 
   SlamService& service;
-  PatchBudget patch_budget;
   FoxgloveOptions options;
   asio::io_context io{1};
   tcp::acceptor acceptor{io};
@@ -138,8 +138,7 @@ struct FoxgloveServer::Impl {
       messages_dropped{0}, messages_replaced{0}, bytes_sent{0}, parameter_changes{0},
       bad_requests{0};
 
-  Impl(SlamService& s, PatchBudget patch, const FoxgloveOptions& o)
-      : service(s), patch_budget(std::move(patch)), options(o) {
+  Impl(SlamService& s, const FoxgloveOptions& o) : service(s), options(o) {
     channels = foxglove::Channels(service.simulated());
     server_info =
         json{{"op", "serverInfo"},
@@ -153,6 +152,15 @@ struct FoxgloveServer::Impl {
             .dump();
     advertise = foxglove::Advertise(channels).dump();
     last_budget = service.Budget();
+  }
+
+  /// A client's merge patch of the budget, as PATCH /api/v1/budget applies it.
+  Result<BudgetSettings> PatchBudget(const json& patch) {
+    const SlamService::BudgetChange change = service.ChangeBudget(
+        [](uint64_t) { return true; },
+        [&](const BudgetSettings& current) { return MergeBudget(current, patch); });
+    if (!change.errors.empty()) return change.errors;
+    return change.budget;
   }
 
   void Accept();
@@ -252,42 +260,23 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
                     "the web page and the REST API are on slamd's HTTP port",
                     {{"Upgrade", "websocket"}});
     }
-    // The same rules as the HTTP server's (request_guard.cpp): loopback names, IP addresses
-    // and --allow-host names only (DNS rebinding).
-    const std::string host = Lower(HostName(std::string(req[http::field::host])));
-    if (!IsLoopback(host) && !IsIpAddress(host) &&
-        std::find(server.options.allowed_hosts.begin(), server.options.allowed_hosts.end(), host) ==
-            server.options.allowed_hosts.end()) {
-      return Refuse(http::status::forbidden,
-                    "slamd answers only to loopback names, IP addresses and --allow-host names, "
-                    "not to '" +
-                        host + "'");
+    // The same rules as the HTTP server's: Host names, then the token; without one, a page of
+    // another site may watch but not change the budget, and Foxglove's web app may.
+    const AccessPolicy policy(server.options.token, server.options.allowed_hosts);
+    const std::string host(req[http::field::host]);
+    if (const auto refusal = policy.CheckHost(host)) {
+      return Refuse(static_cast<http::status>(refusal->status), refusal->detail);
     }
-    if (!server.options.token.empty()) {
-      const std::string auth(req[http::field::authorization]);
-      const std::string prefix = "bearer ";
-      if (auth.empty()) {
-        return Refuse(http::status::unauthorized,
-                      "a token is configured: connect with Authorization: Bearer <token>",
-                      {{"WWW-Authenticate", "Bearer realm=\"slamd\""}});
-      }
-      if (Lower(auth.substr(0, prefix.size())) != prefix ||
-          !ConstantTimeEquals(auth.substr(std::min(prefix.size(), auth.size())),
-                              server.options.token)) {
-        return Refuse(http::status::unauthorized, "wrong token",
-                      {{"WWW-Authenticate", "Bearer realm=\"slamd\", error=\"invalid_token\""}});
-      }
+    if (const auto refusal = policy.CheckToken(std::string(req[http::field::authorization]))) {
+      return Refuse(static_cast<http::status>(refusal->status), refusal->detail,
+                    {{"WWW-Authenticate", refusal->challenge}});
+    }
+    if (policy.has_token()) {
       writer = true;
     } else {
-      // Without a token: a page of another site (any page the user has open can open a
-      // WebSocket to 127.0.0.1) may watch but not change the budget; Foxglove's web app may.
       const std::string origin(req[http::field::origin]);
-      std::string origin_host = origin;
-      if (const size_t scheme = origin.find("://"); scheme != std::string::npos) {
-        origin_host = origin.substr(scheme + 3);
-      }
-      writer = origin.empty() || origin == kFoxgloveAppOrigin ||
-               Lower(origin_host) == Lower(std::string(req[http::field::host]));
+      writer =
+          origin.empty() || origin == kFoxgloveAppOrigin || AccessPolicy::SameOrigin(origin, host);
     }
     const std::string subprotocol =
         ChooseSubprotocol(std::string(req[http::field::sec_websocket_protocol]));
@@ -343,9 +332,11 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
 
   void OnOpen() {
     open = true;
-    protocol.emplace(
-        server.channels, writer,
-        foxglove::BudgetAccess{[this] { return server.service.Budget(); }, server.patch_budget});
+    protocol.emplace(server.channels, writer,
+                     foxglove::BudgetAccess{[this] { return server.service.Budget(); },
+                                            [this](const nlohmann::json& patch) {
+                                              return server.PatchBudget(patch);
+                                            }});
     server.clients.fetch_add(1);
     server.connections.fetch_add(1);
     buffer.clear();
@@ -669,9 +660,8 @@ void FoxgloveServer::Impl::CloseAll() {
   for (const std::shared_ptr<Session>& session : std::vector(sessions)) session->Close();
 }
 
-FoxgloveServer::FoxgloveServer(SlamService& service, PatchBudget patch_budget,
-                               const FoxgloveOptions& options)
-    : impl_(std::make_unique<Impl>(service, std::move(patch_budget), options)) {}
+FoxgloveServer::FoxgloveServer(SlamService& service, const FoxgloveOptions& options)
+    : impl_(std::make_unique<Impl>(service, options)) {}
 
 FoxgloveServer::~FoxgloveServer() { Stop(); }
 

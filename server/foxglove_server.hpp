@@ -55,11 +55,8 @@ struct FoxgloveCounters {
 
 class FoxgloveServer {
  public:
-  /// `patch_budget` applies a merge patch of the budget as the REST route does (validated,
-  /// the page told); the new budget, or what is wrong with it.
-  using PatchBudget = std::function<Result<BudgetSettings>(const nlohmann::json&)>;
-
-  FoxgloveServer(SlamService& service, PatchBudget patch_budget, const FoxgloveOptions& options);
+  /// Budget changes go to `service` (SlamService::ChangeBudget), as the REST routes' do.
+  FoxgloveServer(SlamService& service, const FoxgloveOptions& options);
   ~FoxgloveServer();  // stops
   FoxgloveServer(const FoxgloveServer&) = delete;
   FoxgloveServer& operator=(const FoxgloveServer&) = delete;

@@ -60,37 +60,31 @@ void HttpServer::Impl::HandleBudgetChange(const httplib::Request& req, httplib::
   if (!ParseBody(req, res, patch ? "application/merge-patch+json" : "application/json", body)) {
     return;
   }
-  MutexLock lock(revision_mutex);
   const std::string if_match = req.get_header_value("If-Match");
-  if (HeadHasField(req, "If-Match") && !EntityTagListMatches(if_match, BudgetEtag(), false)) {
-    res.set_header("ETag", BudgetEtag());
-    SendProblem(res, 412, "Precondition Failed",
-                "the budget changed since " + if_match + "; it is now " + BudgetEtag());
-    return;
+  const bool conditional = HeadHasField(req, "If-Match");
+  const SlamService::BudgetChange change = service.ChangeBudget(
+      [&](uint64_t revision) {
+        return !conditional || EntityTagListMatches(if_match, BudgetEtag(revision), false);
+      },
+      [&](const BudgetSettings& current) {
+        return patch ? MergeBudget(current, body) : BudgetFromJson(body);
+      });
+  res.set_header("ETag", BudgetEtag(change.revision));
+  if (change.precondition_failed) {
+    SendProblem(
+        res, 412, "Precondition Failed",
+        "the budget changed since " + if_match + "; it is now " + BudgetEtag(change.revision));
+  } else if (!change.errors.empty()) {
+    SendProblem(res, 422, "Invalid budget", "the budget was not changed", change.errors);
+  } else {
+    SendJson(res, BudgetJson(change.budget));
   }
-  const Result<BudgetSettings> changed = ChangeBudget(body, patch);
-  if (!changed.ok()) {
-    SendProblem(res, 422, "Invalid budget", "the budget was not changed", changed.errors());
-    return;
-  }
-  res.set_header("ETag", BudgetEtag());
-  SendJson(res, BudgetJson(changed.value()));
-}
-
-Result<BudgetSettings> HttpServer::Impl::ChangeBudget(const json& body, bool patch) {
-  Result<BudgetSettings> parsed =
-      patch ? MergeBudget(service.Budget(), body) : BudgetFromJson(body);
-  if (parsed.ok() && !(parsed.value() == service.Budget())) {
-    service.SetBudget(parsed.value());
-    ++budget_revision;
-  }
-  return parsed;
 }
 
 void HttpServer::Impl::HandleParamsPatch(const httplib::Request& req, httplib::Response& res) {
   json body;
   if (!ParseBody(req, res, "application/merge-patch+json", body)) return;
-  MutexLock lock(revision_mutex);
+  MutexLock lock(params_mutex);
   const std::string if_match = req.get_header_value("If-Match");
   if (HeadHasField(req, "If-Match") && !EntityTagListMatches(if_match, ParamsEtag(), false)) {
     res.set_header("ETag", ParamsEtag());
@@ -399,6 +393,28 @@ std::string HttpServer::Impl::MetricsText() {
   return o.str();
 }
 
+void HttpServer::Impl::Route(const std::string& method, const std::string& pattern,
+                             httplib::Server::Handler handler) {
+  if (method == "GET") {
+    server.Get(pattern, std::move(handler));
+  } else if (method == "POST") {
+    server.Post(pattern, std::move(handler));
+  } else if (method == "PUT") {
+    server.Put(pattern, std::move(handler));
+  } else if (method == "PATCH") {
+    server.Patch(pattern, std::move(handler));
+  } else {
+    server.Delete(pattern, std::move(handler));
+  }
+  const auto known = std::find_if(routes.begin(), routes.end(),
+                                  [&](const KnownRoute& r) { return r.pattern == pattern; });
+  if (known == routes.end()) {
+    routes.push_back({pattern, std::regex(pattern), method});
+  } else {
+    known->allow += ", " + method;
+  }
+}
+
 void HttpServer::Impl::Setup() {
   using httplib::Request;
   using httplib::Response;
@@ -456,37 +472,37 @@ void HttpServer::Impl::Setup() {
     SendProblem(res, 500, "Internal Server Error", what);
   });
 
-  server.Get("/api/v1/health", [](const Request&, Response& res) {
+  Route("GET", "/api/v1/health", [](const Request&, Response& res) {
     SendJson(res, {{"status", "ok"}});
   });
-  server.Get("/api/v1/status",
-             [this](const Request&, Response& res) { SendJson(res, StatusJson()); });
+  Route("GET", "/api/v1/status",
+        [this](const Request&, Response& res) { SendJson(res, StatusJson()); });
 
-  server.Get("/api/v1/budget", [this](const Request&, Response& res) {
-    MutexLock lock(revision_mutex);
-    res.set_header("ETag", BudgetEtag());
-    SendJson(res, BudgetJson(service.Budget()));
+  Route("GET", "/api/v1/budget", [this](const Request&, Response& res) {
+    const SlamService::RevisedBudget budget = service.BudgetRevised();
+    res.set_header("ETag", BudgetEtag(budget.revision));
+    SendJson(res, BudgetJson(budget.budget));
   });
-  server.Patch("/api/v1/budget",
-               [this](const Request& req, Response& res) { HandleBudgetChange(req, res, true); });
-  server.Put("/api/v1/budget",
-             [this](const Request& req, Response& res) { HandleBudgetChange(req, res, false); });
+  Route("PATCH", "/api/v1/budget",
+        [this](const Request& req, Response& res) { HandleBudgetChange(req, res, true); });
+  Route("PUT", "/api/v1/budget",
+        [this](const Request& req, Response& res) { HandleBudgetChange(req, res, false); });
 
-  server.Get("/api/v1/params", [this](const Request&, Response& res) {
+  Route("GET", "/api/v1/params", [this](const Request&, Response& res) {
     res.set_header("ETag", ParamsEtag());
     SendJson(res, io::ParamsToJson(service.Params().params));
   });
-  server.Patch("/api/v1/params",
-               [this](const Request& req, Response& res) { HandleParamsPatch(req, res); });
+  Route("PATCH", "/api/v1/params",
+        [this](const Request& req, Response& res) { HandleParamsPatch(req, res); });
   // Back to the shipped set of each scan's budget (after a PATCH or --params).
-  server.Delete("/api/v1/params", [this](const Request&, Response& res) {
-    MutexLock lock(revision_mutex);
+  Route("DELETE", "/api/v1/params", [this](const Request&, Response& res) {
+    MutexLock lock(params_mutex);
     service.UseShippedParams();
     res.set_header("ETag", ParamsEtag());
     SendJson(res, io::ParamsToJson(service.Params().params));
   });
 
-  server.Get("/api/v1/map", [this](const Request&, Response& res) {
+  Route("GET", "/api/v1/map", [this](const Request&, Response& res) {
     const auto s = service.Snapshot();
     json tiles = json::array();
     for (const TileRef& t : s->tiles) {
@@ -500,8 +516,8 @@ void HttpServer::Impl::Setup() {
                    {"epoch", s->epoch},
                    {"tiles", std::move(tiles)}});
   });
-  server.Get(R"(/api/v1/map/tiles/(-?\d{1,9})/(-?\d{1,9})\.png)",
-             [this](const Request& req, Response& res) { HandleTile(req, res); });
+  Route("GET", R"(/api/v1/map/tiles/(-?\d{1,9})/(-?\d{1,9})\.png)",
+        [this](const Request& req, Response& res) { HandleTile(req, res); });
   for (const char* kind : {"map.pgm", "map.yaml", "map.png", "trajectory.tum", "trajectory.json"}) {
     exports.try_emplace(kind);
   }
@@ -535,11 +551,11 @@ void HttpServer::Impl::Setup() {
       }
     };
   };
-  server.Get("/api/v1/map.pgm", whole_map("pgm"));
-  server.Get("/api/v1/map.yaml", whole_map("yaml"));
-  server.Get("/api/v1/map.png", whole_map("png"));
+  Route("GET", "/api/v1/map.pgm", whole_map("pgm"));
+  Route("GET", "/api/v1/map.yaml", whole_map("yaml"));
+  Route("GET", "/api/v1/map.png", whole_map("png"));
 
-  server.Get("/api/v1/trajectory", [this](const Request& req, Response& res) {
+  Route("GET", "/api/v1/trajectory", [this](const Request& req, Response& res) {
     const std::string format = req.has_param("format") ? req.get_param_value("format") : "json";
     if (format != "json" && format != "tum") {
       SendProblem(res, 400, "Bad Request", "format must be json or tum, not \"" + format + "\"");
@@ -571,19 +587,19 @@ void HttpServer::Impl::Setup() {
     }
   });
 
-  server.Get("/api/v1/events",
-             [this](const Request& req, Response& res) { HandleEvents(req, res); });
+  Route("GET", "/api/v1/events",
+        [this](const Request& req, Response& res) { HandleEvents(req, res); });
 
-  server.Post("/api/v1/map/save", [this](const Request& req, Response& res) {
+  Route("POST", "/api/v1/map/save", [this](const Request& req, Response& res) {
     json body;
     if (ParseBody(req, res, "application/json", body)) HandleSave(res);
   });
-  server.Post("/api/v1/reset", [this](const Request& req, Response& res) {
+  Route("POST", "/api/v1/reset", [this](const Request& req, Response& res) {
     json body;
     if (ParseBody(req, res, "application/json", body)) HandleReset(res);
   });
 
-  server.Post("/api/v1/jobs/tune", [this](const Request& req, Response& res) {
+  Route("POST", "/api/v1/jobs/tune", [this](const Request& req, Response& res) {
     json body;
     if (!ParseBody(req, res, "application/json", body)) return;
     if (!jobs.configured()) {
@@ -605,8 +621,9 @@ void HttpServer::Impl::Setup() {
     res.set_header("Location", "/api/v1/jobs/" + job.value()["id"].get<std::string>());
     SendJson(res, job.value(), 202);
   });
-  server.Get("/api/v1/jobs", [this](const Request&, Response& res) { SendJson(res, jobs.List()); });
-  server.Get(R"(/api/v1/jobs/([^/]+))", [this](const Request& req, Response& res) {
+  Route("GET", "/api/v1/jobs",
+        [this](const Request&, Response& res) { SendJson(res, jobs.List()); });
+  Route("GET", R"(/api/v1/jobs/([^/]+))", [this](const Request& req, Response& res) {
     const auto job = jobs.Get(req.matches[1].str());
     if (!job) {
       SendProblem(res, 404, "Not Found", "no job " + req.matches[1].str());
@@ -614,7 +631,7 @@ void HttpServer::Impl::Setup() {
     }
     SendJson(res, *job);
   });
-  server.Delete(R"(/api/v1/jobs/([^/]+))", [this](const Request& req, Response& res) {
+  Route("DELETE", R"(/api/v1/jobs/([^/]+))", [this](const Request& req, Response& res) {
     const std::string id = req.matches[1].str();
     const int status = jobs.Delete(id);
     if (status == 404) {
@@ -624,7 +641,7 @@ void HttpServer::Impl::Setup() {
     SendJson(res, {{"id", id}, {"state", status == 202 ? "cancelling" : "deleted"}}, status);
   });
 
-  server.Get("/metrics", [this](const Request&, Response& res) {
+  Route("GET", "/metrics", [this](const Request&, Response& res) {
     res.set_content(MetricsText(), "text/plain; version=0.0.4; charset=utf-8");
   });
 
@@ -635,24 +652,9 @@ void HttpServer::Impl::Setup() {
   }
 
   // Known routes answer 405 to other methods; anything else is 404, as problem+json.
-  struct Route {
-    std::regex pattern;
-    std::string allow;
-  };
-  static const std::vector<Route> kRoutes = {
-      {std::regex(
-           R"(/api/v1/(health|status|map|map\.pgm|map\.yaml|map\.png|trajectory|events|jobs))"),
-       "GET"},
-      {std::regex(R"(/api/v1/budget)"), "GET, PUT, PATCH"},
-      {std::regex(R"(/api/v1/params)"), "GET, PATCH, DELETE"},
-      {std::regex(R"(/api/v1/map/tiles/-?\d{1,9}/-?\d{1,9}\.png)"), "GET"},
-      {std::regex(R"(/api/v1/(map/save|reset|jobs/tune))"), "POST"},
-      {std::regex(R"(/api/v1/jobs/[^/]+)"), "GET, DELETE"},
-      {std::regex(R"(/metrics)"), "GET"},
-  };
-  const auto fallback = [](const Request& req, Response& res) {
-    for (const Route& route : kRoutes) {
-      if (std::regex_match(req.path, route.pattern)) {
+  const auto fallback = [this](const Request& req, Response& res) {
+    for (const KnownRoute& route : routes) {
+      if (std::regex_match(req.path, route.regex)) {
         res.set_header("Allow", route.allow);
         SendProblem(
             res, 405, "Method Not Allowed",
@@ -699,11 +701,6 @@ void HttpServer::Run() {
   impl_->server.StartServing(static_cast<size_t>(impl_->options.max_streams) + 8);
   impl_->server.listen_after_bind();
   impl_->server.Shutdown();
-}
-
-Result<BudgetSettings> HttpServer::PatchBudget(const json& patch) {
-  MutexLock lock(impl_->revision_mutex);
-  return impl_->ChangeBudget(patch, true);
 }
 
 void HttpServer::AddMetrics(std::function<std::string()> metrics) {

@@ -55,11 +55,6 @@ class HttpServer {
   /// time): for the save at a clean stop.
   Result<SaveReport> SaveMap();
 
-  /// Changes the budget by a merge patch (RFC 7396) as PATCH /api/v1/budget does: validated,
-  /// the ETag's revision bumped, the page's event stream told. The new budget, or what is wrong
-  /// with the patch (then nothing changed). Thread-safe: for slamd's other front ends.
-  Result<BudgetSettings> PatchBudget(const nlohmann::json& patch);
-
   /// Adds text (Prometheus exposition format, whole metric families) that /metrics appends to
   /// its own: another front end's metrics. Call before Run.
   void AddMetrics(std::function<std::string()> metrics);

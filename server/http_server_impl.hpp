@@ -10,11 +10,13 @@
 #include <map>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <regex>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "engine/thread_safety.hpp"
+#include "server/access_policy.hpp"
 #include "server/bounded_server.hpp"
 #include "server/http_library.hpp"
 #include "server/http_server.hpp"
@@ -44,6 +46,7 @@ struct HttpServer::Impl {
   hw::Link& link;
   JobManager& jobs;
   HttpOptions options;
+  AccessPolicy access{options.token, options.allowed_hosts};
   BoundedServer server;
   Clock::time_point started = Clock::now();
   // Tells one run of slamd from the next (the page reloads everything when it changes).
@@ -53,10 +56,9 @@ struct HttpServer::Impl {
   std::atomic<int> streams{0};
   std::atomic<uint64_t> streams_rejected{0};
 
-  // Revision of the budget (its ETag), bumped by every change; the parameters' is the service's
-  // (the set in use also changes with the quota).
-  Mutex revision_mutex;  // also serialises read-modify-write of budget and params
-  uint64_t budget_revision SLAM_GUARDED_BY(revision_mutex) = 1;
+  // The budget and the parameters, and their revisions (the ETags), are the service's; this
+  // serialises a PATCH's read-modify-write of the parameters.
+  Mutex params_mutex;
 
   Mutex save_mutex;  // one save at a time
   // The last save that succeeded (guarded by save_mutex): when it was started and its answer.
@@ -97,18 +99,27 @@ struct HttpServer::Impl {
   Impl(SlamService& s, hw::Link& l, JobManager& j, const HttpOptions& o)
       : service(s), link(l), jobs(j), options(o) {}
 
-  std::string BudgetEtag() const SLAM_REQUIRES(revision_mutex) {
-    return "\"b" + std::to_string(budget_revision) + "\"";
+  static std::string BudgetEtag(uint64_t revision) {
+    return "\"b" + std::to_string(revision) + "\"";
   }
   std::string ParamsEtag() const { return "\"p" + std::to_string(service.ParamsRevision()) + "\""; }
 
   void Setup();
+  /// Registers a route's handler for `method` ("GET", "POST", "PUT", "PATCH" or "DELETE"), and
+  /// makes its pattern a known route, which answers 405 with Allow to other methods.
+  void Route(const std::string& method, const std::string& pattern,
+             httplib::Server::Handler handler);
+  struct KnownRoute {
+    std::string pattern;
+    std::regex regex;
+    std::string allow;  // "GET, PATCH, PUT": its methods, in the order registered
+  };
+  std::vector<KnownRoute> routes;  // written by Setup only, before the server starts
   httplib::Server::HandlerResponse Guard(httplib::Request& req, httplib::Response& res);
   bool ParseBody(const httplib::Request& req, httplib::Response& res, const char* media, json& out);
+  /// PUT (a whole budget) or PATCH (`patch`: a merge patch) of the budget, through
+  /// SlamService::ChangeBudget, conditional on If-Match.
   void HandleBudgetChange(const httplib::Request& req, httplib::Response& res, bool patch);
-  /// Validates and applies a whole budget object or (`patch`) a merge patch of it; bumps the
-  /// revision when the budget changed. The new budget, or what is wrong (nothing changed).
-  Result<BudgetSettings> ChangeBudget(const json& body, bool patch) SLAM_REQUIRES(revision_mutex);
   void HandleParamsPatch(const httplib::Request& req, httplib::Response& res);
   void HandleTile(const httplib::Request& req, httplib::Response& res);
   void HandleEvents(const httplib::Request& req, httplib::Response& res);

@@ -230,21 +230,9 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
       return refuse(400, "Bad Request", framing.Message());
     }
   }
-  // slamd answers only to loopback names, IP addresses and --allow-host names, with a token or
-  // without: a page whose own name an attacker makes resolve to slamd's address (DNS rebinding)
-  // is same-origin with itself, so the Origin check below lets it through, and the token guards
-  // only changes: it would read the map, the trajectory and the events. Its requests name its
-  // host, which is none of these. (An address cannot be rebound: a page at http://192.168.1.5/
-  // is one the user opened.)
   if (req.has_header("Host")) {
-    const std::string host = Lower(HostName(req.get_header_value("Host")));
-    if (!IsLoopback(host) && !IsIpAddress(host) &&
-        std::find(options.allowed_hosts.begin(), options.allowed_hosts.end(), host) ==
-            options.allowed_hosts.end()) {
-      return refuse(403, "Forbidden",
-                    "slamd answers only to loopback names (localhost, 127.0.0.1, [::1]), IP "
-                    "addresses and --allow-host names, not to '" +
-                        host + "'");
+    if (const auto refusal = access.CheckHost(req.get_header_value("Host"))) {
+      return refuse(refusal->status, refusal->title, refusal->detail);
     }
   }
   // A path that decodes to a control character (a NUL: /index.html%00.js served index.html as
@@ -289,28 +277,14 @@ httplib::Server::HandlerResponse HttpServer::Impl::Guard(httplib::Request& req,
     }
   }
   if (mutating) {
-    if (!options.token.empty()) {
-      const std::string auth = req.get_header_value("Authorization");
-      const std::string prefix = "Bearer ";
-      if (auth.empty()) {
-        res.set_header("WWW-Authenticate", "Bearer realm=\"slamd\"");
-        return refuse(401, "Unauthorized", "this route needs Authorization: Bearer <token>");
-      }
-      // The scheme is case-insensitive (RFC 7235); the token is compared in constant time.
-      if (Lower(auth.substr(0, prefix.size())) != "bearer " ||
-          !ConstantTimeEquals(auth.substr(std::min(prefix.size(), auth.size())), options.token)) {
-        res.set_header("WWW-Authenticate", "Bearer realm=\"slamd\", error=\"invalid_token\"");
-        return refuse(401, "Unauthorized", "wrong token");
-      }
+    if (const auto refusal = access.CheckToken(req.get_header_value("Authorization"))) {
+      res.set_header("WWW-Authenticate", refusal->challenge);
+      return refuse(refusal->status, refusal->title, refusal->detail);
     }
     // A page from another site must not drive the robot through the user's browser.
-    if (req.has_header("Origin")) {
-      std::string origin = req.get_header_value("Origin");
-      const size_t scheme = origin.find("://");
-      if (scheme != std::string::npos) origin = origin.substr(scheme + 3);
-      if (Lower(origin) != Lower(req.get_header_value("Host"))) {
-        return refuse(403, "Forbidden", "cross-origin requests may not change slamd");
-      }
+    if (req.has_header("Origin") &&
+        !AccessPolicy::SameOrigin(req.get_header_value("Origin"), req.get_header_value("Host"))) {
+      return refuse(403, "Forbidden", "cross-origin requests may not change slamd");
     }
   }
   return R::Unhandled;

@@ -266,8 +266,7 @@ int main(int argc, char** argv) {
     fox.max_queued_bytes = static_cast<size_t>(foxglove_buffer_kb) * 1024;
     fox.token = http.token;
     fox.allowed_hosts = http.allowed_hosts;
-    foxglove.emplace(
-        service, [&server](const nlohmann::json& patch) { return server.PatchBudget(patch); }, fox);
+    foxglove.emplace(service, fox);
     const slam::Result<int> fox_port = foxglove->Bind();
     if (!fox_port.ok()) return Fail(fox_port.Message(), 1);
     foxglove_bound = fox_port.value();
