@@ -18,6 +18,7 @@
 #include "engine/random.hpp"
 #include "hw_link/transports.hpp"
 #include "offline/replay.hpp"
+#include "server/access_policy.hpp"
 #include "server/api_json.hpp"
 #include "server/http_server.hpp"
 #include "server/request_guard.hpp"
@@ -359,6 +360,40 @@ TEST(Security, ConstantTimeEqualsComparesWholeStrings) {
   EXPECT_TRUE(ConstantTimeEquals("", ""));
 }
 
+TEST(Security, TheAccessPolicyIsTheSameForEveryFrontEnd) {
+  const AccessPolicy open("", {"slam.example"});
+  EXPECT_FALSE(open.CheckHost("localhost:8080"));
+  EXPECT_FALSE(open.CheckHost("[::1]:8080"));
+  EXPECT_FALSE(open.CheckHost("192.168.1.5"));
+  EXPECT_FALSE(open.CheckHost("SLAM.example:80"));  // names compare case-insensitively
+  const auto rebound = open.CheckHost("attacker.example:8080");
+  ASSERT_TRUE(rebound);
+  EXPECT_EQ(rebound->status, 403);
+  EXPECT_NE(rebound->detail.find("attacker.example"), std::string::npos);
+  EXPECT_FALSE(open.has_token());
+  EXPECT_FALSE(open.CheckToken(""));  // no token configured: nothing to present
+
+  const AccessPolicy secured("s3cret-token", {});
+  EXPECT_TRUE(secured.has_token());
+  EXPECT_FALSE(secured.CheckToken("Bearer s3cret-token"));
+  EXPECT_FALSE(secured.CheckToken("bearer s3cret-token"));  // the scheme is case-insensitive
+  const auto missing = secured.CheckToken("");
+  ASSERT_TRUE(missing);
+  EXPECT_EQ(missing->status, 401);
+  EXPECT_EQ(missing->challenge, "Bearer realm=\"slamd\"");
+  for (const char* wrong : {"Bearer s3cret-toke", "Bearer S3CRET-TOKEN", "Basic s3cret-token",
+                            "s3cret-token", "Bearer"}) {
+    const auto refused = secured.CheckToken(wrong);
+    ASSERT_TRUE(refused) << wrong;
+    EXPECT_NE(refused->challenge.find("invalid_token"), std::string::npos) << wrong;
+  }
+
+  EXPECT_TRUE(AccessPolicy::SameOrigin("http://127.0.0.1:8080", "127.0.0.1:8080"));
+  EXPECT_TRUE(AccessPolicy::SameOrigin("http://LOCALHOST:8080", "localhost:8080"));
+  EXPECT_FALSE(AccessPolicy::SameOrigin("http://evil.example", "127.0.0.1:8080"));
+  EXPECT_FALSE(AccessPolicy::SameOrigin("http://127.0.0.1:9090", "127.0.0.1:8080"));
+}
+
 TEST(Security, LoopbackAddresses) {
   EXPECT_TRUE(IsLoopback("127.0.0.1"));
   EXPECT_TRUE(IsLoopback("127.1.2.3"));
@@ -612,6 +647,41 @@ TEST_F(SlamServiceTest, WithoutScanPointsTheSnapshotsCarryNoneAndTheMapIsTheSame
   EXPECT_FALSE(without->scan_points);
   EXPECT_EQ(without->pose.pose.x, with->pose.pose.x);
   EXPECT_EQ(without->tiles.size(), with->tiles.size());
+}
+
+TEST_F(SlamServiceTest, TheBudgetsRevisionMovesWithEveryChangeAndOnlyThen) {
+  auto link = MakeLink();
+  SlamService service(*link, nullptr, Options());
+  const SlamService::RevisedBudget start = service.BudgetRevised();
+  const auto always = [](uint64_t) { return true; };
+  const auto to = [](int64_t rays) {
+    return [rays](const BudgetSettings& current) -> Result<BudgetSettings> {
+      BudgetSettings next = current;
+      next.rays_per_scan = rays;
+      return next;
+    };
+  };
+  // The same budget again: nothing changes, not even the revision.
+  SlamService::BudgetChange same = service.ChangeBudget(always, to(start.budget.rays_per_scan));
+  EXPECT_FALSE(same.precondition_failed);
+  EXPECT_EQ(same.revision, start.revision);
+  // A change bumps it; a stale precondition changes nothing.
+  const SlamService::BudgetChange changed =
+      service.ChangeBudget([&](uint64_t revision) { return revision == start.revision; }, to(9000));
+  EXPECT_EQ(changed.revision, start.revision + 1);
+  EXPECT_EQ(service.Budget().rays_per_scan, 9000);
+  const SlamService::BudgetChange stale = service.ChangeBudget(
+      [&](uint64_t revision) { return revision == start.revision; }, to(12000));
+  EXPECT_TRUE(stale.precondition_failed);
+  EXPECT_EQ(stale.revision, changed.revision);
+  EXPECT_EQ(service.Budget().rays_per_scan, 9000);
+  // What the change finds wrong is reported, and nothing changes.
+  const SlamService::BudgetChange wrong = service.ChangeBudget(
+      always, [](const BudgetSettings&) -> Result<BudgetSettings> { return Error("no"); });
+  EXPECT_FALSE(wrong.errors.empty());
+  EXPECT_EQ(service.BudgetRevised().revision, changed.revision);
+  service.SetBudget(start.budget);
+  EXPECT_EQ(service.BudgetRevised().revision, changed.revision + 1);
 }
 
 TEST_F(SlamServiceTest, BudgetChangesApplyFromTheNextScanAndResetKeepsVersionsGrowing) {
