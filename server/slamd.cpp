@@ -59,10 +59,8 @@ std::string DefaultWebRoot() {
   return {};
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  CLI::App app{"slamd: real-time SLAM server for the marXbot (map in the browser, REST control)"};
+/// slamd's command line, as parsed.
+struct SlamdConfig {
   std::string source = "sim:rooms";
   std::string robot_path = slam::io::ShippedPath("config/marxbot.robot.json");
   std::string params_path;
@@ -71,145 +69,205 @@ int main(int argc, char** argv) {
   int foxglove_port = slam::server::FoxgloveOptions{}.port;
   int foxglove_buffer_kb =
       static_cast<int>(slam::server::FoxgloveOptions{}.max_queued_bytes / 1024);
-  int64_t budget_rays = 0;
-  double cpu_share = 0.0;
+  std::optional<int64_t> budget_rays;  // --budget, when given
+  std::optional<double> cpu_share;     // --cpu-share, when given
   std::string policy = "fixed";
   int max_particles = slam::BudgetSettings{}.max_particles;
   std::string state_dir, experiments_dir, token_file, web_root = DefaultWebRoot();
+  std::vector<std::string> allowed_hosts;
   double speed = 1.0;
   uint64_t seed = 1;
   std::string odometry = "tracked";
   int max_streams = 16;
   bool quiet = false;
+};
+
+void AddOptions(CLI::App& app, SlamdConfig& c) {
   app.add_option(
-         "--source", source,
+         "--source", c.source,
          "sim:WORLD (a built-in world: " + slam::sim::BuiltinWorldList() +
              "; or a world.json), candump:FILE, slcan:DEVICE, udp:[ADDRESS:]PORT[,from=SENDER] "
              "(loopback unless ADDRESS is given) or socketcan:IFACE")
       ->capture_default_str();
-  app.add_option("--robot", robot_path, "robot description (robot.json)")->capture_default_str();
-  app.add_option("--params", params_path,
+  app.add_option("--robot", c.robot_path, "robot description (robot.json)")->capture_default_str();
+  app.add_option("--params", c.params_path,
                  "SLAM parameters (JSON, e.g. a slam-tune params/<budget>.json), whatever the "
                  "budget [the shipped set of the budget, config/params/]");
-  app.add_option("--bind", bind, "address to listen on; beyond loopback a --token-file is required")
+  app.add_option("--bind", c.bind,
+                 "address to listen on; beyond loopback a --token-file is required")
       ->capture_default_str();
-  app.add_option("--port", port, "TCP port (0: any free port, printed at start)")
+  app.add_option("--port", c.port, "TCP port (0: any free port, printed at start)")
       ->check(CLI::Range(0, 65535))
       ->capture_default_str();
-  app.add_option("--foxglove-port", foxglove_port,
+  app.add_option("--foxglove-port", c.foxglove_port,
                  "TCP port of the Foxglove WebSocket server (foxglove.websocket.v1) on the "
                  "--bind address, with the same token and host rules as HTTP (0: off)")
       ->check(CLI::Range(0, 65535))
       ->capture_default_str();
-  app.add_option("--foxglove-buffer-kb", foxglove_buffer_kb,
+  app.add_option("--foxglove-buffer-kb", c.foxglove_buffer_kb,
                  "send buffer of each Foxglove client, KiB: a client that reads more slowly "
                  "loses messages beyond it (counted in /metrics)")
       ->check(CLI::Range(16, 1 << 20))
       ->capture_default_str();
-  auto* budget_opt = app.add_option("--budget", budget_rays, "ray budget per scan (default 65000)")
+  auto* budget_opt = app.add_option_function<int64_t>(
+                            "--budget", [&c](int64_t rays) { c.budget_rays = rays; },
+                            "ray budget per scan (default 65000)")
                          ->check(CLI::Range(int64_t{1}, slam::kMaxRaysPerScan));
-  auto* share_opt = app.add_option("--cpu-share", cpu_share,
-                                   "budget as a share of one core (0..1] instead of rays per scan");
+  auto* share_opt = app.add_option_function<double>(
+      "--cpu-share", [&c](double share) { c.cpu_share = share; },
+      "budget as a share of one core (0..1] instead of rays per scan");
   budget_opt->excludes(share_opt);
-  app.add_option("--policy", policy, "fixed or adaptive particle count")->capture_default_str();
-  app.add_option("--max-particles", max_particles, "cap of the adaptive policy")
+  app.add_option("--policy", c.policy, "fixed or adaptive particle count")->capture_default_str();
+  app.add_option("--max-particles", c.max_particles, "cap of the adaptive policy")
       ->capture_default_str();
-  app.add_option("--state-dir", state_dir,
+  app.add_option("--state-dir", c.state_dir,
                  "where map/save writes; the saved map and trajectory are resumed at start");
-  app.add_option("--experiments", experiments_dir,
+  app.add_option("--experiments", c.experiments_dir,
                  "recorded experiments with ground truth for tuning jobs");
-  app.add_option("--token-file", token_file,
+  app.add_option("--token-file", c.token_file,
                  "file holding the bearer token that mutating routes require");
-  std::vector<std::string> allowed_hosts;
-  app.add_option("--allow-host", allowed_hosts,
+  app.add_option("--allow-host", c.allowed_hosts,
                  "also answer requests for this Host name (e.g. robot.local, a reverse proxy's); "
                  "only loopback names and IP addresses otherwise (repeatable)");
-  app.add_option("--web-root", web_root, "folder of the web page")->capture_default_str();
-  app.add_option("--speed", speed, "sim and candump sources: times real time")
+  app.add_option("--web-root", c.web_root, "folder of the web page")->capture_default_str();
+  app.add_option("--speed", c.speed, "sim and candump sources: times real time")
       ->check(CLI::PositiveNumber)
       ->capture_default_str();
-  app.add_option("--seed", seed, "sim source: the simulation's seed")->capture_default_str();
-  app.add_option("--odometry", odometry,
+  app.add_option("--seed", c.seed, "sim source: the simulation's seed")->capture_default_str();
+  app.add_option("--odometry", c.odometry,
                  "sim source: how the odometry errs: tracked (a tracked robot with a MEMS gyro, "
                  "as slam-sim) or gentle (the original arenas' small drift)")
       ->capture_default_str()
       ->check(CLI::IsMember({"tracked", "gentle"}));
-  app.add_option("--max-streams", max_streams, "concurrent event streams (503 beyond)")
+  app.add_option("--max-streams", c.max_streams, "concurrent event streams (503 beyond)")
       ->check(CLI::Range(1, 256))
       ->capture_default_str();
-  app.add_flag("--quiet", quiet, "no periodic status line on stderr");
+  app.add_flag("--quiet", c.quiet, "no periodic status line on stderr");
   app.set_version_flag("--version", std::string("slamd ") + SLAMD_VERSION);
-  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
+}
 
-  const auto robot = slam::io::LoadRobot(robot_path);
-  if (!robot.ok()) return Fail(robot.Message());
+/// The robot of --robot: slamd maps the marXbot's infrared scanner only.
+slam::Result<slam::RobotDescription> LoadInfraredRobot(const std::string& path) {
+  auto robot = slam::io::LoadRobot(path);
+  if (!robot.ok()) return robot;
   if (slam::HasRangeScanner(robot.value())) {
-    // Every source below carries the marXbot's Aseba CAN events, which have no message for a
-    // laser's sweep: such a robot would run without a scan ever arriving.
-    return Fail(
-        robot_path +
+    // Every source carries the marXbot's Aseba CAN events, which have no message for a laser's
+    // sweep: such a robot would run without a scan ever arriving.
+    return slam::Error(
+        path +
         ": the scanner is a range sensor (laser, time-of-flight); slamd's sources carry the "
         "marXbot's infrared scanner over CAN only. Map a laser's CARMEN log with "
         "slam-replay LOG.clf or slam-evaluate.");
   }
-  slam::ParamsChoice params;  // the shipped set of each scan's quota
-  if (!params_path.empty()) {
-    const auto loaded = slam::io::LoadParams(params_path);
-    if (!loaded.ok()) return Fail(loaded.Message());
-    params = slam::ParamsChoice(params_path, loaded.value());
-  }
-  slam::BudgetSettings budget;
-  if (*share_opt) {
-    budget.mode = slam::QuotaMode::kCpuShare;
-    budget.cpu_share = cpu_share;
-  }
-  if (*budget_opt) budget.rays_per_scan = budget_rays;
-  const auto parsed_policy = slam::ParseBudgetPolicy(policy);
-  if (!parsed_policy) return Fail("--policy must be fixed or adaptive, not \"" + policy + "\"");
-  budget.policy = *parsed_policy;
-  budget.max_particles = max_particles;
-  if (const auto errors = slam::Validate(budget); !errors.empty()) {
-    return Fail("bad budget: " + slam::FormatErrors(errors));
-  }
+  return robot;
+}
 
+slam::Result<slam::BudgetSettings> BudgetOf(const SlamdConfig& c) {
+  slam::BudgetSettings budget;
+  if (c.cpu_share) {
+    budget.mode = slam::QuotaMode::kCpuShare;
+    budget.cpu_share = *c.cpu_share;
+  }
+  if (c.budget_rays) budget.rays_per_scan = *c.budget_rays;
+  const auto parsed_policy = slam::ParseBudgetPolicy(c.policy);
+  if (!parsed_policy) {
+    return slam::Error("--policy must be fixed or adaptive, not \"" + c.policy + "\"");
+  }
+  budget.policy = *parsed_policy;
+  budget.max_particles = c.max_particles;
+  if (const auto errors = slam::Validate(budget); !errors.empty()) {
+    return slam::Error("bad budget: " + slam::FormatErrors(errors));
+  }
+  return budget;
+}
+
+/// The token of --token-file, trimmed: at least 16 characters.
+slam::Result<std::string> ReadToken(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return slam::Error(path + ": cannot read the token file");
+  std::stringstream text;
+  text << in.rdbuf();
+  std::string token = text.str();
+  token.erase(token.find_last_not_of(" \t\r\n") + 1);
+  token.erase(0, token.find_first_not_of(" \t\r\n"));
+  if (token.size() < 16) return slam::Error(path + ": the token must have at least 16 characters");
+  return token;
+}
+
+slam::Result<slam::server::HttpOptions> HttpOptionsOf(const SlamdConfig& c) {
   slam::server::HttpOptions http;
-  http.bind = bind;
-  for (const std::string& name : allowed_hosts) {
+  http.bind = c.bind;
+  for (const std::string& name : c.allowed_hosts) {
     std::string lower;
-    for (const char c : name)
-      lower += static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    for (const char ch : name)
+      lower += static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
     http.allowed_hosts.push_back(lower);
   }
-  http.port = port;
-  http.web_root = web_root;
-  http.state_dir = state_dir;
-  http.max_streams = max_streams;
-  http.source_spec = source;
-  if (!token_file.empty()) {
-    std::ifstream in(token_file);
-    if (!in) return Fail(token_file + ": cannot read the token file");
-    std::stringstream text;
-    text << in.rdbuf();
-    std::string token = text.str();
-    token.erase(token.find_last_not_of(" \t\r\n") + 1);
-    token.erase(0, token.find_first_not_of(" \t\r\n"));
-    if (token.size() < 16) return Fail(token_file + ": the token must have at least 16 characters");
-    http.token = token;
+  http.port = c.port;
+  http.web_root = c.web_root;
+  http.state_dir = c.state_dir;
+  http.max_streams = c.max_streams;
+  http.source_spec = c.source;
+  if (!c.token_file.empty()) {
+    auto token = ReadToken(c.token_file);
+    if (!token.ok()) return token.errors();
+    http.token = token.value();
   }
-  if (!slam::server::IsLoopback(bind) && http.token.empty()) {
-    return Fail("--bind " + bind +
-                " exposes slamd beyond this machine: give a --token-file so that only its holders "
-                "can change it");
+  if (!slam::server::IsLoopback(c.bind) && http.token.empty()) {
+    return slam::Error("--bind " + c.bind +
+                       " exposes slamd beyond this machine: give a --token-file so that only its "
+                       "holders can change it");
   }
+  return http;
+}
+
+/// Prints the periodic status line every 5 s until `done`.
+void ReportStatus(const slam::server::SlamService& service, const slam::hw::Link& link,
+                  const std::atomic<bool>& done) {
+  while (!done) {
+    for (int i = 0; i < 50 && !done; ++i)
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    if (done) break;
+    const auto c = service.Counters();
+    const auto l = link.Status();
+    std::fprintf(stderr, "slamd: link %s, %llu frames; %lld scans (%lld late), CPU %.1f %%\n",
+                 slam::hw::ToString(l.state), static_cast<unsigned long long>(l.frames),
+                 static_cast<long long>(c.scans), static_cast<long long>(c.late_scans),
+                 c.robot_s > 0 ? 100.0 * c.cpu_s / c.robot_s : 0.0);
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"slamd: real-time SLAM server for the marXbot (map in the browser, REST control)"};
+  SlamdConfig config;
+  AddOptions(app, config);
+  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
+
+  const auto robot = LoadInfraredRobot(config.robot_path);
+  if (!robot.ok()) return Fail(robot.Message());
+  slam::ParamsChoice params;  // the shipped set of each scan's quota
+  if (!config.params_path.empty()) {
+    const auto loaded = slam::io::LoadParams(config.params_path);
+    if (!loaded.ok()) return Fail(loaded.Message());
+    params = slam::ParamsChoice(config.params_path, loaded.value());
+  }
+  const auto budget = BudgetOf(config);
+  if (!budget.ok()) return Fail(budget.Message());
+  const auto http_options = HttpOptionsOf(config);
+  if (!http_options.ok()) return Fail(http_options.Message());
+  const slam::server::HttpOptions& http = http_options.value();
 
   slam::server::ServiceOptions service_options;
   service_options.robot = robot.value();
   service_options.params = params;
-  service_options.budget = budget;
-  service_options.config.seed = seed;
+  service_options.budget = budget.value();
+  service_options.config.seed = config.seed;
   service_options.config.resolution_m = slam::DefaultResolution(robot.value());
-  service_options.resume_at_origin = source.rfind("sim:", 0) == 0;
-  service_options.scan_points = foxglove_port != 0;  // only Foxglove's /scan shows them
+  service_options.resume_at_origin = config.source.rfind("sim:", 0) == 0;
+  service_options.scan_points = config.foxglove_port != 0;  // only Foxglove's /scan shows them
+  const std::string& state_dir = config.state_dir;
   // Held until slamd exits: a second slamd on the same directory would race its saves.
   std::optional<slam::server::StateDirLock> state_lock;
   if (!state_dir.empty()) {
@@ -231,10 +289,10 @@ int main(int argc, char** argv) {
 
   slam::server::SourceSpecOptions source_options;
   source_options.paced = true;
-  source_options.speed = speed;
-  source_options.seed = seed;
-  source_options.odometry = *slam::sim::OdometryProfileFromName(odometry);
-  auto opened = slam::server::OpenSourceSpec(source, robot.value(), source_options);
+  source_options.speed = config.speed;
+  source_options.seed = config.seed;
+  source_options.odometry = *slam::sim::OdometryProfileFromName(config.odometry);
+  auto opened = slam::server::OpenSourceSpec(config.source, robot.value(), source_options);
   if (!opened.ok()) return Fail(opened.Message(), 1);
   auto frame_source = std::move(opened).value();
   const auto* virtual_robot =
@@ -252,18 +310,18 @@ int main(int argc, char** argv) {
 
   slam::hw::Link link(std::move(frame_source), robot.value());
   slam::server::SlamService service(link, virtual_robot, service_options);
-  slam::server::JobManager jobs(experiments_dir, state_dir);
+  slam::server::JobManager jobs(config.experiments_dir, state_dir);
   slam::server::HttpServer server(service, link, jobs, http);
   const slam::Result<int> bound_port = server.Bind();
   if (!bound_port.ok()) return Fail(bound_port.Message(), 1);
   const int bound = bound_port.value();
   std::optional<slam::server::FoxgloveServer> foxglove;
   int foxglove_bound = 0;
-  if (foxglove_port != 0) {
+  if (config.foxglove_port != 0) {
     slam::server::FoxgloveOptions fox;
-    fox.bind = bind;
-    fox.port = foxglove_port;
-    fox.max_queued_bytes = static_cast<size_t>(foxglove_buffer_kb) * 1024;
+    fox.bind = config.bind;
+    fox.port = config.foxglove_port;
+    fox.max_queued_bytes = static_cast<size_t>(config.foxglove_buffer_kb) * 1024;
     fox.token = http.token;
     fox.allowed_hosts = http.allowed_hosts;
     foxglove.emplace(service, fox);
@@ -276,11 +334,14 @@ int main(int argc, char** argv) {
   link.Start();
   service.Start();
   if (foxglove) foxglove->Start();
-  const std::string host = bind.find(':') != std::string::npos ? "[" + bind + "]" : bind;
-  std::printf("slamd: serving http://%s:%d/ (source %s)\n", host.c_str(), bound, source.c_str());
+  const std::string host =
+      config.bind.find(':') != std::string::npos ? "[" + config.bind + "]" : config.bind;
+  std::printf("slamd: serving http://%s:%d/ (source %s)\n", host.c_str(), bound,
+              config.source.c_str());
   if (foxglove)
     std::printf("slamd: Foxglove WebSocket on ws://%s:%d\n", host.c_str(), foxglove_bound);
   std::fflush(stdout);
+  const bool quiet = config.quiet;
   if (service_options.resume && !quiet) {
     std::fprintf(stderr, "slamd: resumed the map saved in %s (%zu tiles, version %llu)\n",
                  state_dir.c_str(), service_options.resume->tiles.size(),
@@ -297,21 +358,7 @@ int main(int argc, char** argv) {
     }
   });
   std::thread status_thread;
-  if (!quiet) {
-    status_thread = std::thread([&] {
-      while (!done) {
-        for (int i = 0; i < 50 && !done; ++i)
-          std::this_thread::sleep_for(std::chrono::milliseconds(100));
-        if (done) break;
-        const auto c = service.Counters();
-        const auto l = link.Status();
-        std::fprintf(stderr, "slamd: link %s, %llu frames; %lld scans (%lld late), CPU %.1f %%\n",
-                     slam::hw::ToString(l.state), static_cast<unsigned long long>(l.frames),
-                     static_cast<long long>(c.scans), static_cast<long long>(c.late_scans),
-                     c.robot_s > 0 ? 100.0 * c.cpu_s / c.robot_s : 0.0);
-      }
-    });
-  }
+  if (!quiet) status_thread = std::thread([&] { ReportStatus(service, link, done); });
 
   server.Run();  // until a signal
   done = true;
