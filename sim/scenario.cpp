@@ -483,6 +483,179 @@ struct Simulator::State {
     }
   }
 
+  /// One control step's motion: from `start` at t0 to `next` at t1 under the twist (v, w) and
+  /// the untracked `extra` motion, and the rates the encoders report for it.
+  struct Motion {
+    double t0 = 0.0, t1 = 0.0;
+    Pose2 start, next;
+    double v = 0.0, w = 0.0;
+    Vec2 extra = Vec2::Zero();
+    double left_rate = 0.0, right_rate = 0.0;
+    Pose2 At(double t) const { return Move(start, v, w, extra, t - t0); }
+    /// Whether reading n of a stream at `rate` falls in this step.
+    bool InStep(int64_t n, double rate) const { return static_cast<double>(n) / rate < t1; }
+  };
+
+  /// The people walk, the robot drives its wandering command (stopping short of obstacles),
+  /// and the odometry's errors take their next values.
+  Motion Drive() {
+    const double min_clearance = config.robot_radius_m + kSafetyMarginM;
+    const double half_track = robot.base.track_width_m / 2.0;
+    Motion m;
+    m.t0 = static_cast<double>(step) * kControlDt;
+    m.t1 = static_cast<double>(step + 1) * kControlDt;
+    m.start = pose;
+
+    if (!walkers.empty()) {
+      for (Walker& walker : walkers) {
+        Walk(world, pose.translation(), config.person_speed_m_s, walker, people_rng);
+      }
+      PlaceLegs(walkers, world.circles.size(), sensed);
+    }
+
+    const std::pair<double, double> command = wanderer.Command(motion_world, pose);
+    m.v = command.first;
+    m.w = command.second;
+    const double turn = m.w;
+    const FloorTraction floor = TractionOf(FloorAt(world, pose.translation()));
+    // What the treels do not report: sideways skid in turns (outwards) and the wandering centre
+    // of rotation.
+    const auto extra_motion = [&](double forward) -> Vec2 {
+      if (config.odometry.skid_s == 0.0 && config.odometry.turn_drift_m_per_rad == 0.0)
+        return Vec2::Zero();
+      const double drift = config.odometry.turn_drift_m_per_rad * std::abs(turn);
+      return {
+          drift * drift_x.value(),
+          -config.odometry.skid_s * floor.skid_factor * forward * turn + drift * drift_y.value()};
+    };
+    if (config.odometry.turn_drift_m_per_rad > 0.0) {
+      drift_x.Step(drift_rng);
+      drift_y.Step(drift_rng);
+    }
+    m.extra = extra_motion(m.v);
+    m.next = Move(pose, m.v, turn, m.extra, kControlDt);
+    const double clearance_now = ClearanceAt(motion_world, pose.translation());
+    const double clearance_next = ClearanceAt(motion_world, m.next.translation());
+    if (clearance_next < min_clearance && clearance_next < clearance_now) {
+      wanderer.Blocked(motion_world, pose);
+      m.v = 0.0;
+      m.extra = extra_motion(m.v);
+      m.next = Move(pose, m.v, turn, m.extra, kControlDt);
+      const double clearance_still = ClearanceAt(motion_world, m.next.translation());
+      if (clearance_still < min_clearance && clearance_still < clearance_now) {
+        m.extra = Vec2::Zero();  // pressed against the obstacle: it stops the drift
+        m.next = Move(pose, m.v, turn, m.extra, kControlDt);
+      }
+    }
+    const double speed = m.v;
+    slip_t.Step(slip_rng);
+    slip_turn.Step(slip_rng);
+    slip_r.Step(slip_rng);
+    bias += gyro_rng.Gaussian(bias_step);
+    // What the encoders see. Treels slip more when turning (the translation slip grows with the
+    // turn rate, and they skid sideways, adding spurious translation) and when accelerating or
+    // braking (they spin or drag: the encoders run ahead of the motion by accel_slip_s x a).
+    const double accel = (speed - v) / kControlDt;
+    const double angular_accel = (turn - w) / kControlDt;
+    v = speed;
+    w = turn;
+    // A run's scale error and the floor's bias are systematic: the encoders read that much more
+    // than the true distance, turn after turn.
+    const double scale = 1.0 + (translation_scale + floor.scale_bias);
+    const double v_enc =
+        speed * (scale + slip_t.value() * (1.0 + std::abs(turn)) * floor.slip_factor) +
+        slip_turn.value() * std::abs(turn) * half_track * floor.slip_factor +
+        config.odometry.accel_slip_s * accel;
+    // The right wheel larger by wheel_difference: per revolution it rolls farther than the
+    // encoders count, the left one less, so they see the robot turn clockwise as it drives.
+    const double w_enc = turn * (1.0 + track_scale + slip_r.value() * floor.slip_factor) -
+                         speed * wheel_difference / robot.base.track_width_m +
+                         config.odometry.accel_slip_s * angular_accel;
+    m.left_rate = v_enc - w_enc * half_track;
+    m.right_rate = v_enc + w_enc * half_track;
+    return m;
+  }
+
+  /// The odometry readings of the step: encoder ticks and the gyro's mean rate since the
+  /// previous reading (plus bias and noise).
+  void EmitOdometry(const Motion& m, ScenarioOutput& out) {
+    while (m.InStep(next_odometry, config.odometry_rate_hz)) {
+      const double t = static_cast<double>(next_odometry) / config.odometry_rate_hz;
+      const Pose2 p = m.At(t);
+      const double rate =
+          next_odometry == 0 ? m.w : (p.theta - last_gyro_theta) / (t - last_gyro_t);
+      const double measured = rate * (1.0 + gyro_scale) + bias +
+                              gyro_rng.Gaussian(DegToRad(config.odometry.gyro_noise_dps));
+      const double gyro_units = RadToDeg(measured) / robot.base.gyro_unit_dps;
+      OdometryReading r;
+      r.t = t;
+      r.seq = static_cast<uint16_t>(next_odometry & 0xFFFF);
+      r.left_ticks = WrapTicks(
+          left_offset + std::llround((left_m + m.left_rate * (t - m.t0)) * robot.base.ticks_per_m));
+      r.right_ticks = WrapTicks(right_offset + std::llround((right_m + m.right_rate * (t - m.t0)) *
+                                                            robot.base.ticks_per_m));
+      r.gyro_raw = static_cast<int16_t>(std::clamp(std::lround(gyro_units), -32768L, 32767L));
+      out.odometry.push_back(r);
+      last_gyro_t = t;
+      last_gyro_theta = p.theta;
+      ++next_odometry;
+    }
+  }
+
+  /// The scanner's readings of the step: a laser's whole sweeps at the scan rate (every beam from
+  /// the pose at the sweep's time), or the infrared sensors' samples on the turning platform.
+  void EmitScanner(const Motion& m, ScenarioOutput& out) {
+    const SensorTypeDescription& first_type =
+        robot.sensor_types.at(robot.scanner.sensors.front().type);
+    if (first_type.kind == SensorKind::kRange) {
+      while (m.InStep(next_sample, config.scans_per_s)) {
+        const double t = static_cast<double>(next_sample) / config.scans_per_s;
+        const Pose2 p = m.At(t);
+        out.sweeps.push_back(
+            SenseSweep(sensed, corners, robot, first_type, config, p, t, sensor_rng));
+        out.true_path.push_back({t, Normalized(p)});
+        ++next_sample;
+      }
+    }
+    const double sample_rate = robot.scanner.sample_rate_hz;
+    while (first_type.kind == SensorKind::kInfrared && m.InStep(next_sample, sample_rate)) {
+      const double t = static_cast<double>(next_sample) / sample_rate;
+      const Pose2 p = m.At(t);
+      const double platform = kPi * config.scans_per_s * t;
+      ScannerReading r;
+      r.t = t;
+      r.seq = static_cast<uint16_t>(next_sample & 0xFFFF);
+      const int64_t angle_raw = std::llround(platform / (2.0 * kPi) * kFullTurnRaw);
+      r.angle_raw = static_cast<uint16_t>(angle_raw & (kFullTurnRaw - 1));
+      for (size_t s = 0; s < robot.scanner.sensors.size() && s < kScannerSensors; ++s) {
+        const ScannerSensor& sensor = robot.scanner.sensors[s];
+        const double angle = p.theta + platform + DegToRad(sensor.angle_deg);
+        const Vec2 origin =
+            p.translation() + robot.scanner.mount_radius_m * Vec2(std::cos(angle), std::sin(angle));
+        r.raw[s] = SenseRaw(sensed, corners, robot.sensor_types.at(sensor.type), config, origin,
+                            angle, sensor_rng);
+      }
+      r.rectifier_mv = static_cast<uint16_t>(
+          std::lround(kRectifierMv + rectifier_rng.Gaussian(kRectifierNoiseMv)));
+      out.scanner.push_back(r);
+      out.true_path.push_back({t, Normalized(p)});
+      ++next_sample;
+    }
+  }
+
+  /// The overhead tracker's noisy poses of the step (the ground truth).
+  void EmitTracker(const Motion& m, ScenarioOutput& out) {
+    while (m.InStep(next_tracker, config.tracker_rate_hz)) {
+      const double t = static_cast<double>(next_tracker) / config.tracker_rate_hz;
+      Pose2 p = Normalized(m.At(t));
+      p.x += tracker_rng.Gaussian(config.tracker_noise_m);
+      p.y += tracker_rng.Gaussian(config.tracker_noise_m);
+      p.theta = NormalizeAngle(p.theta + tracker_rng.Gaussian(config.tracker_noise_rad));
+      out.ground_truth.push_back({t, p});
+      ++next_tracker;
+    }
+  }
+
   World world;
   RobotDescription robot;
   ScenarioConfig config;
@@ -523,150 +696,13 @@ Pose2 Simulator::pose() const { return Normalized(state_->pose); }
 
 void Simulator::Step(ScenarioOutput& out) {
   State& st = *state_;
-  const ScenarioConfig& config = st.config;
-  const RobotDescription& robot = st.robot;
-  const double min_clearance = config.robot_radius_m + kSafetyMarginM;
-  const double half_track = robot.base.track_width_m / 2.0;
-  const double sample_rate = robot.scanner.sample_rate_hz;
-  const double t0 = static_cast<double>(st.step) * kControlDt;
-  const double t1 = static_cast<double>(st.step + 1) * kControlDt;
-  const Pose2 pose = st.pose;
-
-  if (!st.walkers.empty()) {
-    for (Walker& walker : st.walkers) {
-      Walk(st.world, pose.translation(), config.person_speed_m_s, walker, st.people_rng);
-    }
-    PlaceLegs(st.walkers, st.world.circles.size(), st.sensed);
-  }
-
-  const std::pair<double, double> command = st.wanderer.Command(st.motion_world, pose);
-  double v = command.first;
-  const double w = command.second;
-  const FloorTraction floor = TractionOf(FloorAt(st.world, pose.translation()));
-  // What the treels do not report: sideways skid in turns (outwards) and the wandering centre
-  // of rotation.
-  const auto extra_motion = [&](double speed) -> Vec2 {
-    if (config.odometry.skid_s == 0.0 && config.odometry.turn_drift_m_per_rad == 0.0)
-      return Vec2::Zero();
-    const double drift = config.odometry.turn_drift_m_per_rad * std::abs(w);
-    return {drift * st.drift_x.value(),
-            -config.odometry.skid_s * floor.skid_factor * speed * w + drift * st.drift_y.value()};
-  };
-  if (config.odometry.turn_drift_m_per_rad > 0.0) {
-    st.drift_x.Step(st.drift_rng);
-    st.drift_y.Step(st.drift_rng);
-  }
-  Vec2 extra = extra_motion(v);
-  Pose2 next = Move(pose, v, w, extra, kControlDt);
-  const double clearance_now = ClearanceAt(st.motion_world, pose.translation());
-  const double clearance_next = ClearanceAt(st.motion_world, next.translation());
-  if (clearance_next < min_clearance && clearance_next < clearance_now) {
-    st.wanderer.Blocked(st.motion_world, pose);
-    v = 0.0;
-    extra = extra_motion(v);
-    next = Move(pose, v, w, extra, kControlDt);
-    const double clearance_still = ClearanceAt(st.motion_world, next.translation());
-    if (clearance_still < min_clearance && clearance_still < clearance_now) {
-      extra = Vec2::Zero();  // pressed against the obstacle: it stops the drift
-      next = Move(pose, v, w, extra, kControlDt);
-    }
-  }
-  st.slip_t.Step(st.slip_rng);
-  st.slip_turn.Step(st.slip_rng);
-  st.slip_r.Step(st.slip_rng);
-  st.bias += st.gyro_rng.Gaussian(st.bias_step);
-  // What the encoders see. Treels slip more when turning (the translation slip grows with the
-  // turn rate, and they skid sideways, adding spurious translation) and when accelerating or
-  // braking (they spin or drag: the encoders run ahead of the motion by accel_slip_s x a).
-  const double accel = (v - st.v) / kControlDt;
-  const double angular_accel = (w - st.w) / kControlDt;
-  st.v = v;
-  st.w = w;
-  // A run's scale error and the floor's bias are systematic: the encoders read that much more
-  // than the true distance, turn after turn.
-  const double scale = 1.0 + (st.translation_scale + floor.scale_bias);
-  const double v_enc = v * (scale + st.slip_t.value() * (1.0 + std::abs(w)) * floor.slip_factor) +
-                       st.slip_turn.value() * std::abs(w) * half_track * floor.slip_factor +
-                       config.odometry.accel_slip_s * accel;
-  // The right wheel larger by wheel_difference: per revolution it rolls farther than the
-  // encoders count, the left one less, so they see the robot turn clockwise as it drives.
-  const double w_enc = w * (1.0 + st.track_scale + st.slip_r.value() * floor.slip_factor) -
-                       v * st.wheel_difference / robot.base.track_width_m +
-                       config.odometry.accel_slip_s * angular_accel;
-  const double left_rate = v_enc - w_enc * half_track;
-  const double right_rate = v_enc + w_enc * half_track;
-
-  const auto in_step = [&](int64_t n, double rate) { return static_cast<double>(n) / rate < t1; };
-  while (in_step(st.next_odometry, config.odometry_rate_hz)) {
-    const double t = static_cast<double>(st.next_odometry) / config.odometry_rate_hz;
-    const Pose2 p = Move(pose, v, w, extra, t - t0);
-    // The gyro reports its mean rate since the previous reading (plus bias and noise).
-    const double rate =
-        st.next_odometry == 0 ? w : (p.theta - st.last_gyro_theta) / (t - st.last_gyro_t);
-    const double measured = rate * (1.0 + st.gyro_scale) + st.bias +
-                            st.gyro_rng.Gaussian(DegToRad(config.odometry.gyro_noise_dps));
-    const double gyro_units = RadToDeg(measured) / robot.base.gyro_unit_dps;
-    OdometryReading r;
-    r.t = t;
-    r.seq = static_cast<uint16_t>(st.next_odometry & 0xFFFF);
-    r.left_ticks = WrapTicks(
-        st.left_offset + std::llround((st.left_m + left_rate * (t - t0)) * robot.base.ticks_per_m));
-    r.right_ticks = WrapTicks(st.right_offset + std::llround((st.right_m + right_rate * (t - t0)) *
-                                                             robot.base.ticks_per_m));
-    r.gyro_raw = static_cast<int16_t>(std::clamp(std::lround(gyro_units), -32768L, 32767L));
-    out.odometry.push_back(r);
-    st.last_gyro_t = t;
-    st.last_gyro_theta = p.theta;
-    ++st.next_odometry;
-  }
-  const SensorTypeDescription& first_type =
-      robot.sensor_types.at(robot.scanner.sensors.front().type);
-  if (first_type.kind == SensorKind::kRange) {
-    // A laser: whole sweeps at the scan rate, every beam from the pose at the sweep's time.
-    while (in_step(st.next_sample, config.scans_per_s)) {
-      const double t = static_cast<double>(st.next_sample) / config.scans_per_s;
-      const Pose2 p = Move(pose, v, w, extra, t - t0);
-      out.sweeps.push_back(
-          SenseSweep(st.sensed, st.corners, robot, first_type, config, p, t, st.sensor_rng));
-      out.true_path.push_back({t, Normalized(p)});
-      ++st.next_sample;
-    }
-  }
-  while (first_type.kind == SensorKind::kInfrared && in_step(st.next_sample, sample_rate)) {
-    const double t = static_cast<double>(st.next_sample) / sample_rate;
-    const Pose2 p = Move(pose, v, w, extra, t - t0);
-    const double platform = kPi * config.scans_per_s * t;
-    ScannerReading r;
-    r.t = t;
-    r.seq = static_cast<uint16_t>(st.next_sample & 0xFFFF);
-    const int64_t angle_raw = std::llround(platform / (2.0 * kPi) * kFullTurnRaw);
-    r.angle_raw = static_cast<uint16_t>(angle_raw & (kFullTurnRaw - 1));
-    for (size_t s = 0; s < robot.scanner.sensors.size() && s < kScannerSensors; ++s) {
-      const ScannerSensor& sensor = robot.scanner.sensors[s];
-      const double angle = p.theta + platform + DegToRad(sensor.angle_deg);
-      const Vec2 origin =
-          p.translation() + robot.scanner.mount_radius_m * Vec2(std::cos(angle), std::sin(angle));
-      r.raw[s] = SenseRaw(st.sensed, st.corners, robot.sensor_types.at(sensor.type), config, origin,
-                          angle, st.sensor_rng);
-    }
-    r.rectifier_mv = static_cast<uint16_t>(
-        std::lround(kRectifierMv + st.rectifier_rng.Gaussian(kRectifierNoiseMv)));
-    out.scanner.push_back(r);
-    out.true_path.push_back({t, Normalized(p)});
-    ++st.next_sample;
-  }
-  while (in_step(st.next_tracker, config.tracker_rate_hz)) {
-    const double t = static_cast<double>(st.next_tracker) / config.tracker_rate_hz;
-    Pose2 p = Normalized(Move(pose, v, w, extra, t - t0));
-    p.x += st.tracker_rng.Gaussian(config.tracker_noise_m);
-    p.y += st.tracker_rng.Gaussian(config.tracker_noise_m);
-    p.theta = NormalizeAngle(p.theta + st.tracker_rng.Gaussian(config.tracker_noise_rad));
-    out.ground_truth.push_back({t, p});
-    ++st.next_tracker;
-  }
-  st.pose = next;
-  st.left_m += left_rate * kControlDt;
-  st.right_m += right_rate * kControlDt;
+  const State::Motion motion = st.Drive();
+  st.EmitOdometry(motion, out);
+  st.EmitScanner(motion, out);
+  st.EmitTracker(motion, out);
+  st.pose = motion.next;
+  st.left_m += motion.left_rate * kControlDt;
+  st.right_m += motion.right_rate * kControlDt;
   ++st.step;
 }
 
