@@ -146,100 +146,28 @@ void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response
     res.status = 304;
     return;
   }
-  std::string png;
-  {
-    MutexLock lock(tile_cache_mutex);
-    const auto cached = tile_cache.find({x, y});
-    if (cached != tile_cache.end() && cached->second.first == version) png = cached->second.second;
+  const Result<std::string> png = tile_pngs.Png(x, y, version, *it->tile);
+  if (!png.ok()) {
+    SendProblem(res, 500, "Internal Server Error", png.Message());
+    return;
   }
-  if (png.empty()) {
-    const Result<io::PngBytes> bytes =
-        io::EncodeGrayPng(kTileSize, kTileSize, io::TileGray(*it->tile));
-    if (!bytes.ok()) {
-      SendProblem(res, 500, "Internal Server Error", bytes.Message());
-      return;
-    }
-    png.assign(bytes.value().begin(), bytes.value().end());
-    MutexLock lock(tile_cache_mutex);
-    tile_cache[{x, y}] = {version, png};
-  }
-  res.set_content(png, "image/png");
-}
-
-template <typename Make>
-void HttpServer::Impl::ServeExport(const std::string& kind, httplib::Response& res, Make make) {
-  Export& e = exports.at(kind);
-  MutexLock lock(e.mutex);
-  const auto snapshot = service.Snapshot();
-  if (!e.valid || e.sequence != snapshot->sequence) {
-    e.valid = false;
-    std::string error;
-    if (!make(*snapshot, e.body, e.type, error)) {
-      SendProblem(res, 500, "Internal Server Error", error);
-      return;
-    }
-    e.valid = true;
-    e.sequence = snapshot->sequence;
-    e.renders.fetch_add(1);
-  }
-  res.set_content(e.body, e.type.c_str());
+  res.set_content(png.value(), "image/png");
 }
 
 void HttpServer::Impl::HandleSave(httplib::Response& res) {
-  if (options.state_dir.empty()) {
+  if (!saves.enabled()) {
     SendProblem(res, 409, "Conflict", "slamd was started without --state-dir: nowhere to save");
     return;
   }
-  // The snapshot is taken under the lock: saves run one at a time, each of a snapshot at least
-  // as new as the one before (taken before the lock, a slower save of an older snapshot could
-  // land after a newer one and take the saved state back).
-  const Clock::time_point arrived = Clock::now();
-  MutexLock lock(save_mutex);
-  // A save started after this request arrived saved a snapshot at least as new as the one this
-  // request would save: its answer is this request's. Requests piling up on the lock thus make
-  // one more save between them, not one each (each holds a server thread while it waits).
-  if (last_save.valid && last_save.started >= arrived) {
-    SendJson(res, last_save.answer);
+  const Result<json> answer = saves.SaveFor(Clock::now());
+  if (!answer.ok()) {
+    SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + answer.Message());
     return;
   }
-  const Result<SaveReport> saved = SaveLocked();
-  if (!saved.ok()) {
-    SendProblem(res, 500, "Internal Server Error", "the map was not saved: " + saved.Message());
-    return;
-  }
-  SendJson(res, last_save.answer);
+  SendJson(res, answer.value());
 }
 
-Result<SaveReport> HttpServer::Impl::SaveLocked() {
-  last_save.valid = false;
-  last_save.started = Clock::now();
-  const auto snapshot = service.Snapshot();
-  const OccupancyGrid grid = SnapshotGrid(*snapshot, service.encoded_logodds_limit());
-  SaveInputs in;
-  in.version = snapshot->map_version;
-  in.resolution_m = snapshot->resolution_m;
-  in.grid = &grid;
-  in.version_base = snapshot->version_base;
-  in.trajectory = ScanEndTrajectory(*snapshot);
-  Result<SaveReport> saved = SaveState(options.state_dir, in);
-  if (!saved.ok()) return saved;
-  saves_made.fetch_add(1);
-  last_save.answer = {{"path", std::filesystem::absolute(options.state_dir).string()},
-                      {"version", snapshot->map_version},
-                      {"tiles", snapshot->tiles.size()},
-                      {"warnings", saved.value().warnings}};
-  for (const std::string& warning : saved.value().warnings) {
-    std::fprintf(stderr, "slamd: map saved, but a copy was not written: %s\n", warning.c_str());
-  }
-  last_save.valid = true;
-  return saved;
-}
-
-Result<SaveReport> HttpServer::SaveMap() {
-  if (impl_->options.state_dir.empty()) return Error("slamd was started without --state-dir");
-  MutexLock lock(impl_->save_mutex);
-  return impl_->SaveLocked();
-}
+Result<SaveReport> HttpServer::SaveMap() { return impl_->saves.SaveNow(); }
 
 void HttpServer::Impl::HandleReset(httplib::Response& res) {
   const auto before = service.Snapshot();
@@ -364,12 +292,9 @@ std::string HttpServer::Impl::MetricsText() {
   metric("link_source_errors_total", "counter", "Errors of the frame source.", l.source_errors);
   o << "# HELP slamd_http_requests_total HTTP requests answered.\n"
        "# TYPE slamd_http_requests_total counter\n";
-  {
-    MutexLock lock(requests_mutex);
-    for (const auto& [key, count] : requests) {
-      o << "slamd_http_requests_total{method=\"" << key.first << "\",code=\"" << key.second
-        << "\"} " << count << '\n';
-    }
+  for (const auto& [key, count] : requests.Counts()) {
+    o << "slamd_http_requests_total{method=\"" << key.first << "\",code=\"" << key.second << "\"} "
+      << count << '\n';
   }
   metric("http_connections_timed_out_total", "counter",
          "Connections closed at the gate: no whole request in time.",
@@ -382,11 +307,11 @@ std::string HttpServer::Impl::MetricsText() {
          streams_rejected.load());
   metric("jobs_running", "gauge", "Tuning jobs running.", jobs.running());
   metric("map_saves_total", "counter",
-         "Saves of the map written (requests waiting for a save share it).", saves_made.load());
+         "Saves of the map written (requests waiting for a save share it).", saves.saves_made());
   o << "# HELP slamd_exports_made_total Whole-map and trajectory exports made (each at most once "
        "per snapshot and kind).\n# TYPE slamd_exports_made_total counter\n";
-  for (const auto& [kind, e] : exports) {
-    o << "slamd_exports_made_total{kind=\"" << kind << "\"} " << e.renders.load() << '\n';
+  for (const auto& [kind, made] : exports.Made()) {
+    o << "slamd_exports_made_total{kind=\"" << kind << "\"} " << made << '\n';
   }
   MutexLock lock(extra_metrics_mutex);
   for (const auto& extra : extra_metrics) o << extra();
@@ -451,16 +376,8 @@ void HttpServer::Impl::Setup() {
   // Counted in the post-routing handler, which the library calls for every answer (its own 400
   // and 404 included) just before writing it, not in the logger, which it calls after: a client
   // reading /metrics right after an answer came could miss it.
-  server.set_post_routing_handler([this](const Request& req, Response& res) {
-    // The method as a label only when it is one of HTTP's: whatever else a client sends as a
-    // method (httplib answers 400) would grow the counters without bound and go into /metrics
-    // unescaped.
-    static const std::set<std::string> kMethods{"GET",    "HEAD",    "POST",  "PUT",    "PATCH",
-                                                "DELETE", "OPTIONS", "TRACE", "CONNECT"};
-    const std::string method = kMethods.count(req.method) ? req.method : "other";
-    MutexLock lock(requests_mutex);
-    ++requests[{method, res.status}];
-  });
+  server.set_post_routing_handler(
+      [this](const Request& req, Response& res) { requests.Count(req.method, res.status); });
   server.set_exception_handler([](const Request&, Response& res, std::exception_ptr ep) {
     std::string what = "unexpected error";
     try {
@@ -518,13 +435,10 @@ void HttpServer::Impl::Setup() {
   });
   Route("GET", R"(/api/v1/map/tiles/(-?\d{1,9})/(-?\d{1,9})\.png)",
         [this](const Request& req, Response& res) { HandleTile(req, res); });
-  for (const char* kind : {"map.pgm", "map.yaml", "map.png", "trajectory.tum", "trajectory.json"}) {
-    exports.try_emplace(kind);
-  }
   const auto whole_map = [this](const std::string& kind) {
     return [this, kind](const Request&, Response& res) {
-      ServeExport(
-          "map." + kind, res,
+      exports.Serve(
+          "map." + kind,
           [&](const SlamSnapshot& s, std::string& body, std::string& type, std::string& error) {
             const OccupancyGrid grid = SnapshotGrid(s, service.encoded_logodds_limit());
             const io::GridImage image = io::MakeGridImage(grid);
@@ -545,7 +459,8 @@ void HttpServer::Impl::Setup() {
               type = "image/png";
             }
             return true;
-          });
+          },
+          res);
       if (res.status < 300) {
         res.set_header("Content-Disposition", "attachment; filename=\"map." + kind + "\"");
       }
@@ -561,27 +476,29 @@ void HttpServer::Impl::Setup() {
       SendProblem(res, 400, "Bad Request", "format must be json or tum, not \"" + format + "\"");
       return;
     }
-    ServeExport("trajectory." + format, res,
-                [&](const SlamSnapshot& s, std::string& body, std::string& type, std::string&) {
-                  const std::vector<TimedPose> trajectory = ScanEndTrajectory(s);
-                  if (format == "tum") {
-                    body = io::FormatTum(trajectory);
-                    type = "text/plain; charset=utf-8";
-                    return true;
-                  }
-                  const auto rows = [](const std::vector<TimedPose>& poses) {
-                    json list = json::array();
-                    for (const TimedPose& p : poses) {
-                      list.push_back({p.t, p.pose.x, p.pose.y, p.pose.theta});
-                    }
-                    return list;
-                  };
-                  json j = {{"slam", rows(trajectory)}};
-                  if (service.simulated()) j["ground_truth"] = rows(service.GroundTruth());
-                  body = Dump(j);
-                  type = kJson;
-                  return true;
-                });
+    exports.Serve(
+        "trajectory." + format,
+        [&](const SlamSnapshot& s, std::string& body, std::string& type, std::string&) {
+          const std::vector<TimedPose> trajectory = ScanEndTrajectory(s);
+          if (format == "tum") {
+            body = io::FormatTum(trajectory);
+            type = "text/plain; charset=utf-8";
+            return true;
+          }
+          const auto rows = [](const std::vector<TimedPose>& poses) {
+            json list = json::array();
+            for (const TimedPose& p : poses) {
+              list.push_back({p.t, p.pose.x, p.pose.y, p.pose.theta});
+            }
+            return list;
+          };
+          json j = {{"slam", rows(trajectory)}};
+          if (service.simulated()) j["ground_truth"] = rows(service.GroundTruth());
+          body = Dump(j);
+          type = kJson;
+          return true;
+        },
+        res);
     if (format == "tum") {
       res.set_header("Content-Disposition", "attachment; filename=\"trajectory.tum\"");
     }

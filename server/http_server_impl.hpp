@@ -20,6 +20,7 @@
 #include "server/bounded_server.hpp"
 #include "server/http_library.hpp"
 #include "server/http_server.hpp"
+#include "server/http_state.hpp"
 
 namespace slam::server {
 
@@ -60,41 +61,13 @@ struct HttpServer::Impl {
   // serialises a PATCH's read-modify-write of the parameters.
   Mutex params_mutex;
 
-  Mutex save_mutex;  // one save at a time
-  // The last save that succeeded (guarded by save_mutex): when it was started and its answer.
-  // A request that waited for a save started after it arrived shares that save's answer.
-  struct LastSave {
-    bool valid = false;
-    Clock::time_point started;
-    json answer;
-  } last_save SLAM_GUARDED_BY(save_mutex);
-  std::atomic<uint64_t> saves_made{0};
+  SaveCoordinator saves{service, options.state_dir};
   // A reset request waiting for the SLAM thread to apply its reset (at most one: see HandleReset).
   std::atomic<bool> reset_waiting{false};
-
-  // Whole-map exports and the trajectory cost time in proportion to the map and the run: each
-  // kind is made at most once per published snapshot, one at a time; requests that come while
-  // one is being made wait for it and share its bytes. Their CPU cost is thus bounded by the scan
-  // rate, whatever the request rate. (Keys are made in Setup; the map is not resized later.)
-  struct Export {
-    Mutex mutex;
-    bool valid SLAM_GUARDED_BY(mutex) = false;
-    uint64_t sequence SLAM_GUARDED_BY(mutex) = 0;  // of the snapshot it was made from
-    std::string body SLAM_GUARDED_BY(mutex);
-    std::string type SLAM_GUARDED_BY(mutex);
-    std::atomic<uint64_t> renders{0};
-  };
-  std::map<std::string, Export> exports;
-  template <typename Make>
-  void ServeExport(const std::string& kind, httplib::Response& res, Make make);
-
-  Mutex tile_cache_mutex;
-  std::map<TileKey, std::pair<uint64_t, std::string>> tile_cache
-      SLAM_GUARDED_BY(tile_cache_mutex);  // version, PNG
-
-  Mutex requests_mutex;
-  std::map<std::pair<std::string, int>, uint64_t> requests
-      SLAM_GUARDED_BY(requests_mutex);  // (method, code) -> count
+  ExportCache exports{service,
+                      {"map.pgm", "map.yaml", "map.png", "trajectory.tum", "trajectory.json"}};
+  TileCache tile_pngs;
+  RequestCounter requests;
 
   Impl(SlamService& s, hw::Link& l, JobManager& j, const HttpOptions& o)
       : service(s), link(l), jobs(j), options(o) {}
@@ -124,8 +97,6 @@ struct HttpServer::Impl {
   void HandleTile(const httplib::Request& req, httplib::Response& res);
   void HandleEvents(const httplib::Request& req, httplib::Response& res);
   void HandleSave(httplib::Response& res);
-  /// Saves the newest snapshot into --state-dir (save_mutex held); sets last_save on success.
-  Result<SaveReport> SaveLocked() SLAM_REQUIRES(save_mutex);
   void HandleReset(httplib::Response& res);
   json StatusJson();
   json SourceJson(const std::string& description) {
