@@ -18,6 +18,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -118,24 +119,22 @@ class ProgressBar {
   double next_report_ = 0.0;
 };
 
-}  // namespace
-
-int Run(int argc, char** argv) {
-  CLI::App app{
-      "Tunes the SLAM parameters for each ray budget with the paper's evolution strategy "
-      "(fitness: mean of e = log(1 - q) over the experiments, lower is better). Writes "
-      "results.json, table2.md, table3.md, fig10.svg, fig10.png and params/<budget>.json into "
-      "--out after every generation; run the same command again to resume an interrupted study."};
+/// slam-tune's command line, as parsed.
+struct TuneConfig {
   std::vector<std::string> inputs;
   std::string out_dir, start_path;
   slam::offline::TuningSettings settings;
   std::string policy_name = "fixed";
   int jobs = 0;
-  bool restart = false, quiet = false;
-  app.add_option("--experiments", inputs,
+  bool restart = false, quiet = false, no_racing = false;
+};
+
+void AddOptions(CLI::App& app, TuneConfig& c) {
+  slam::offline::TuningSettings& settings = c.settings;
+  app.add_option("--experiments", c.inputs,
                  "experiment directories with ground truth, or datasets of them")
       ->required();
-  app.add_option("--out", out_dir, "output directory (created; holds the state to resume from)")
+  app.add_option("--out", c.out_dir, "output directory (created; holds the state to resume from)")
       ->required();
   app.add_option("--budgets", settings.budgets, "rays per scan, each evolved on its own")
       ->delimiter(',')
@@ -154,7 +153,7 @@ int Run(int argc, char** argv) {
       ->check(CLI::Range(0.01, 0.99));
   app.add_option("--seed", settings.evolution.seed, "seed of the mutations and of every replay")
       ->capture_default_str();
-  app.add_option("--policy", policy_name, "budget policy of the replays: fixed or adaptive")
+  app.add_option("--policy", c.policy_name, "budget policy of the replays: fixed or adaptive")
       ->capture_default_str()
       ->check(CLI::IsMember({"fixed", "adaptive"}));
   app.add_option("--min-rays-per-particle", settings.evolution.min_rays_per_particle,
@@ -165,15 +164,14 @@ int Run(int argc, char** argv) {
   app.add_option("--max-particles", settings.max_particles, "adaptive policy: most particles")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));
-  app.add_option("--start", start_path,
+  app.add_option("--start", c.start_path,
                  "parameters of the first generation's first individual [Table II defaults]");
   app.add_option(
-         "--jobs", jobs,
+         "--jobs", c.jobs,
          "evaluations at once, one thread each (0: one per core); results do not depend on it")
       ->capture_default_str()
       ->check(CLI::Range(0, 256));
-  bool no_racing = false;
-  app.add_flag("--no-racing", no_racing,
+  app.add_flag("--no-racing", c.no_racing,
                "evaluate every new individual on every experiment to the end (racing stops those "
                "that can no longer enter the elite; it never changes the elites or the best sets)");
   app.add_option("--race-alpha", settings.race_alpha,
@@ -182,83 +180,138 @@ int Run(int argc, char** argv) {
                  "that provably cannot enter the elite)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 0.5));
-  app.add_flag("--restart", restart, "discard a saved study in --out instead of resuming it");
-  app.add_flag("--quiet", quiet, "no progress on stderr");
+  app.add_flag("--restart", c.restart, "discard a saved study in --out instead of resuming it");
+  app.add_flag("--quiet", c.quiet, "no progress on stderr");
   app.set_version_flag("--version", std::string("slam-tune ") + SLAM_VERSION);
+}
+
+/// Completes the settings from the options (policy, racing, budgets sorted and unique, the start
+/// set); an exit status when that fails.
+std::optional<int> CompleteSettings(TuneConfig& c) {
+  slam::offline::TuningSettings& settings = c.settings;
+  settings.policy = *slam::ParseBudgetPolicy(c.policy_name);
+  settings.racing = !c.no_racing;
+  std::sort(settings.budgets.begin(), settings.budgets.end());
+  settings.budgets.erase(std::unique(settings.budgets.begin(), settings.budgets.end()),
+                         settings.budgets.end());
+  if (!c.start_path.empty()) {
+    const auto loaded = slam::io::LoadParams(c.start_path);
+    if (!loaded.ok()) return Fail(loaded.Message());
+    settings.start = loaded.value();
+  }
+  return std::nullopt;
+}
+
+/// The experiments, decoded once and held in memory for every evaluation; each needs its ground
+/// truth. An exit status when one cannot be read.
+std::optional<int> LoadExperiments(const TuneConfig& c,
+                                   std::vector<slam::offline::Experiment>& experiments) {
+  const slam::Result<std::vector<std::string>> found = slam::offline::FindExperimentDirs(c.inputs);
+  if (!found.ok()) return Fail(found.Message());
+  for (const std::string& dir : found.value()) {
+    slam::Result<slam::offline::Experiment> load = slam::offline::LoadExperiment(dir);
+    if (!load.ok()) return Fail("cannot read " + dir + ":\n" + load.Message());
+    if (load.value().ground_truth.empty()) {
+      return Fail(dir + ": no groundtruth.tum: the fitness needs the ground-truth trajectory");
+    }
+    if (!c.quiet) {
+      std::fprintf(stderr, "%s: %zu scans, %.0f s\n", load.value().meta.name.c_str(),
+                   load.value().scans.size(), load.value().duration_s());
+    }
+    experiments.push_back(std::move(load).value());
+  }
+  return std::nullopt;
+}
+
+/// A fresh study in --out, or the one saved there when its settings and experiments are these
+/// (its generation count, racing and race level taken from the options). An exit status when
+/// the saved study cannot be read or differs.
+std::optional<int> StartOrResume(const TuneConfig& c,
+                                 const std::vector<slam::offline::TuningExperiment>& tuning,
+                                 const std::vector<std::string>& names,
+                                 slam::offline::TuningState& state) {
+  std::error_code ec;
+  fs::create_directories(c.out_dir, ec);
+  if (ec) return Fail("cannot create " + c.out_dir + ": " + ec.message());
+  state = slam::offline::NewTuningState(c.settings, tuning);
+  const std::string results_path = (fs::path(c.out_dir) / "results.json").string();
+  if (c.restart || !fs::exists(results_path, ec)) return std::nullopt;
+  const auto json = slam::io::detail::ReadJsonFile(results_path);
+  if (!json.ok())
+    return Fail("cannot resume: " + json.Message() + "\n(use --restart to start over)");
+  auto saved = slam::offline::TuningStateFromJson(json.value());
+  if (!saved.ok()) {
+    return Fail("cannot resume from " + results_path + ":\n" + saved.Message() +
+                "\n(use --restart to start over)");
+  }
+  const auto conflicts = slam::offline::ResumeConflicts(saved.value(), c.settings, names);
+  if (!conflicts.empty()) {
+    std::string text = c.out_dir + " holds a study with other settings:";
+    for (const std::string& conflict : conflicts) text += "\n  " + conflict;
+    return Fail(text + "\nuse another --out, the same settings, or --restart", 2);
+  }
+  state = std::move(saved).value();
+  state.settings.evolution.generations = c.settings.evolution.generations;
+  state.settings.racing = c.settings.racing;
+  state.settings.race_alpha = c.settings.race_alpha;
+  size_t finished = 0;
+  for (const slam::offline::BudgetRun& run : state.budgets) finished += run.generations.size();
+  if (!c.quiet)
+    std::fprintf(stderr, "resuming %s: %zu generations already done\n", c.out_dir.c_str(),
+                 finished);
+  return std::nullopt;
+}
+
+/// The line that reports a budget's finished generation.
+std::string GenerationLine(const slam::offline::TuningState& s, int64_t budget,
+                           const slam::offline::GenerationSummary& g) {
+  char text[240];
+  std::snprintf(text, sizeof(text),
+                "budget %lld generation %d/%d: median %.4f, IQR %.4f-%.4f, best %.4f; "
+                "%lld replays, %lld saved by racing (%d individuals stopped, %.0f %% of "
+                "the scans spared)",
+                static_cast<long long>(budget), g.generation + 1, s.settings.evolution.generations,
+                g.fitness.median, g.fitness.q1, g.fitness.q3, g.best.fitness,
+                static_cast<long long>(g.replays), static_cast<long long>(g.replays_saved),
+                g.raced_out,
+                g.scans + g.scans_saved > 0 ? 100.0 * static_cast<double>(g.scans_saved) /
+                                                  static_cast<double>(g.scans + g.scans_saved)
+                                            : 0.0);
+  return text;
+}
+
+}  // namespace
+
+int Run(int argc, char** argv) {
+  CLI::App app{
+      "Tunes the SLAM parameters for each ray budget with the paper's evolution strategy "
+      "(fitness: mean of e = log(1 - q) over the experiments, lower is better). Writes "
+      "results.json, table2.md, table3.md, fig10.svg, fig10.png and params/<budget>.json into "
+      "--out after every generation; run the same command again to resume an interrupted study."};
+  TuneConfig config;
+  AddOptions(app, config);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     if (g_rank == 0) return slam::cli::ReportParseError(app, e);
     return e.get_exit_code();
   }
-  quiet = quiet || g_rank != 0;            // rank 0 alone reports
-  if (g_ranks > 1 && jobs == 0) jobs = 1;  // one rank per core
+  config.quiet = config.quiet || g_rank != 0;            // rank 0 alone reports
+  if (g_ranks > 1 && config.jobs == 0) config.jobs = 1;  // one rank per core
+  const bool quiet = config.quiet;
+  const std::string& out_dir = config.out_dir;
+  if (const auto status = CompleteSettings(config)) return *status;
 
-  settings.policy = *slam::ParseBudgetPolicy(policy_name);
-  settings.racing = !no_racing;
-  std::sort(settings.budgets.begin(), settings.budgets.end());
-  settings.budgets.erase(std::unique(settings.budgets.begin(), settings.budgets.end()),
-                         settings.budgets.end());
-  if (!start_path.empty()) {
-    const auto loaded = slam::io::LoadParams(start_path);
-    if (!loaded.ok()) return Fail(loaded.Message());
-    settings.start = loaded.value();
-  }
-
-  const slam::Result<std::vector<std::string>> found = slam::offline::FindExperimentDirs(inputs);
-  if (!found.ok()) return Fail(found.Message());
-  const std::vector<std::string>& dirs = found.value();
-  // Decoded once, held in memory for every evaluation.
   std::vector<slam::offline::Experiment> experiments;
-  for (const std::string& dir : dirs) {
-    slam::Result<slam::offline::Experiment> load = slam::offline::LoadExperiment(dir);
-    if (!load.ok()) return Fail("cannot read " + dir + ":\n" + load.Message());
-    if (load.value().ground_truth.empty()) {
-      return Fail(dir + ": no groundtruth.tum: the fitness needs the ground-truth trajectory");
-    }
-    if (!quiet) {
-      std::fprintf(stderr, "%s: %zu scans, %.0f s\n", load.value().meta.name.c_str(),
-                   load.value().scans.size(), load.value().duration_s());
-    }
-    experiments.push_back(std::move(load).value());
-  }
+  if (const auto status = LoadExperiments(config, experiments)) return *status;
   std::vector<slam::offline::TuningExperiment> tuning;
   std::vector<std::string> names;
   for (const slam::offline::Experiment& e : experiments) {
     tuning.push_back({e.meta.name, &e.robot, &e.scans, &e.ground_truth});
     names.push_back(e.meta.name);
   }
-
-  std::error_code ec;
-  fs::create_directories(out_dir, ec);
-  if (ec) return Fail("cannot create " + out_dir + ": " + ec.message());
-  slam::offline::TuningState state = slam::offline::NewTuningState(settings, tuning);
-  const std::string results_path = (fs::path(out_dir) / "results.json").string();
-  if (!restart && fs::exists(results_path, ec)) {
-    const auto json = slam::io::detail::ReadJsonFile(results_path);
-    if (!json.ok())
-      return Fail("cannot resume: " + json.Message() + "\n(use --restart to start over)");
-    auto saved = slam::offline::TuningStateFromJson(json.value());
-    if (!saved.ok()) {
-      return Fail("cannot resume from " + results_path + ":\n" + saved.Message() +
-                  "\n(use --restart to start over)");
-    }
-    const auto conflicts = slam::offline::ResumeConflicts(saved.value(), settings, names);
-    if (!conflicts.empty()) {
-      std::string text = out_dir + " holds a study with other settings:";
-      for (const std::string& c : conflicts) text += "\n  " + c;
-      return Fail(text + "\nuse another --out, the same settings, or --restart", 2);
-    }
-    state = std::move(saved).value();
-    state.settings.evolution.generations = settings.evolution.generations;
-    state.settings.racing = settings.racing;
-    state.settings.race_alpha = settings.race_alpha;
-    size_t finished = 0;
-    for (const slam::offline::BudgetRun& run : state.budgets) finished += run.generations.size();
-    if (!quiet)
-      std::fprintf(stderr, "resuming %s: %zu generations already done\n", out_dir.c_str(),
-                   finished);
-  }
+  slam::offline::TuningState state;
+  if (const auto status = StartOrResume(config, tuning, names, state)) return *status;
 
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
@@ -280,21 +333,9 @@ int Run(int argc, char** argv) {
     for (const slam::offline::BudgetRun& run : s.budgets) {
       if (run.budget != budget || run.generations.empty()) continue;
       const slam::offline::GenerationSummary& g = run.generations.back();
-      char text[240];
-      std::snprintf(text, sizeof(text),
-                    "budget %lld generation %d/%d: median %.4f, IQR %.4f-%.4f, best %.4f; "
-                    "%lld replays, %lld saved by racing (%d individuals stopped, %.0f %% of "
-                    "the scans spared)",
-                    static_cast<long long>(budget), g.generation + 1,
-                    s.settings.evolution.generations, g.fitness.median, g.fitness.q1, g.fitness.q3,
-                    g.best.fitness, static_cast<long long>(g.replays),
-                    static_cast<long long>(g.replays_saved), g.raced_out,
-                    g.scans + g.scans_saved > 0 ? 100.0 * static_cast<double>(g.scans_saved) /
-                                                      static_cast<double>(g.scans + g.scans_saved)
-                                                : 0.0);
       status = "budget " + std::to_string(budget) + ", best " +
                std::to_string(g.best.fitness).substr(0, 6);
-      if (!quiet) bar.Line(text);
+      if (!quiet) bar.Line(GenerationLine(s, budget, g));
     }
   };
   if (!quiet)
@@ -309,7 +350,7 @@ int Run(int argc, char** argv) {
     };
 
   const auto start = std::chrono::steady_clock::now();
-  const bool finished = slam::offline::RunTuning(tuning, state, jobs, callbacks);
+  const bool finished = slam::offline::RunTuning(tuning, state, config.jobs, callbacks);
   if (g_rank == 0) {
     for (const std::string& e : slam::offline::WriteTuningOutputs(out_dir, state)) {
       std::cerr << "slam-tune: " << e << "\n";
