@@ -50,13 +50,8 @@ bool ResolveWorld(const std::string& spec, slam::sim::World& world, std::string&
   return true;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  CLI::App app{
-      "Writes recorded experiments of the virtual marXbot: robot.json, can.log (candump -l; "
-      "log.clf, a CARMEN log, for a robot whose scanner is a laser), groundtruth.tum, meta.json "
-      "and world.json per experiment."};
+/// slam-sim's command line, as parsed.
+struct SimConfig {
   std::string world_spec, out_dir;
   std::string robot_path = slam::io::ShippedPath("config/marxbot.robot.json");
   double duration_s = 300.0;
@@ -65,32 +60,39 @@ int main(int argc, char** argv) {
   double speed_m_s = slam::sim::ScenarioConfig{}.speed_m_s;
   double turn_rate_rad_s = slam::sim::ScenarioConfig{}.turn_rate_rad_s;
   std::string odometry = "tracked";
-  app.add_option("--world", world_spec,
+  int people = 0;
+  // slam-sim dataset
+  std::string dataset_out, set_name = "reference";
+  int runs = 0;
+};
+
+/// The options, and the dataset subcommand (returned).
+CLI::App* AddOptions(CLI::App& app, SimConfig& c) {
+  app.add_option("--world", c.world_spec,
                  "built-in world (" + slam::sim::BuiltinWorldList() + ") or a world.json file");
-  app.add_option("--duration", duration_s, "simulated seconds")
+  app.add_option("--duration", c.duration_s, "simulated seconds")
       ->capture_default_str()
       ->check(CLI::Range(0.1, 86400.0));
-  app.add_option("--seed", seed, "seed of the simulation")->capture_default_str();
-  app.add_option("--out", out_dir, "output directory (created if needed)");
-  app.add_option("--robot", robot_path, "robot description")->capture_default_str();
-  app.add_option("--scans-per-s", scans_per_s, "half turns of the scanner per second")
+  app.add_option("--seed", c.seed, "seed of the simulation")->capture_default_str();
+  app.add_option("--out", c.out_dir, "output directory (created if needed)");
+  app.add_option("--robot", c.robot_path, "robot description")->capture_default_str();
+  app.add_option("--scans-per-s", c.scans_per_s, "half turns of the scanner per second")
       ->capture_default_str()
       ->check(CLI::Range(0.1, 5.0));
-  app.add_option("--speed", speed_m_s,
+  app.add_option("--speed", c.speed_m_s,
                  "cruising speed in m/s (the marXbot's 0.12; a Pioneer "
                  "with a laser, 0.3 to 0.5)")
       ->capture_default_str()
       ->check(CLI::Range(0.01, 2.0));
-  app.add_option("--turn-rate", turn_rate_rad_s, "turning rate in place, rad/s")
+  app.add_option("--turn-rate", c.turn_rate_rad_s, "turning rate in place, rad/s")
       ->capture_default_str()
       ->check(CLI::Range(0.05, 5.0));
-  int people = 0;
-  app.add_option("--people", people,
+  app.add_option("--people", c.people,
                  "people walking about at 1 m/s, their legs seen by the sensors and in no map "
                  "(a lab's staff; 0 for an empty building)")
       ->capture_default_str()
       ->check(CLI::Range(0, 50));
-  app.add_option("--odometry", odometry,
+  app.add_option("--odometry", c.odometry,
                  "how the odometry errs: tracked (a tracked robot with a MEMS gyro: dead "
                  "reckoning drifts decimetres to metres in 300 s) or gentle (the original "
                  "reference set's small zero-mean slip)")
@@ -103,87 +105,63 @@ int main(int argc, char** argv) {
       "only), validation (choosing between designs), reference (reporting only; the default), "
       "arenas (the original reference set: 3 arenas x 5 seeds, gentle odometry), or all (the "
       "first three in DIR/training, DIR/validation, DIR/reference)");
-  std::string dataset_out, set_name = "reference";
-  int runs = 0;
-  dataset->add_option("--out", dataset_out, "output directory")->required();
-  dataset->add_option("--set", set_name, "which set")
+  dataset->add_option("--out", c.dataset_out, "output directory")->required();
+  dataset->add_option("--set", c.set_name, "which set")
       ->capture_default_str()
       ->check(CLI::IsMember({"training", "validation", "reference", "arenas", "all"}));
-  dataset->add_option("--runs", runs, "runs (seeds) per world instead of the set's own")
+  dataset->add_option("--runs", c.runs, "runs (seeds) per world instead of the set's own")
       ->check(CLI::Range(1, 1000));
-  dataset->add_option("--duration", duration_s, "simulated seconds per run instead of 300")
+  dataset->add_option("--duration", c.duration_s, "simulated seconds per run instead of 300")
       ->check(CLI::Range(0.1, 86400.0));
   app.set_version_flag("--version", std::string("slam-sim ") + SLAM_VERSION);
-  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
+  return dataset;
+}
 
-  auto robot = slam::io::LoadRobot(robot_path);
-  if (!robot.ok()) {
-    std::cerr << "slam-sim: " << robot.Message() << "\n";
-    return 1;
-  }
-  slam::sim::ScenarioConfig base;
-  base.duration_s = duration_s;
-  base.scans_per_s = scans_per_s;
-  base.speed_m_s = speed_m_s;
-  base.turn_rate_rad_s = turn_rate_rad_s;
-  base.people = people;
-
-  std::vector<Job> jobs;
-  // Each set's directory and the jobs of its index.json.
-  std::vector<std::pair<std::string, std::vector<size_t>>> indexes;
-  if (dataset->parsed()) {
-    std::vector<std::pair<slam::sim::DatasetKind, std::string>> sets;
-    if (set_name == "all") {
-      for (const auto kind :
-           {slam::sim::DatasetKind::kTraining, slam::sim::DatasetKind::kValidation,
-            slam::sim::DatasetKind::kReference}) {
-        sets.emplace_back(kind, (std::filesystem::path(dataset_out) /
-                                 std::string(slam::sim::DatasetKindName(kind)))
-                                    .string());
-      }
-    } else {
-      sets.emplace_back(*slam::sim::DatasetKindFromName(set_name), dataset_out);
-    }
-    for (const auto& [kind, dir] : sets) {
-      const slam::sim::DatasetPlan plan = slam::sim::PlanDataset(kind, runs);
-      std::vector<size_t> members;
-      for (const slam::sim::DatasetRun& run : plan.runs) {
-        Job job{run.world, *slam::sim::BuiltinWorld(run.world), run.seed, "", {}};
-        job.dir =
-            (std::filesystem::path(dir) / (run.world + "-" + std::to_string(run.seed))).string();
-        job.config = slam::sim::WithOdometryProfile(base, plan.odometry);
-        if (dataset->count("--duration") == 0) job.config.duration_s = plan.duration_s;
-        job.config.seed = run.seed;
-        members.push_back(jobs.size());
-        jobs.push_back(std::move(job));
-      }
-      indexes.emplace_back(dir, std::move(members));
+/// The jobs of `slam-sim dataset`, and each set's directory with the jobs of its index.json.
+void PlanDatasetJobs(const SimConfig& c, bool own_duration, const slam::sim::ScenarioConfig& base,
+                     std::vector<Job>& jobs,
+                     std::vector<std::pair<std::string, std::vector<size_t>>>& indexes) {
+  std::vector<std::pair<slam::sim::DatasetKind, std::string>> sets;
+  if (c.set_name == "all") {
+    for (const auto kind : {slam::sim::DatasetKind::kTraining, slam::sim::DatasetKind::kValidation,
+                            slam::sim::DatasetKind::kReference}) {
+      sets.emplace_back(kind, (std::filesystem::path(c.dataset_out) /
+                               std::string(slam::sim::DatasetKindName(kind)))
+                                  .string());
     }
   } else {
-    if (world_spec.empty() || out_dir.empty()) {
-      std::cerr << "slam-sim: --world and --out are required (or use 'slam-sim dataset'); "
-                   "see --help\n";
-      return 2;
-    }
-    Job job;
-    if (!ResolveWorld(world_spec, job.world, job.world_name)) return 1;
-    job.seed = seed;
-    job.dir = out_dir;
-    job.config =
-        slam::sim::WithOdometryProfile(base, *slam::sim::OdometryProfileFromName(odometry));
-    job.config.seed = seed;
-    jobs.push_back(std::move(job));
+    sets.emplace_back(*slam::sim::DatasetKindFromName(c.set_name), c.dataset_out);
   }
+  for (const auto& [kind, dir] : sets) {
+    const slam::sim::DatasetPlan plan = slam::sim::PlanDataset(kind, c.runs);
+    std::vector<size_t> members;
+    for (const slam::sim::DatasetRun& run : plan.runs) {
+      Job job{run.world, *slam::sim::BuiltinWorld(run.world), run.seed, "", {}};
+      job.dir =
+          (std::filesystem::path(dir) / (run.world + "-" + std::to_string(run.seed))).string();
+      job.config = slam::sim::WithOdometryProfile(base, plan.odometry);
+      if (!own_duration) job.config.duration_s = plan.duration_s;
+      job.config.seed = run.seed;
+      members.push_back(jobs.size());
+      jobs.push_back(std::move(job));
+    }
+    indexes.emplace_back(dir, std::move(members));
+  }
+}
 
+/// Writes every job's experiment, in parallel, with a line of progress each; false when one
+/// could not be written (said on stderr).
+bool WriteExperiments(const std::vector<Job>& jobs, const slam::RobotDescription& robot,
+                      std::vector<slam::sim::ExperimentSummary>& summaries) {
   const auto start = std::chrono::steady_clock::now();
   std::atomic<size_t> done{0};
   std::atomic<bool> failed{false};
   std::mutex io_mutex;
-  std::vector<slam::sim::ExperimentSummary> summaries(jobs.size());
+  summaries.assign(jobs.size(), {});
   tbb::parallel_for(size_t{0}, jobs.size(), [&](size_t i) {
     const Job& job = jobs[i];
     const slam::Result<void> written = slam::sim::WriteSimulatedExperiment(
-        job.dir, job.world, job.world_name, robot.value(), job.config, &summaries[i]);
+        job.dir, job.world, job.world_name, robot, job.config, &summaries[i]);
     const std::lock_guard lock(io_mutex);
     if (!written.ok()) {
       failed = true;
@@ -200,7 +178,55 @@ int main(int argc, char** argv) {
                  job.config.odometry.profile.c_str(),
                  static_cast<unsigned long long>(summaries[i].frames), elapsed);
   });
-  if (failed) return 1;
+  return !failed;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "Writes recorded experiments of the virtual marXbot: robot.json, can.log (candump -l; "
+      "log.clf, a CARMEN log, for a robot whose scanner is a laser), groundtruth.tum, meta.json "
+      "and world.json per experiment."};
+  SimConfig config;
+  CLI::App* dataset = AddOptions(app, config);
+  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
+
+  auto robot = slam::io::LoadRobot(config.robot_path);
+  if (!robot.ok()) {
+    std::cerr << "slam-sim: " << robot.Message() << "\n";
+    return 1;
+  }
+  slam::sim::ScenarioConfig base;
+  base.duration_s = config.duration_s;
+  base.scans_per_s = config.scans_per_s;
+  base.speed_m_s = config.speed_m_s;
+  base.turn_rate_rad_s = config.turn_rate_rad_s;
+  base.people = config.people;
+
+  std::vector<Job> jobs;
+  // Each set's directory and the jobs of its index.json.
+  std::vector<std::pair<std::string, std::vector<size_t>>> indexes;
+  if (dataset->parsed()) {
+    PlanDatasetJobs(config, dataset->count("--duration") > 0, base, jobs, indexes);
+  } else {
+    if (config.world_spec.empty() || config.out_dir.empty()) {
+      std::cerr << "slam-sim: --world and --out are required (or use 'slam-sim dataset'); "
+                   "see --help\n";
+      return 2;
+    }
+    Job job;
+    if (!ResolveWorld(config.world_spec, job.world, job.world_name)) return 1;
+    job.seed = config.seed;
+    job.dir = config.out_dir;
+    job.config =
+        slam::sim::WithOdometryProfile(base, *slam::sim::OdometryProfileFromName(config.odometry));
+    job.config.seed = config.seed;
+    jobs.push_back(std::move(job));
+  }
+
+  std::vector<slam::sim::ExperimentSummary> summaries;
+  if (!WriteExperiments(jobs, robot.value(), summaries)) return 1;
 
   const auto entry = [&](size_t i) {
     return nlohmann::json{{"dir", jobs[i].dir},
