@@ -388,7 +388,17 @@ void HttpServer::Impl::Setup() {
     }
     SendProblem(res, 500, "Internal Server Error", what);
   });
+  // Registered in this order: a request takes the first route whose pattern matches.
+  AddStateRoutes();
+  AddMapRoutes();
+  AddJobRoutes();
+  AddPageAndFallback();
+}
 
+// Health, status, the budget and the parameters.
+void HttpServer::Impl::AddStateRoutes() {
+  using httplib::Request;
+  using httplib::Response;
   Route("GET", "/api/v1/health", [](const Request&, Response& res) {
     SendJson(res, {{"status", "ok"}});
   });
@@ -418,7 +428,12 @@ void HttpServer::Impl::Setup() {
     res.set_header("ETag", ParamsEtag());
     SendJson(res, io::ParamsToJson(service.Params().params));
   });
+}
 
+// The map, its tiles and exports, the trajectory, the event stream, saves and resets.
+void HttpServer::Impl::AddMapRoutes() {
+  using httplib::Request;
+  using httplib::Response;
   Route("GET", "/api/v1/map", [this](const Request&, Response& res) {
     const auto s = service.Snapshot();
     json tiles = json::array();
@@ -515,7 +530,12 @@ void HttpServer::Impl::Setup() {
     json body;
     if (ParseBody(req, res, "application/json", body)) HandleReset(res);
   });
+}
 
+// Tuning jobs and the metrics.
+void HttpServer::Impl::AddJobRoutes() {
+  using httplib::Request;
+  using httplib::Response;
   Route("POST", "/api/v1/jobs/tune", [this](const Request& req, Response& res) {
     json body;
     if (!ParseBody(req, res, "application/json", body)) return;
@@ -561,7 +581,12 @@ void HttpServer::Impl::Setup() {
   Route("GET", "/metrics", [this](const Request&, Response& res) {
     res.set_content(MetricsText(), "text/plain; version=0.0.4; charset=utf-8");
   });
+}
 
+// The page's files, then 405 on a known route and 404 elsewhere, as problem+json.
+void HttpServer::Impl::AddPageAndFallback() {
+  using httplib::Request;
+  using httplib::Response;
   if (!options.web_root.empty()) {
     const std::string vendor = options.web_root + "/node_modules/uplot/dist";
     if (std::filesystem::is_directory(vendor)) server.set_mount_point("/vendor/uplot", vendor);

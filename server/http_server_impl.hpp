@@ -77,7 +77,12 @@ struct HttpServer::Impl {
   }
   std::string ParamsEtag() const { return "\"p" + std::to_string(service.ParamsRevision()) + "\""; }
 
+  /// The server's settings and handlers, then every route (the Add* below, in order).
   void Setup();
+  void AddStateRoutes();
+  void AddMapRoutes();
+  void AddJobRoutes();
+  void AddPageAndFallback();
   /// Registers a route's handler for `method` ("GET", "POST", "PUT", "PATCH" or "DELETE"), and
   /// makes its pattern a known route, which answers 405 with Allow to other methods.
   void Route(const std::string& method, const std::string& pattern,
