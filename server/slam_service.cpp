@@ -392,15 +392,22 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
     ++counters_.refused_scans;
     return;
   }
-  const ScanReport& report = step.report;
-  const PlanRecord& record = *step.record;
-  const double cpu_s = step.cpu_s;
   // For viewers (Foxglove's /scan): a few hundred points, outside the scan's CPU account.
   if (options_.scan_points) {
     scan_points_ = std::make_shared<const std::vector<Vec2>>(engine_->ReadingPoints(step.prepared));
   }
-  const int64_t now = SteadyNs();
+  ScanMetrics m = MetricsOf(step, period, wall_start, receive_ns);
+  UpdateGroundTruth();
+  CountScan(m, period, NewlyMappedTruth());
+  MeasureAgainstTruth(m);
+  Publish(m);
+}
 
+ScanMetrics SlamService::MetricsOf(const BudgetedStep::Result& step, double period,
+                                   int64_t wall_start, int64_t receive_ns) const {
+  const ScanReport& report = step.report;
+  const PlanRecord& record = *step.record;
+  const int64_t now = SteadyNs();
   ScanMetrics m;
   m.scan = engine_->scans_processed();
   m.quota = record.quota;
@@ -412,84 +419,88 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
   m.scan_period_s = period;
   m.busy_s = static_cast<double>(now - wall_start) * 1e-9;
   m.latency_s = static_cast<double>(now - receive_ns) * 1e-9;
-  m.cpu_s = cpu_s;
-  m.cpu_share = period > 0.0 ? cpu_s / period : 0.0;
+  m.cpu_s = step.cpu_s;
+  m.cpu_share = period > 0.0 ? step.cpu_s / period : 0.0;
   m.realtime_ratio = m.busy_s > 0.0 ? period / m.busy_s : 0.0;
   m.late = period > 0.0 && m.latency_s > period;
+  return m;
+}
 
+std::vector<TimedPose> SlamService::NewlyMappedTruth() {
   // Ground truth (virtual marXbot): the map frame is the engine's, whose origin is the robot's
   // pose at the first scan's start; align the world frame to it once, at that moment.
-  UpdateGroundTruth();
   std::vector<TimedPose> newly_mapped;
-  if (truth_source_) {
-    const auto history = engine_->Best().history;
-    if (!world_to_map_ && history) {
-      const TrajectoryChunk* first = Chunks(history).front();
-      if (!first->poses.empty()) {
-        const TimedPose& start = first->poses.front();
-        if (const auto truth = PoseAt(truth_world_, start.t)) {
-          const Pose2 t = Compose(start.pose, Inverse(*truth));
-          world_to_map_ = RigidTransform2{t.theta, {t.x, t.y}};
-          for (const TimedPose& p : truth_world_) {
-            if (p.t >= start.t) newly_mapped.push_back(p);
-          }
+  if (!truth_source_) return newly_mapped;
+  const auto history = engine_->Best().history;
+  if (!world_to_map_ && history) {
+    const TrajectoryChunk* first = Chunks(history).front();
+    if (!first->poses.empty()) {
+      const TimedPose& start = first->poses.front();
+      if (const auto truth = PoseAt(truth_world_, start.t)) {
+        const Pose2 t = Compose(start.pose, Inverse(*truth));
+        world_to_map_ = RigidTransform2{t.theta, {t.x, t.y}};
+        for (const TimedPose& p : truth_world_) {
+          if (p.t >= start.t) newly_mapped.push_back(p);
         }
       }
-    } else if (world_to_map_) {
-      // Poses newer than the last mapped one.
-      double last_t = -1e300;
-      {
-        MutexLock lock(mutex_);
-        if (!truth_map_.empty()) last_t = truth_map_.back().t - time_offset_s_;
-      }
-      for (const TimedPose& p : truth_world_) {
-        if (p.t > last_t) newly_mapped.push_back(p);
-      }
     }
-    if (world_to_map_) {
-      newly_mapped = TransformTrajectory(*world_to_map_, newly_mapped);
-      for (TimedPose& p : newly_mapped) p.t += time_offset_s_;
+  } else if (world_to_map_) {
+    // Poses newer than the last mapped one.
+    double last_t = -1e300;
+    {
+      MutexLock lock(mutex_);
+      if (!truth_map_.empty()) last_t = truth_map_.back().t - time_offset_s_;
     }
-  }
-
-  {
-    MutexLock lock(mutex_);
-    ServiceCounters& c = counters_;
-    c.state = SlamState::kRunning;
-    ++c.scans;
-    c.late_scans += m.late ? 1 : 0;
-    c.rays_planned += m.rays_planned;
-    c.rays_used += m.rays_used;
-    c.busy_s += m.busy_s;
-    c.cpu_s += m.cpu_s;
-    c.robot_s += period;
-    const auto& bounds = LatencyBuckets();
-    const size_t bucket = static_cast<size_t>(
-        std::lower_bound(bounds.begin(), bounds.end(), m.latency_s) - bounds.begin());
-    ++c.latency_counts[bucket];
-    c.latency_sum_s += m.latency_s;
-    c.assembler = assembler_.counters();
-    truth_map_.insert(truth_map_.end(), newly_mapped.begin(), newly_mapped.end());
+    for (const TimedPose& p : truth_world_) {
+      if (p.t > last_t) newly_mapped.push_back(p);
+    }
   }
   if (world_to_map_) {
-    std::vector<TimedPose> estimate;  // this run's scan ends, in the ground truth's time
-    for (const TrajectoryChunk* chunk : Chunks(engine_->Best().history)) {
-      if (chunk->poses.empty()) continue;
-      TimedPose end = chunk->poses.back();
-      end.t += time_offset_s_;
-      if (estimate.empty() || end.t > estimate.back().t) estimate.push_back(end);
-    }
-    std::optional<TruthErrors> errors;
-    {
-      MutexLock lock(mutex_);  // truth_map_ is written on this thread only; readers copy it
-      errors = ErrorsAgainstTruth(estimate, truth_map_);
-    }
-    if (errors) {
-      m.ate_m = errors->ate_m;
-      m.pose_error_m = errors->pose_error_m;
-    }
+    newly_mapped = TransformTrajectory(*world_to_map_, newly_mapped);
+    for (TimedPose& p : newly_mapped) p.t += time_offset_s_;
   }
-  Publish(m);
+  return newly_mapped;
+}
+
+void SlamService::CountScan(const ScanMetrics& m, double period,
+                            const std::vector<TimedPose>& newly_mapped) {
+  MutexLock lock(mutex_);
+  ServiceCounters& c = counters_;
+  c.state = SlamState::kRunning;
+  ++c.scans;
+  c.late_scans += m.late ? 1 : 0;
+  c.rays_planned += m.rays_planned;
+  c.rays_used += m.rays_used;
+  c.busy_s += m.busy_s;
+  c.cpu_s += m.cpu_s;
+  c.robot_s += period;
+  const auto& bounds = LatencyBuckets();
+  const size_t bucket = static_cast<size_t>(
+      std::lower_bound(bounds.begin(), bounds.end(), m.latency_s) - bounds.begin());
+  ++c.latency_counts[bucket];
+  c.latency_sum_s += m.latency_s;
+  c.assembler = assembler_.counters();
+  truth_map_.insert(truth_map_.end(), newly_mapped.begin(), newly_mapped.end());
+}
+
+void SlamService::MeasureAgainstTruth(ScanMetrics& m) {
+  if (!world_to_map_) return;
+  std::vector<TimedPose> estimate;  // this run's scan ends, in the ground truth's time
+  for (const TrajectoryChunk* chunk : Chunks(engine_->Best().history)) {
+    if (chunk->poses.empty()) continue;
+    TimedPose end = chunk->poses.back();
+    end.t += time_offset_s_;
+    if (estimate.empty() || end.t > estimate.back().t) estimate.push_back(end);
+  }
+  std::optional<TruthErrors> errors;
+  {
+    MutexLock lock(mutex_);  // truth_map_ is written on this thread only; readers copy it
+    errors = ErrorsAgainstTruth(estimate, truth_map_);
+  }
+  if (errors) {
+    m.ate_m = errors->ate_m;
+    m.pose_error_m = errors->pose_error_m;
+  }
 }
 
 void SlamService::Publish(const std::optional<ScanMetrics>& metrics) {

@@ -211,7 +211,17 @@ class SlamService {
   void FollowPeriod(double scan_period_s);
   /// Bumps params_revision_ if Params() is no longer what it was at the last revision.
   void ReviseParams() SLAM_REQUIRES(mutex_);
+  /// One scan through the budget, then its metrics, counters and errors against the ground
+  /// truth, published.
   void ProcessScan(const Scan& scan, int64_t receive_ns);
+  ScanMetrics MetricsOf(const BudgetedStep::Result& step, double period, int64_t wall_start,
+                        int64_t receive_ns) const;
+  /// The ground truth's poses not yet in truth_map_, in the map frame (the world aligned to it
+  /// at the first scan's start); none without a simulated source.
+  std::vector<TimedPose> NewlyMappedTruth();
+  void CountScan(const ScanMetrics& m, double period, const std::vector<TimedPose>& newly_mapped);
+  /// The scan ends' ATE and the latest pose's error against the ground truth, when aligned.
+  void MeasureAgainstTruth(ScanMetrics& m);
   void ApplyCommands();
   void BuildEngine();
   void Publish(const std::optional<ScanMetrics>& metrics);
