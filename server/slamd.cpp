@@ -237,6 +237,90 @@ void ReportStatus(const slam::server::SlamService& service, const slam::hw::Link
   }
 }
 
+slam::server::ServiceOptions ServiceOptionsOf(const SlamdConfig& c,
+                                              const slam::RobotDescription& robot,
+                                              const slam::ParamsChoice& params,
+                                              const slam::BudgetSettings& budget) {
+  slam::server::ServiceOptions options;
+  options.robot = robot;
+  options.params = params;
+  options.budget = budget;
+  options.config.seed = c.seed;
+  options.config.resolution_m = slam::DefaultResolution(robot);
+  options.resume_at_origin = c.source.rfind("sim:", 0) == 0;
+  options.scan_points = c.foxglove_port != 0;  // only Foxglove's /scan shows them
+  return options;
+}
+
+/// The frame source of --source, paced at --speed.
+slam::hw::OpenResult OpenSource(const SlamdConfig& c, const slam::RobotDescription& robot) {
+  slam::server::SourceSpecOptions options;
+  options.paced = true;
+  options.speed = c.speed;
+  options.seed = c.seed;
+  options.odometry = *slam::sim::OdometryProfileFromName(c.odometry);
+  return slam::server::OpenSourceSpec(c.source, robot, options);
+}
+
+/// The Foxglove server's options: HTTP's address, token and host names.
+slam::server::FoxgloveOptions FoxgloveOptionsOf(const SlamdConfig& c,
+                                                const slam::server::HttpOptions& http) {
+  slam::server::FoxgloveOptions fox;
+  fox.bind = c.bind;
+  fox.port = c.foxglove_port;
+  fox.max_queued_bytes = static_cast<size_t>(c.foxglove_buffer_kb) * 1024;
+  fox.token = http.token;
+  fox.allowed_hosts = http.allowed_hosts;
+  return fox;
+}
+
+/// Locks --state-dir for this slamd and takes the saved map and pose to resume from, if any;
+/// an exit status when the directory is another slamd's or its state cannot be resumed.
+std::optional<int> LockAndResume(const std::string& state_dir,
+                                 slam::server::ServiceOptions& service_options,
+                                 std::optional<slam::server::StateDirLock>& state_lock) {
+  if (state_dir.empty()) return std::nullopt;
+  auto locked = slam::server::StateDirLock::Acquire(state_dir);
+  if (!locked.ok()) return Fail(locked.Message(), 1);
+  state_lock.emplace(std::move(locked).value());
+  auto loaded = slam::server::LoadState(state_dir);
+  if (!loaded.ok()) {
+    return Fail("cannot resume the saved state: " + loaded.Message() +
+                "\n(move the state directory away to start with an empty map)");
+  }
+  if (std::optional<slam::server::SavedState>& saved = loaded.value(); saved) {
+    if (std::abs(saved->resolution_m - service_options.config.resolution_m) > 1e-12) {
+      return Fail(state_dir + ": the saved map's resolution differs from this robot's");
+    }
+    service_options.resume = std::move(saved);
+  }
+  return std::nullopt;
+}
+
+/// Serves until one of `signals` arrives (a thread waits for it and stops the server), with the
+/// status line every 5 s unless `quiet`.
+void ServeUntilSignal(sigset_t& signals, slam::server::HttpServer& server,
+                      const slam::server::SlamService& service, const slam::hw::Link& link,
+                      bool quiet) {
+  std::atomic<bool> done{false};
+  std::thread signal_thread([&] {
+    int received = 0;
+    sigwait(&signals, &received);
+    if (!done) {
+      if (!quiet) std::fprintf(stderr, "slamd: %s: stopping\n", strsignal(received));
+      server.Stop();
+    }
+  });
+  std::thread status_thread;
+  if (!quiet) status_thread = std::thread([&] { ReportStatus(service, link, done); });
+
+  server.Run();  // until a signal
+  done = true;
+  pthread_kill(signal_thread.native_handle(), SIGTERM);  // wakes sigwait if no signal came
+  signal_thread.join();
+  if (status_thread.joinable()) status_thread.join();
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -259,40 +343,14 @@ int main(int argc, char** argv) {
   if (!http_options.ok()) return Fail(http_options.Message());
   const slam::server::HttpOptions& http = http_options.value();
 
-  slam::server::ServiceOptions service_options;
-  service_options.robot = robot.value();
-  service_options.params = params;
-  service_options.budget = budget.value();
-  service_options.config.seed = config.seed;
-  service_options.config.resolution_m = slam::DefaultResolution(robot.value());
-  service_options.resume_at_origin = config.source.rfind("sim:", 0) == 0;
-  service_options.scan_points = config.foxglove_port != 0;  // only Foxglove's /scan shows them
+  slam::server::ServiceOptions service_options =
+      ServiceOptionsOf(config, robot.value(), params, budget.value());
   const std::string& state_dir = config.state_dir;
   // Held until slamd exits: a second slamd on the same directory would race its saves.
   std::optional<slam::server::StateDirLock> state_lock;
-  if (!state_dir.empty()) {
-    auto locked = slam::server::StateDirLock::Acquire(state_dir);
-    if (!locked.ok()) return Fail(locked.Message(), 1);
-    state_lock.emplace(std::move(locked).value());
-    auto loaded = slam::server::LoadState(state_dir);
-    if (!loaded.ok()) {
-      return Fail("cannot resume the saved state: " + loaded.Message() +
-                  "\n(move the state directory away to start with an empty map)");
-    }
-    if (std::optional<slam::server::SavedState>& saved = loaded.value(); saved) {
-      if (std::abs(saved->resolution_m - service_options.config.resolution_m) > 1e-12) {
-        return Fail(state_dir + ": the saved map's resolution differs from this robot's");
-      }
-      service_options.resume = std::move(saved);
-    }
-  }
+  if (const auto status = LockAndResume(state_dir, service_options, state_lock)) return *status;
 
-  slam::server::SourceSpecOptions source_options;
-  source_options.paced = true;
-  source_options.speed = config.speed;
-  source_options.seed = config.seed;
-  source_options.odometry = *slam::sim::OdometryProfileFromName(config.odometry);
-  auto opened = slam::server::OpenSourceSpec(config.source, robot.value(), source_options);
+  auto opened = OpenSource(config, robot.value());
   if (!opened.ok()) return Fail(opened.Message(), 1);
   auto frame_source = std::move(opened).value();
   const auto* virtual_robot =
@@ -318,13 +376,7 @@ int main(int argc, char** argv) {
   std::optional<slam::server::FoxgloveServer> foxglove;
   int foxglove_bound = 0;
   if (config.foxglove_port != 0) {
-    slam::server::FoxgloveOptions fox;
-    fox.bind = config.bind;
-    fox.port = config.foxglove_port;
-    fox.max_queued_bytes = static_cast<size_t>(config.foxglove_buffer_kb) * 1024;
-    fox.token = http.token;
-    fox.allowed_hosts = http.allowed_hosts;
-    foxglove.emplace(service, fox);
+    foxglove.emplace(service, FoxgloveOptionsOf(config, http));
     const slam::Result<int> fox_port = foxglove->Bind();
     if (!fox_port.ok()) return Fail(fox_port.Message(), 1);
     foxglove_bound = fox_port.value();
@@ -348,23 +400,7 @@ int main(int argc, char** argv) {
                  static_cast<unsigned long long>(service_options.resume->version));
   }
 
-  std::atomic<bool> done{false};
-  std::thread signal_thread([&] {
-    int received = 0;
-    sigwait(&signals, &received);
-    if (!done) {
-      if (!quiet) std::fprintf(stderr, "slamd: %s: stopping\n", strsignal(received));
-      server.Stop();
-    }
-  });
-  std::thread status_thread;
-  if (!quiet) status_thread = std::thread([&] { ReportStatus(service, link, done); });
-
-  server.Run();  // until a signal
-  done = true;
-  pthread_kill(signal_thread.native_handle(), SIGTERM);  // wakes sigwait if no signal came
-  signal_thread.join();
-  if (status_thread.joinable()) status_thread.join();
+  ServeUntilSignal(signals, server, service, link, quiet);
   if (foxglove) foxglove->Stop();
   service.Stop();
   link.Stop();
