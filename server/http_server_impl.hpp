@@ -100,7 +100,15 @@ struct HttpServer::Impl {
   void HandleBudgetChange(const httplib::Request& req, httplib::Response& res, bool patch);
   void HandleParamsPatch(const httplib::Request& req, httplib::Response& res);
   void HandleTile(const httplib::Request& req, httplib::Response& res);
+  /// GET /api/v1/events: a stream of Server-Sent Events per client (event_stream.cpp), each
+  /// wake-up sending what changed for it: the hello, the map's reset, tiles, pose and metrics,
+  /// the budget, parameters and jobs, the link's and SLAM's states.
   void HandleEvents(const httplib::Request& req, httplib::Response& res);
+  struct EventStream;
+  std::string HelloEvents(EventStream& s, const SlamSnapshot& snapshot, Clock::time_point now);
+  std::string MapEvents(EventStream& s, const SlamSnapshot& snapshot, Clock::time_point now);
+  std::string SettingsEvents(EventStream& s);
+  std::string StatusEvents(EventStream& s);
   void HandleSave(httplib::Response& res);
   void HandleReset(httplib::Response& res);
   json StatusJson();
