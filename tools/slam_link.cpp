@@ -9,6 +9,7 @@
 #include <csignal>
 #include <cstdio>
 #include <iostream>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
@@ -46,6 +47,83 @@ void PrintEvent(const slam::RobotEvent& event) {
     std::printf("%.6f scanner seq=%u angle=%u raw=%u,%u,%u,%u rectifier_mv=%u\n", s.t, s.seq,
                 s.angle_raw, s.raw[0], s.raw[1], s.raw[2], s.raw[3], s.rectifier_mv);
   }
+}
+
+/// Decodes a recorded source to its end on this thread, losing nothing (the link thread would
+/// drop events that arrive faster than they are consumed, as it must on live data); prints the
+/// counters. The exit status.
+int DecodeAsFast(slam::hw::FrameSource& source, const slam::RobotDescription& robot, bool events) {
+  slam::hw::FrameDecoder decoder(robot);
+  slam::ScanAssembler assembler(robot);
+  std::vector<slam::Scan> scans;
+  const slam::Result<void> decoded =
+      slam::hw::DecodeToEnd(source, decoder, [&](const slam::RobotEvent& e) {
+        if (events) PrintEvent(e);
+        scans.clear();
+        assembler.Add(e, scans);
+      });
+  slam::hw::LinkStatus status;
+  status.state = decoded.ok() ? slam::hw::LinkState::kEnded : slam::hw::LinkState::kSourceError;
+  status.source = source.Describe();
+  status.last_error = decoded.ok() ? "" : decoded.Message();
+  status.frames = decoder.frames();
+  status.reassembly = decoder.reassembly();
+  status.decoder = decoder.decoder();
+  status.source_counters = source.Counters();
+  std::fflush(stdout);
+  std::cout << StatusJson(status, assembler.counters()).dump(2) << "\n";
+  return decoded.ok() ? 0 : 1;
+}
+
+/// The status line of the last second.
+void ReportSecond(const slam::hw::LinkStatus& s, const slam::ScanAssemblerCounters& c,
+                  uint64_t last_frames) {
+  std::fprintf(stderr,
+               "[slam-link] %s %s: %llu frames/s, %llu odometry, %llu samples, %llu scans; "
+               "rejected %llu frames, %llu messages; %llu queue drops%s%s\n",
+               s.source.c_str(), slam::hw::ToString(s.state),
+               static_cast<unsigned long long>(s.frames - last_frames),
+               static_cast<unsigned long long>(c.odometry),
+               static_cast<unsigned long long>(c.samples), static_cast<unsigned long long>(c.scans),
+               static_cast<unsigned long long>(s.reassembly.Rejected()),
+               static_cast<unsigned long long>(s.decoder.Rejected()),
+               static_cast<unsigned long long>(s.queue_drops),
+               s.last_error.empty() ? "" : "; last error: ", s.last_error.c_str());
+}
+
+/// Listens through the link thread until the source ends, --seconds pass or a signal, with a
+/// status line every second; prints the counters. The exit status.
+int Listen(std::unique_ptr<slam::hw::FrameSource> source, const slam::RobotDescription& robot,
+           double seconds, bool events) {
+  slam::hw::Link link(std::move(source), robot);
+  slam::ScanAssembler assembler(robot);
+  std::vector<slam::Scan> scans;
+  const auto consume = [&](const slam::hw::LinkEvent& event) {
+    if (events) PrintEvent(event.event);
+    scans.clear();
+    assembler.Add(event.event, scans);
+  };
+  link.Start();
+  const auto start = std::chrono::steady_clock::now();
+  auto next_report = start + std::chrono::seconds(1);
+  uint64_t last_frames = 0;
+  slam::hw::LinkEvent event;
+  while (!g_interrupted && !link.Drained()) {
+    const auto now = std::chrono::steady_clock::now();
+    if (seconds > 0.0 && std::chrono::duration<double>(now - start).count() >= seconds) break;
+    if (link.PopWait(event, std::chrono::milliseconds(20))) consume(event);
+    if (now >= next_report) {
+      const slam::hw::LinkStatus s = link.Status();
+      ReportSecond(s, assembler.counters(), last_frames);
+      last_frames = s.frames;
+      next_report += std::chrono::seconds(1);
+    }
+  }
+  link.Stop();
+  while (link.Pop(event)) consume(event);
+  std::fflush(stdout);
+  std::cout << StatusJson(link.Status(), assembler.counters()).dump(2) << "\n";
+  return 0;
 }
 
 }  // namespace
@@ -99,74 +177,6 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   auto source = std::move(opened).value();
-
-  if (as_fast) {
-    // Recorded data: decode on this thread, losing nothing (the link thread would drop events
-    // that arrive faster than they are consumed, as it must on live data).
-    slam::hw::FrameDecoder decoder(robot.value());
-    slam::ScanAssembler assembler(robot.value());
-    std::vector<slam::Scan> scans;
-    const slam::Result<void> decoded =
-        slam::hw::DecodeToEnd(*source, decoder, [&](const slam::RobotEvent& e) {
-          if (events) PrintEvent(e);
-          scans.clear();
-          assembler.Add(e, scans);
-        });
-    slam::hw::LinkStatus status;
-    status.state = decoded.ok() ? slam::hw::LinkState::kEnded : slam::hw::LinkState::kSourceError;
-    status.source = source->Describe();
-    status.last_error = decoded.ok() ? "" : decoded.Message();
-    status.frames = decoder.frames();
-    status.reassembly = decoder.reassembly();
-    status.decoder = decoder.decoder();
-    status.source_counters = source->Counters();
-    std::fflush(stdout);
-    std::cout << StatusJson(status, assembler.counters()).dump(2) << "\n";
-    return decoded.ok() ? 0 : 1;
-  }
-
-  slam::hw::Link link(std::move(source), robot.value());
-  slam::ScanAssembler assembler(robot.value());
-  std::vector<slam::Scan> scans;
-  link.Start();
-  const auto start = std::chrono::steady_clock::now();
-  auto next_report = start + std::chrono::seconds(1);
-  uint64_t last_frames = 0;
-  slam::hw::LinkEvent event;
-  while (!g_interrupted && !link.Drained()) {
-    const auto now = std::chrono::steady_clock::now();
-    if (seconds > 0.0 && std::chrono::duration<double>(now - start).count() >= seconds) break;
-    if (link.PopWait(event, std::chrono::milliseconds(20))) {
-      if (events) PrintEvent(event.event);
-      scans.clear();
-      assembler.Add(event.event, scans);
-    }
-    if (now >= next_report) {
-      const slam::hw::LinkStatus s = link.Status();
-      const auto& c = assembler.counters();
-      std::fprintf(stderr,
-                   "[slam-link] %s %s: %llu frames/s, %llu odometry, %llu samples, %llu scans; "
-                   "rejected %llu frames, %llu messages; %llu queue drops%s%s\n",
-                   s.source.c_str(), slam::hw::ToString(s.state),
-                   static_cast<unsigned long long>(s.frames - last_frames),
-                   static_cast<unsigned long long>(c.odometry),
-                   static_cast<unsigned long long>(c.samples),
-                   static_cast<unsigned long long>(c.scans),
-                   static_cast<unsigned long long>(s.reassembly.Rejected()),
-                   static_cast<unsigned long long>(s.decoder.Rejected()),
-                   static_cast<unsigned long long>(s.queue_drops),
-                   s.last_error.empty() ? "" : "; last error: ", s.last_error.c_str());
-      last_frames = s.frames;
-      next_report += std::chrono::seconds(1);
-    }
-  }
-  link.Stop();
-  while (link.Pop(event)) {
-    if (events) PrintEvent(event.event);
-    scans.clear();
-    assembler.Add(event.event, scans);
-  }
-  std::fflush(stdout);
-  std::cout << StatusJson(link.Status(), assembler.counters()).dump(2) << "\n";
-  return 0;
+  if (as_fast) return DecodeAsFast(*source, robot.value(), events);
+  return Listen(std::move(source), robot.value(), seconds, events);
 }
