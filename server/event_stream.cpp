@@ -148,18 +148,14 @@ std::string HttpServer::Impl::SettingsEvents(EventStream& s) {
     if (s.budget_revision != 0) out += SseEvent("budget", s.covered, BudgetJson(budget.budget));
     s.budget_revision = budget.revision;
   }
-  {
-    MutexLock lock(params_mutex);
-    const uint64_t params_revision = service.ParamsRevision();
-    if (s.params_revision != params_revision) {
-      if (s.params_revision != 0) {
-        const ParamsSet set = service.Params();
-        json event = io::ParamsToJson(set.params);
-        event["set"] = set.name;
-        out += SseEvent("params", s.covered, event);
-      }
-      s.params_revision = params_revision;
+  const SlamService::RevisedParams params = service.ParamsRevised();
+  if (s.params_revision != params.revision) {
+    if (s.params_revision != 0) {
+      json event = io::ParamsToJson(params.set.params);
+      event["set"] = params.set.name;
+      out += SseEvent("params", s.covered, event);
     }
+    s.params_revision = params.revision;
   }
   const uint64_t job_revision = jobs.revision();
   if (job_revision != s.job_revision) {

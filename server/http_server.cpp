@@ -84,40 +84,29 @@ void HttpServer::Impl::HandleBudgetChange(const httplib::Request& req, httplib::
 void HttpServer::Impl::HandleParamsPatch(const httplib::Request& req, httplib::Response& res) {
   json body;
   if (!ParseBody(req, res, "application/merge-patch+json", body)) return;
-  MutexLock lock(params_mutex);
   const std::string if_match = req.get_header_value("If-Match");
-  if (HeadHasField(req, "If-Match") && !EntityTagListMatches(if_match, ParamsEtag(), false)) {
-    res.set_header("ETag", ParamsEtag());
+  const bool conditional = HeadHasField(req, "If-Match");
+  const SlamService::ParamsChange change = service.ChangeParams(
+      [&](uint64_t revision) {
+        return !conditional || EntityTagListMatches(if_match, ParamsEtag(revision), false);
+      },
+      [&](const SlamParams& current, const SlamParams& shipped) -> Result<SlamParams> {
+        if (!body.is_object()) return ConfigErrors{{"", "must be a JSON object", 0}};
+        return io::ApplyParamsPatch(current, body, shipped);
+      });
+  res.set_header("ETag", ParamsEtag(change.revision));
+  if (change.precondition_failed) {
     SendProblem(res, 412, "Precondition Failed",
-                "the parameters changed since " + if_match + "; they are now " + ParamsEtag());
-    return;
+                "the parameters changed since " + if_match + "; they are now " +
+                    ParamsEtag(change.revision));
+  } else if (!change.errors.empty()) {
+    SendProblem(res, 422, "Invalid parameters",
+                body.is_object() ? "the parameters were not changed"
+                                 : "a merge patch of the parameters must be an object",
+                change.errors);
+  } else {
+    SendJson(res, io::ParamsToJson(change.params));
   }
-  if (!body.is_object()) {
-    SendProblem(res, 422, "Invalid parameters", "a merge patch of the parameters must be an object",
-                {{"", "must be a JSON object", 0}});
-    return;
-  }
-  const ParamsSet current = service.Params();
-  const ParamsSet shipped = service.ShippedParamsNow();
-  auto result = io::ApplyParamsPatch(current.params, body, shipped.params);
-  if (!result.ok()) {
-    SendProblem(res, 422, "Invalid parameters", "the parameters were not changed", result.errors());
-    return;
-  }
-  if (!(result.value() == current.params)) {
-    if (result.value() == shipped.params) {
-      // Every change undone (null resets to the shipped set): the sets follow the budget again.
-      service.UseShippedParams();
-    } else {
-      // Named after the set it was patched from; it stays in use whatever the budget.
-      constexpr std::string_view kPatched = ", patched";
-      const bool patched = current.name.ends_with(kPatched);
-      service.SetParams(patched ? current.name : current.name + std::string(kPatched),
-                        result.value());
-    }
-  }
-  res.set_header("ETag", ParamsEtag());
-  SendJson(res, io::ParamsToJson(result.value()));
 }
 
 void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response& res) {
@@ -416,17 +405,17 @@ void HttpServer::Impl::AddStateRoutes() {
         [this](const Request& req, Response& res) { HandleBudgetChange(req, res, false); });
 
   Route("GET", "/api/v1/params", [this](const Request&, Response& res) {
-    res.set_header("ETag", ParamsEtag());
-    SendJson(res, io::ParamsToJson(service.Params().params));
+    const SlamService::RevisedParams params = service.ParamsRevised();
+    res.set_header("ETag", ParamsEtag(params.revision));
+    SendJson(res, io::ParamsToJson(params.set.params));
   });
   Route("PATCH", "/api/v1/params",
         [this](const Request& req, Response& res) { HandleParamsPatch(req, res); });
   // Back to the shipped set of each scan's budget (after a PATCH or --params).
   Route("DELETE", "/api/v1/params", [this](const Request&, Response& res) {
-    MutexLock lock(params_mutex);
-    service.UseShippedParams();
-    res.set_header("ETag", ParamsEtag());
-    SendJson(res, io::ParamsToJson(service.Params().params));
+    const SlamService::RevisedParams params = service.ResetParams();
+    res.set_header("ETag", ParamsEtag(params.revision));
+    SendJson(res, io::ParamsToJson(params.set.params));
   });
 }
 

@@ -57,10 +57,6 @@ struct HttpServer::Impl {
   std::atomic<int> streams{0};
   std::atomic<uint64_t> streams_rejected{0};
 
-  // The budget and the parameters, and their revisions (the ETags), are the service's; this
-  // serialises a PATCH's read-modify-write of the parameters.
-  Mutex params_mutex;
-
   SaveCoordinator saves{service, options.state_dir};
   // A reset request waiting for the SLAM thread to apply its reset (at most one: see HandleReset).
   std::atomic<bool> reset_waiting{false};
@@ -75,7 +71,9 @@ struct HttpServer::Impl {
   static std::string BudgetEtag(uint64_t revision) {
     return "\"b" + std::to_string(revision) + "\"";
   }
-  std::string ParamsEtag() const { return "\"p" + std::to_string(service.ParamsRevision()) + "\""; }
+  static std::string ParamsEtag(uint64_t revision) {
+    return "\"p" + std::to_string(revision) + "\"";
+  }
 
   /// The server's settings and handlers, then every route (the Add* below, in order).
   void Setup();

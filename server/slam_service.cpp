@@ -227,6 +227,50 @@ void SlamService::SetParams(const std::string& name, const SlamParams& params) {
   ReviseParams();
 }
 
+SlamService::RevisedParams SlamService::ParamsRevised() const {
+  MutexLock lock(mutex_);
+  return {params_.For(scheduler_.Quota(last_period_s_)), params_revision_};
+}
+
+SlamService::RevisedParams SlamService::ResetParams() {
+  MutexLock change_lock(params_change_mutex_);
+  UseShippedParams();
+  return ParamsRevised();
+}
+
+SlamService::ParamsChange SlamService::ChangeParams(
+    const std::function<bool(uint64_t revision)>& precondition,
+    const std::function<Result<SlamParams>(const SlamParams&, const SlamParams&)>& change) {
+  MutexLock change_lock(params_change_mutex_);
+  ParamsChange out;
+  out.revision = ParamsRevision();
+  if (!precondition(out.revision)) {
+    out.precondition_failed = true;
+    return out;
+  }
+  const ParamsSet current = Params();
+  const ParamsSet shipped = ShippedParamsNow();
+  const Result<SlamParams> changed = change(current.params, shipped.params);
+  if (!changed.ok()) {
+    out.errors = changed.errors();
+    return out;
+  }
+  out.params = changed.value();
+  if (!(out.params == current.params)) {
+    if (out.params == shipped.params) {
+      // Every change undone (null resets to the shipped set): the sets follow the budget again.
+      UseShippedParams();
+    } else {
+      // Named after the set it was patched from; it stays in use whatever the budget.
+      constexpr std::string_view kPatched = ", patched";
+      const bool patched = current.name.ends_with(kPatched);
+      SetParams(patched ? current.name : current.name + std::string(kPatched), out.params);
+    }
+  }
+  out.revision = ParamsRevision();
+  return out;
+}
+
 void SlamService::UseShippedParams() {
   MutexLock lock(mutex_);
   params_ = ParamsChoice(FamilyOf(options_.robot));

@@ -193,6 +193,31 @@ class SlamService {
   void SetParams(const std::string& name, const SlamParams& params);
   /// Goes back to the shipped set of each scan's quota from the next scan.
   void UseShippedParams();
+  /// The parameter set in use with its revision, read together.
+  struct RevisedParams {
+    ParamsSet set;
+    uint64_t revision = 0;
+  };
+  RevisedParams ParamsRevised() const;
+  /// UseShippedParams, atomically with every other change of the parameters; what is in use
+  /// after.
+  RevisedParams ResetParams();
+  /// What ChangeParams did.
+  struct ParamsChange {
+    bool precondition_failed = false;  // nothing changed: the precondition refused the revision
+    ConfigErrors errors;               // nothing changed: what the change found wrong
+    SlamParams params;                 // the parameters the change made (valid when no errors)
+    uint64_t revision = 0;             // the revision after
+  };
+  /// Replaces the parameters with `change(current, shipped)` (the set in use and the shipped set
+  /// of the current quota; a validated result, or what is wrong) if `precondition(revision)`
+  /// holds, atomically with every other change of the parameters. A result equal to the shipped
+  /// set follows the budget's sets again; another is named after the set it came from
+  /// ("NAME, patched") and stays whatever the budget. Thread-safe.
+  ParamsChange ChangeParams(
+      const std::function<bool(uint64_t revision)>& precondition,
+      const std::function<Result<SlamParams>(const SlamParams& current, const SlamParams& shipped)>&
+          change);
   /// Clears the map and trajectory; takes effect before the next scan.
   void RequestReset();
 
@@ -251,8 +276,9 @@ class SlamService {
   std::shared_ptr<const SlamSnapshot> snapshot_ SLAM_GUARDED_BY(mutex_);
   ServiceCounters counters_ SLAM_GUARDED_BY(mutex_);
   std::vector<TimedPose> truth_map_ SLAM_GUARDED_BY(mutex_);  // map frame
-  // Serialises changes of the budget; taken before mutex_, never after.
+  // Serialise changes of the budget, and of the parameters; taken before mutex_, never after.
   mutable Mutex budget_mutex_;
+  Mutex params_change_mutex_;
   uint64_t budget_revision_ SLAM_GUARDED_BY(budget_mutex_) = 1;
   ParamsChoice params_ SLAM_GUARDED_BY(mutex_);
   bool params_changed_ SLAM_GUARDED_BY(mutex_) = false;

@@ -684,6 +684,43 @@ TEST_F(SlamServiceTest, TheBudgetsRevisionMovesWithEveryChangeAndOnlyThen) {
   EXPECT_EQ(service.BudgetRevised().revision, changed.revision + 1);
 }
 
+TEST_F(SlamServiceTest, ParamsChangesAreConditionalNamedAndRevisedByTheService) {
+  auto link = MakeLink();
+  SlamService service(*link, nullptr, Options());
+  const SlamService::RevisedParams start = service.ParamsRevised();
+  const auto with_particles = [](int particles) {
+    return [particles](const SlamParams& current, const SlamParams&) -> Result<SlamParams> {
+      SlamParams next = current;
+      next.particles = particles;
+      return next;
+    };
+  };
+  const auto at = [](uint64_t expected) {
+    return [expected](uint64_t revision) { return revision == expected; };
+  };
+  const SlamService::ParamsChange changed =
+      service.ChangeParams(at(start.revision), with_particles(start.set.params.particles + 1));
+  ASSERT_TRUE(changed.errors.empty());
+  EXPECT_EQ(changed.revision, start.revision + 1);
+  EXPECT_EQ(service.ParamsRevised().set.name, start.set.name + ", patched");
+  EXPECT_FALSE(service.ParamsFollowQuota());
+  // A stale revision changes nothing; nor does a change that finds something wrong.
+  EXPECT_TRUE(service.ChangeParams(at(start.revision), with_particles(7)).precondition_failed);
+  const SlamService::ParamsChange wrong = service.ChangeParams(
+      at(changed.revision),
+      [](const SlamParams&, const SlamParams&) -> Result<SlamParams> { return Error("no"); });
+  EXPECT_FALSE(wrong.errors.empty());
+  EXPECT_EQ(service.ParamsRevised().revision, changed.revision);
+  EXPECT_EQ(service.Params().params.particles, start.set.params.particles + 1);
+  // Patched back to the shipped set: the sets follow the budget again.
+  const SlamService::ParamsChange back = service.ChangeParams(
+      at(changed.revision),
+      [](const SlamParams&, const SlamParams& shipped) -> Result<SlamParams> { return shipped; });
+  EXPECT_EQ(back.revision, changed.revision + 1);
+  EXPECT_TRUE(service.ParamsFollowQuota());
+  EXPECT_EQ(service.ResetParams().revision, back.revision);  // already there: no new revision
+}
+
 TEST_F(SlamServiceTest, BudgetChangesApplyFromTheNextScanAndResetKeepsVersionsGrowing) {
   ASSERT_TRUE(*experiment_);
   auto link = MakeLink();
