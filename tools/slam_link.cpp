@@ -126,6 +126,32 @@ int Listen(std::unique_ptr<slam::hw::FrameSource> source, const slam::RobotDescr
   return 0;
 }
 
+/// slam-link's command line, as parsed.
+struct LinkConfig {
+  std::string spec;
+  std::string robot_path = slam::io::ShippedPath("config/marxbot.robot.json");
+  double seconds = 0.0;
+  bool events = false;
+  bool as_fast = false;
+};
+
+void AddOptions(CLI::App& app, LinkConfig& c) {
+  app.add_option("--source", c.spec,
+                 "sim:WORLD (a built-in world: " + slam::sim::BuiltinWorldList() +
+                     "; or a world.json), candump:FILE, slcan:DEVICE, "
+                     "udp:[ADDRESS:]PORT[,from=SENDER] (loopback unless ADDRESS is given) or "
+                     "socketcan:IFACE")
+      ->required();
+  app.add_option("--robot", c.robot_path, "robot description")->capture_default_str();
+  app.add_option("--seconds", c.seconds, "stop after this many seconds (0: never)")
+      ->check(CLI::Range(0.0, 1e9));
+  app.add_flag("--events", c.events, "print every decoded event on stdout");
+  app.add_flag("--as-fast", c.as_fast,
+               "sim and candump: decode as fast as possible on one thread, losing nothing, "
+               "instead of paced through the link thread (needs a source that ends: a log, or "
+               "sim with --seconds)");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -133,43 +159,26 @@ int main(int argc, char** argv) {
       "Listens to the robot through a source and reports what the link decodes: frames, Aseba "
       "messages, robot events, every rejection, and the scans they assemble into. Ends when the "
       "source ends, after --seconds, or on Ctrl-C, printing all counters as JSON on stdout."};
-  std::string spec;
-  std::string robot_path = slam::io::ShippedPath("config/marxbot.robot.json");
-  double seconds = 0.0;
-  bool events = false;
-  bool as_fast = false;
-  app.add_option("--source", spec,
-                 "sim:WORLD (a built-in world: " + slam::sim::BuiltinWorldList() +
-                     "; or a world.json), candump:FILE, slcan:DEVICE, "
-                     "udp:[ADDRESS:]PORT[,from=SENDER] (loopback unless ADDRESS is given) or "
-                     "socketcan:IFACE")
-      ->required();
-  app.add_option("--robot", robot_path, "robot description")->capture_default_str();
-  app.add_option("--seconds", seconds, "stop after this many seconds (0: never)")
-      ->check(CLI::Range(0.0, 1e9));
-  app.add_flag("--events", events, "print every decoded event on stdout");
-  app.add_flag("--as-fast", as_fast,
-               "sim and candump: decode as fast as possible on one thread, losing nothing, "
-               "instead of paced through the link thread (needs a source that ends: a log, or "
-               "sim with --seconds)");
+  LinkConfig config;
+  AddOptions(app, config);
   app.set_version_flag("--version", std::string("slam-link ") + SLAM_VERSION);
   if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
 
-  const auto robot = slam::io::LoadRobot(robot_path);
+  const auto robot = slam::io::LoadRobot(config.robot_path);
   if (!robot.ok()) {
     std::cerr << "slam-link: " << robot.Message() << "\n";
     return 1;
   }
   slam::server::SourceSpecOptions options;
-  options.paced = !as_fast;
-  if (as_fast) {
-    if (spec.rfind("sim:", 0) == 0 && seconds <= 0.0) {
+  options.paced = !config.as_fast;
+  if (config.as_fast) {
+    if (config.spec.rfind("sim:", 0) == 0 && config.seconds <= 0.0) {
       std::cerr << "slam-link: --as-fast with a sim source needs --seconds (simulated time)\n";
       return 2;
     }
-    options.duration_s = seconds;
+    options.duration_s = config.seconds;
   }
-  auto opened = slam::server::OpenSourceSpec(spec, robot.value(), options);
+  auto opened = slam::server::OpenSourceSpec(config.spec, robot.value(), options);
   if (!opened.ok()) {
     std::cerr << "slam-link: " << opened.Message() << "\n";
     return 1;
@@ -177,6 +186,6 @@ int main(int argc, char** argv) {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   auto source = std::move(opened).value();
-  if (as_fast) return DecodeAsFast(*source, robot.value(), events);
-  return Listen(std::move(source), robot.value(), seconds, events);
+  if (config.as_fast) return DecodeAsFast(*source, robot.value(), config.events);
+  return Listen(std::move(source), robot.value(), config.seconds, config.events);
 }

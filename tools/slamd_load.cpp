@@ -40,10 +40,8 @@ std::string Trim(std::string text) {
   return text;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  CLI::App app{"slamd-load: event-stream viewers plus REST requests at a fixed rate against slamd"};
+/// slamd-load's command line, as parsed.
+struct LoadConfig {
   std::string url;
   int viewers = 8;
   double rate_hz = 500;
@@ -52,78 +50,91 @@ int main(int argc, char** argv) {
   int pid = 0;
   int connections = 4;
   bool as_json = false;
-  std::string foxglove_url;
+  std::string foxglove_url;  // with foxglove_given
+  bool foxglove_given = false;
   int foxglove_clients = 4;
-  app.add_option("--url", url, "slamd's base URL, e.g. http://127.0.0.1:8080/")->required();
-  app.add_option("--viewers", viewers, "event-stream viewers (each fetches announced tiles)")
+};
+
+void AddOptions(CLI::App& app, LoadConfig& c) {
+  app.add_option("--url", c.url, "slamd's base URL, e.g. http://127.0.0.1:8080/")->required();
+  app.add_option("--viewers", c.viewers, "event-stream viewers (each fetches announced tiles)")
       ->capture_default_str()
       ->check(CLI::Range(0, 1000));
-  app.add_option("--rate", rate_hz, "REST requests per second (open loop)")
+  app.add_option("--rate", c.rate_hz, "REST requests per second (open loop)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 100000.0));
-  app.add_option("--duration", duration_s, "seconds of load")
+  app.add_option("--duration", c.duration_s, "seconds of load")
       ->capture_default_str()
       ->check(CLI::Range(0.1, 86400.0));
-  app.add_option("--token-file", token_file, "bearer token for the PATCH requests")
+  app.add_option("--token-file", c.token_file, "bearer token for the PATCH requests")
       ->check(CLI::ExistingFile);
-  app.add_option("--pid", pid, "slamd's process id: its RSS is sampled every second")
+  app.add_option("--pid", c.pid, "slamd's process id: its RSS is sampled every second")
       ->check(CLI::PositiveNumber);
-  app.add_option("--connections", connections, "keep-alive connections for the REST requests")
+  app.add_option("--connections", c.connections, "keep-alive connections for the REST requests")
       ->capture_default_str()
       ->check(CLI::Range(1, 256));
-  auto* foxglove_opt =
-      app.add_option("--foxglove", foxglove_url,
-                     "slamd's Foxglove WebSocket server, e.g. ws://127.0.0.1:8765: Foxglove "
-                     "clients subscribe to every channel and read every message");
-  app.add_option("--foxglove-clients", foxglove_clients, "Foxglove clients (with --foxglove)")
+  app.add_option("--foxglove", c.foxglove_url,
+                 "slamd's Foxglove WebSocket server, e.g. ws://127.0.0.1:8765: Foxglove "
+                 "clients subscribe to every channel and read every message");
+  app.add_option("--foxglove-clients", c.foxglove_clients, "Foxglove clients (with --foxglove)")
       ->capture_default_str()
       ->check(CLI::Range(1, 100));
-  app.add_flag("--json", as_json, "print one JSON object on stdout (the table goes to stderr)");
-  app.set_version_flag("--version", std::string("slamd-load ") + SLAM_VERSION);
-  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
+  app.add_flag("--json", c.as_json, "print one JSON object on stdout (the table goes to stderr)");
+}
 
-  const auto target = slam::loadgen::ParseUrl(url);
+/// The load run the configuration asks for, or why it cannot be run.
+slam::Result<slam::loadgen::LoadOptions> ToLoadOptions(const LoadConfig& c) {
+  const auto target = slam::loadgen::ParseUrl(c.url);
   if (!target) {
-    std::cerr << "slamd-load: --url must look like http://HOST:PORT/, got '" << url << "'\n";
-    return 2;
+    return slam::Error("--url must look like http://HOST:PORT/, got '" + c.url + "'");
   }
-  std::string token;
-  if (!token_file.empty()) {
-    std::ifstream in(token_file);
+  slam::loadgen::LoadOptions options;
+  if (!c.token_file.empty()) {
+    std::ifstream in(c.token_file);
     std::stringstream text;
     text << in.rdbuf();
-    token = Trim(text.str());
-    if (token.empty()) {
-      std::cerr << "slamd-load: the token file " << token_file << " is empty\n";
-      return 2;
-    }
+    options.token = Trim(text.str());
+    if (options.token.empty()) return slam::Error("the token file " + c.token_file + " is empty");
   }
-
-  slam::loadgen::LoadOptions options;
-  if (*foxglove_opt) {
-    const auto foxglove = slam::loadgen::ParseUrl(foxglove_url, "ws://");
+  if (c.foxglove_given) {
+    const auto foxglove = slam::loadgen::ParseUrl(c.foxglove_url, "ws://");
     if (!foxglove) {
-      std::cerr << "slamd-load: --foxglove must look like ws://HOST:PORT, got '" << foxglove_url
-                << "'\n";
-      return 2;
+      return slam::Error("--foxglove must look like ws://HOST:PORT, got '" + c.foxglove_url + "'");
     }
     options.foxglove = *foxglove;
-    options.foxglove_clients = foxglove_clients;
+    options.foxglove_clients = c.foxglove_clients;
   }
-  options.url = url;
+  options.url = c.url;
   options.target = *target;
-  options.viewers = viewers;
-  options.rate_hz = rate_hz;
-  options.duration_s = duration_s;
-  options.connections = connections;
-  options.token = token;
-  options.pid = pid;
-  const auto report = slam::loadgen::RunLoad(options);
+  options.viewers = c.viewers;
+  options.rate_hz = c.rate_hz;
+  options.duration_s = c.duration_s;
+  options.connections = c.connections;
+  options.pid = c.pid;
+  return options;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"slamd-load: event-stream viewers plus REST requests at a fixed rate against slamd"};
+  LoadConfig config;
+  AddOptions(app, config);
+  app.set_version_flag("--version", std::string("slamd-load ") + SLAM_VERSION);
+  if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
+  config.foxglove_given = app.count("--foxglove") > 0;
+
+  const auto options = ToLoadOptions(config);
+  if (!options.ok()) {
+    std::cerr << "slamd-load: " << options.Message() << "\n";
+    return 2;
+  }
+  const auto report = slam::loadgen::RunLoad(options.value());
   if (!report.ok()) {
     std::cerr << "slamd-load: " << report.Message() << "\n";
     return 1;
   }
-  slam::loadgen::PrintTable(report.value(), as_json ? std::cerr : std::cout);
-  if (as_json) std::cout << report.value().dump() << std::endl;
+  slam::loadgen::PrintTable(report.value(), config.as_json ? std::cerr : std::cout);
+  if (config.as_json) std::cout << report.value().dump() << std::endl;
   return 0;
 }
