@@ -1,0 +1,175 @@
+#pragma once
+// The global scan matcher: where in a whole map (or a given region of it) a set of points
+// fits best, with a score that says how sure the fit is. It answers "where am I?" when the
+// tracker has no prior: at start on a saved map, after a kidnap, when the track is lost.
+//
+// Branch and bound over a precomputed multi-resolution view of the map, as the fast
+// correlative matchers do (Olson, "Real-time correlative scan matching", ICRA 2009; Hess et
+// al., "Real-time loop closure in 2D LIDAR SLAM", ICRA 2016):
+//
+// - MatchField: the map at the search's own resolution (coarser than the map's: the tracker
+//   refines the answer), each cell scored 0..255 by its distance to the nearest occupied cell
+//   (a Gaussian of `sigma_m`, the basin a point may land in), and `levels` further views where
+//   cell (x, y) of level k holds the largest score of the 2^k x 2^k cells from (x, y) on.
+// - A query is points in its own frame: a multiscan, the readings of the last seconds placed
+//   by the tracker (a sparse scanner sees too little in one scan to be placed globally). A
+//   candidate pose is a heading from a discrete set and a translation in whole cells; its
+//   score is the sum of the level-0 scores of the cells its points fall into.
+// - GlobalSearch: depth-first over the headings and a quadtree of translations; a node of
+//   level k stands for 2^k x 2^k translations and is bounded by the sum of level-k scores
+//   (never below any of its translations' scores), so a node whose bound cannot beat the best
+//   found is dropped unseen. The answer equals an exhaustive search's (tests/global_matcher_
+//   test.cpp checks it against one).
+//
+// The search is anytime and pays per point looked up: Continue(lookups) runs until it has
+// spent that many (a scan's share of the ray budget) or has ended, keeping the best answer so
+// far, and the next call goes on where it stopped.
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "engine/occupancy_grid.hpp"
+#include "engine/pose.hpp"
+
+namespace slam {
+
+/// How a map is turned into a MatchField.
+struct MatchFieldConfig {
+  double resolution_m = 0.04;  // of the field's cells (a multiple of nothing: any size works)
+  double sigma_m = 0.04;       // the score's Gaussian in the distance to an occupied cell
+  int levels = 6;              // views above the field itself: the quadtree's top covers 2^6 cells
+  LogOdds occupied_above = 0;  // a map cell above this log odds is occupied
+};
+
+/// A map as the global matcher reads it (see the file comment). Immutable once built; share it
+/// between searches.
+class MatchField {
+ public:
+  /// The field of `grid`'s occupied cells. An empty grid gives an empty field (every score 0).
+  /// Precondition: config.resolution_m > 0, config.sigma_m > 0, 0 <= config.levels <= 12.
+  static MatchField FromGrid(const OccupancyGrid& grid, const MatchFieldConfig& config);
+  /// A field from its level-0 scores, row-major (`width` x `height` cells of `resolution_m`,
+  /// cell (0, 0) at field cell `origin`): for tests and for maps scored elsewhere.
+  static MatchField FromScores(double resolution_m, CellIndex origin, int width, int height,
+                               std::vector<uint8_t> scores, int levels);
+
+  double resolution() const { return resolution_; }
+  int levels() const { return static_cast<int>(views_.size()) - 1; }
+  /// The score of field cell `c` at `level` (the largest level-0 score of the 2^level square of
+  /// cells from `c` on); 0 outside the field.
+  uint8_t At(int level, CellIndex c) const {
+    const int64_t u = int64_t{c.x} - origin_.x, v = int64_t{c.y} - origin_.y;
+    if (u < 0 || v < 0 || u >= width_ || v >= height_) return 0;
+    return views_[static_cast<size_t>(level)][static_cast<size_t>(v * width_ + u)];
+  }
+  /// The field cells with a score, as [min, max) corners: where a point can score.
+  CellIndex min_cell() const { return {origin_.x + pad_, origin_.y + pad_}; }
+  CellIndex max_cell() const {
+    return {origin_.x + static_cast<int32_t>(width_), origin_.y + static_cast<int32_t>(height_)};
+  }
+  /// Whether no cell scores at all.
+  bool empty() const { return empty_; }
+
+ private:
+  void BuildViews(int levels);
+
+  double resolution_ = 0.04;
+  CellIndex origin_{0, 0};  // field cell of index 0 in every view
+  int64_t width_ = 0, height_ = 0;
+  int32_t pad_ = 0;  // the views start this many cells below the scored cells
+  bool empty_ = true;
+  std::vector<std::vector<uint8_t>> views_;  // level 0 .. levels
+};
+
+/// Where a search looks: translations within `half_width_m` of `center` on both axes (the whole
+/// field when `whole_map`), headings within `half_angle_rad` of `heading` (every heading when it
+/// is pi or more).
+struct GlobalRegion {
+  bool whole_map = true;
+  Vec2 center = Vec2::Zero();
+  double half_width_m = 0.0;
+  double heading = 0.0;
+  double half_angle_rad = kPi;
+};
+
+/// One candidate pose with its score.
+struct GlobalMatch {
+  Pose2 pose;          // the query frame's pose in the map
+  int64_t raw = 0;     // the sum of the points' scores
+  double score = 0.0;  // raw / (255 * points): 1 when every point sits on a wall
+};
+
+/// A global search's options.
+struct GlobalSearchConfig {
+  /// Candidates scoring below this (a fraction of the perfect score) are never answers; a
+  /// higher floor prunes more.
+  double min_score = 0.3;
+  /// The runner-up is the best candidate at least this far from the best (either bound): how
+  /// much a second place scores says how unique the answer is.
+  double distinct_m = 0.3;
+  double distinct_rad = DegToRad(20.0);
+};
+
+/// An anytime branch-and-bound search of one query over a field (see the file comment).
+class GlobalSearch {
+ public:
+  /// Precondition: `field` outlives nothing of ours (shared), `points` finite.
+  GlobalSearch(std::shared_ptr<const MatchField> field, std::vector<Vec2> points,
+               const GlobalRegion& region, const GlobalSearchConfig& config = {});
+
+  /// Searches until `max_lookups` point scores were looked up (at least one node is always
+  /// expanded, so every call progresses) or the search has ended. Returns whether it has ended.
+  bool Continue(int64_t max_lookups);
+  /// Runs to the end.
+  void Finish();
+
+  bool done() const { return done_; }
+  /// The best candidate scoring at least min_score found so far (the best of all once done()).
+  const std::optional<GlobalMatch>& best() const { return best_; }
+  /// The best candidate found so far that is distinct from best() (GlobalSearchConfig), as
+  /// far as the search saw: candidates that could not beat the runner-up of their time are
+  /// never scored, so a later best may leave a lower second place than an exhaustive search.
+  const std::optional<GlobalMatch>& runner_up() const { return runner_up_; }
+  /// Point scores looked up so far: the search's cost.
+  int64_t lookups() const { return lookups_; }
+  /// The headings the search tries (their spacing moves the farthest point by about a cell).
+  size_t headings() const { return headings_.size(); }
+  /// The translations (whole field cells) it tries on each axis, as [min, max].
+  CellIndex min_offset() const { return min_offset_; }
+  CellIndex max_offset() const { return max_offset_; }
+
+  /// The pose of a candidate: heading index `h`, translation `offset` in field cells.
+  Pose2 CandidatePose(size_t h, CellIndex offset) const;
+  /// The cells the points fall into under heading `h` with a zero translation: a candidate's
+  /// cells are these plus its offset.
+  const std::vector<CellIndex>& PointCells(size_t h) const { return cells_[h]; }
+
+ private:
+  struct Node {
+    uint32_t heading;
+    int32_t x, y;
+    int32_t level;
+    int64_t bound;
+  };
+  int64_t Bound(const Node& node);
+  void Offer(const Node& leaf);
+  int64_t Threshold() const;
+
+  std::shared_ptr<const MatchField> field_;
+  GlobalSearchConfig config_;
+  size_t point_count_ = 0;
+  std::vector<double> headings_;
+  std::vector<std::vector<CellIndex>> cells_;  // per heading
+  CellIndex min_offset_{0, 0}, max_offset_{-1, -1};
+  int64_t min_raw_ = 0;
+  std::vector<Node> stack_;
+  Node next_top_{0, 0, 0, 0, 0};  // the next top-level node to score, until started_
+  bool started_ = false;
+  bool done_ = false;
+  int64_t lookups_ = 0;
+  std::optional<GlobalMatch> best_, runner_up_;
+};
+
+}  // namespace slam

@@ -1,0 +1,264 @@
+// The global scan matcher on maps drawn cell by cell and on random fields, against an
+// exhaustive search of the same candidates.
+#include "engine/global_matcher.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <vector>
+
+#include "engine/cell_encoding.hpp"
+#include "engine/random.hpp"
+
+namespace slam {
+namespace {
+
+constexpr double kMapCell = 0.02;
+
+// The exhaustive answer: the largest sum of level-0 scores over every candidate the search has.
+int64_t BruteForceBest(const MatchField& field, const GlobalSearch& search) {
+  int64_t best = 0;
+  for (size_t h = 0; h < search.headings(); ++h) {
+    for (int32_t y = search.min_offset().y; y <= search.max_offset().y; ++y) {
+      for (int32_t x = search.min_offset().x; x <= search.max_offset().x; ++x) {
+        int64_t sum = 0;
+        for (const CellIndex& c : search.PointCells(h)) sum += field.At(0, {c.x + x, c.y + y});
+        best = std::max(best, sum);
+      }
+    }
+  }
+  return best;
+}
+
+// The raw score of a candidate found by the search, recomputed from its pose.
+int64_t ScoreAt(const MatchField& field, const GlobalSearch& search, const GlobalMatch& m) {
+  for (size_t h = 0; h < search.headings(); ++h) {
+    const Pose2 first = search.CandidatePose(h, {0, 0});
+    if (std::abs(NormalizeAngle(first.theta - m.pose.theta)) > 1e-12) continue;
+    const CellIndex offset{static_cast<int32_t>(std::lround(m.pose.x / field.resolution())),
+                           static_cast<int32_t>(std::lround(m.pose.y / field.resolution()))};
+    int64_t sum = 0;
+    for (const CellIndex& c : search.PointCells(h)) {
+      sum += field.At(0, {c.x + offset.x, c.y + offset.y});
+    }
+    return sum;
+  }
+  return -1;
+}
+
+// An L-shaped room of 2 cm cells (no symmetry): the outline from (-1, -1) to (1.4, 1) with the
+// corner (0.6..1.4, 0.3..1) cut out, walls one cell thick, plus a pillar at (-0.4, 0.4).
+std::vector<Vec2> LRoomOutline() {
+  const std::vector<Vec2> corners{{-1.0, -1.0}, {1.4, -1.0}, {1.4, 0.3},  {0.6, 0.3},
+                                  {0.6, 1.0},   {-1.0, 1.0}, {-1.0, -1.0}};
+  std::vector<Vec2> points;
+  for (size_t k = 0; k + 1 < corners.size(); ++k) {
+    const Vec2 a = corners[k], b = corners[k + 1];
+    const int steps = static_cast<int>(std::ceil((b - a).norm() / (kMapCell / 2)));
+    for (int i = 0; i < steps; ++i) points.push_back(a + (b - a) * (double(i) / steps));
+  }
+  for (int i = -3; i <= 3; ++i) {
+    for (int j = -3; j <= 3; ++j) points.push_back({-0.4 + i * 0.01, 0.4 + j * 0.01});
+  }
+  return points;
+}
+
+OccupancyGrid DrawnGrid(const std::vector<Vec2>& outline) {
+  OccupancyGrid grid(GridGeometry(kMapCell), EncodeLogOdds(5.0));
+  grid.BeginWrite();
+  for (const Vec2& p : outline) {
+    const CellIndex c = grid.geometry().CellOf(p);
+    if (grid.At(c) <= 0) grid.Add(c, EncodeLogOdds(3.0));
+  }
+  grid.RefreshSummaries();
+  return grid;
+}
+
+// What a robot at `pose` would see of the outline: every wall point within `range` in front of
+// or beside it, every `every`-th, in the robot's frame.
+std::vector<Vec2> SeenFrom(const std::vector<Vec2>& outline, const Pose2& pose, double range,
+                           size_t every) {
+  std::vector<Vec2> seen;
+  const Pose2 inverse = Inverse(pose);
+  for (size_t i = 0; i < outline.size(); i += every) {
+    const Vec2 local = inverse.Transform(outline[i]);
+    if (local.norm() <= range) seen.push_back(local);
+  }
+  return seen;
+}
+
+TEST(MatchFieldTest, ScoresFallWithDistanceAndViewsHoldTheirWindowsLargest) {
+  OccupancyGrid grid(GridGeometry(kMapCell), EncodeLogOdds(5.0));
+  grid.BeginWrite();
+  grid.Add({10, 10}, EncodeLogOdds(2.0));   // centre (0.21, 0.21): field cell (5, 5) at 4 cm
+  grid.Add({40, 12}, EncodeLogOdds(-2.0));  // free: no score
+  grid.RefreshSummaries();
+  MatchFieldConfig config;
+  config.resolution_m = 0.04;
+  config.sigma_m = 0.04;
+  config.levels = 3;
+  const MatchField field = MatchField::FromGrid(grid, config);
+  ASSERT_FALSE(field.empty());
+  EXPECT_EQ(field.At(0, {5, 5}), 255);
+  EXPECT_EQ(field.At(0, {6, 5}), std::lround(255 * std::exp(-0.5)));
+  EXPECT_EQ(field.At(0, {6, 6}), std::lround(255 * std::exp(-1.0)));
+  EXPECT_EQ(field.At(0, {9, 5}), 0);   // beyond three sigmas
+  EXPECT_EQ(field.At(0, {10, 3}), 0);  // the free cell
+  EXPECT_EQ(field.At(0, {-100, 5}), 0);
+  for (int level = 1; level <= 3; ++level) {
+    for (int y = -2; y <= 12; ++y) {
+      for (int x = -10; x <= 12; ++x) {
+        int largest = 0;
+        for (int dy = 0; dy < (1 << level); ++dy) {
+          for (int dx = 0; dx < (1 << level); ++dx) {
+            largest = std::max<int>(largest, field.At(0, {x + dx, y + dy}));
+          }
+        }
+        ASSERT_EQ(field.At(level, {x, y}), largest) << level << " " << x << " " << y;
+      }
+    }
+  }
+}
+
+TEST(GlobalSearchTest, EqualsAnExhaustiveSearchOnRandomFields) {
+  for (uint64_t seed = 1; seed <= 12; ++seed) {
+    Rng rng(seed);
+    const int width = 20 + static_cast<int>(rng.Uniform() * 30);
+    const int height = 20 + static_cast<int>(rng.Uniform() * 30);
+    std::vector<uint8_t> scores(static_cast<size_t>(width * height), 0);
+    for (uint8_t& s : scores) {
+      if (rng.Uniform() < 0.15) s = static_cast<uint8_t>(1 + rng.Uniform() * 254);
+    }
+    const int levels = 1 + static_cast<int>(seed % 4);
+    auto field = std::make_shared<const MatchField>(
+        MatchField::FromScores(0.05, {-7, 3}, width, height, scores, levels));
+    std::vector<Vec2> points;
+    const int count = 5 + static_cast<int>(rng.Uniform() * 20);
+    for (int i = 0; i < count; ++i) {
+      points.push_back({(rng.Uniform() - 0.5) * 1.6, (rng.Uniform() - 0.5) * 1.6});
+    }
+    GlobalRegion region;
+    if (seed % 2 == 0) {
+      region.whole_map = false;
+      region.center = {0.3, 1.2};
+      region.half_width_m = 0.6;
+      region.heading = 1.0;
+      region.half_angle_rad = 0.5;
+    }
+    GlobalSearchConfig config;
+    config.min_score = 0.0;
+    GlobalSearch search(field, points, region, config);
+    search.Finish();
+    const int64_t expected = BruteForceBest(*field, search);
+    ASSERT_GT(expected, 0) << seed;
+    ASSERT_TRUE(search.best()) << seed;
+    EXPECT_EQ(search.best()->raw, expected) << seed;
+    EXPECT_EQ(ScoreAt(*field, search, *search.best()), expected) << seed;
+    EXPECT_DOUBLE_EQ(search.best()->score, static_cast<double>(expected) / (255.0 * count));
+    // Branch and bound looked at fewer candidates than there are.
+    const int64_t candidates = static_cast<int64_t>(search.headings()) *
+                               (search.max_offset().x - search.min_offset().x + 1) *
+                               (search.max_offset().y - search.min_offset().y + 1);
+    EXPECT_LT(search.lookups(), candidates * count) << seed;
+  }
+}
+
+TEST(GlobalSearchTest, PlacesAViewOfAnLShapedRoomAnywhereInIt) {
+  const std::vector<Vec2> outline = LRoomOutline();
+  const OccupancyGrid grid = DrawnGrid(outline);
+  auto field = std::make_shared<const MatchField>(MatchField::FromGrid(grid, {}));
+  for (const Pose2& truth :
+       {Pose2{0.2, -0.3, 2.5}, Pose2{-0.5, 0.5, -1.2}, Pose2{1.0, -0.6, 0.1}}) {
+    const std::vector<Vec2> seen = SeenFrom(outline, truth, 1.5, 3);
+    ASSERT_GT(seen.size(), 50u);
+    GlobalSearch search(field, seen, GlobalRegion{});
+    search.Finish();
+    ASSERT_TRUE(search.best());
+    const GlobalMatch& m = *search.best();
+    EXPECT_LT((m.pose.translation() - truth.translation()).norm(), 0.06)
+        << m.pose.x << " " << m.pose.y;
+    EXPECT_LT(std::abs(NormalizeAngle(m.pose.theta - truth.theta)), DegToRad(3.0));
+    EXPECT_GT(m.score, 0.8);
+    // Nothing else in an L-shaped room looks like it.
+    if (search.runner_up()) {
+      EXPECT_LT(search.runner_up()->score, 0.8 * m.score);
+    }
+  }
+}
+
+TEST(GlobalSearchTest, ASymmetricRoomGivesARunnerUpAsGoodAsTheBest) {
+  // A 2 x 1 m rectangle looks the same turned by half a turn.
+  const std::vector<Vec2> corners{{-1.0, -0.5}, {1.0, -0.5}, {1.0, 0.5}, {-1.0, 0.5}, {-1.0, -0.5}};
+  std::vector<Vec2> outline;
+  for (size_t k = 0; k + 1 < corners.size(); ++k) {
+    for (int i = 0; i < 200; ++i)
+      outline.push_back(corners[k] + (corners[k + 1] - corners[k]) * (i / 200.0));
+  }
+  auto field = std::make_shared<const MatchField>(MatchField::FromGrid(DrawnGrid(outline), {}));
+  const Pose2 truth{0.3, 0.1, 0.4};
+  GlobalSearch search(field, SeenFrom(outline, truth, 3.0, 4), GlobalRegion{});
+  search.Finish();
+  ASSERT_TRUE(search.best());
+  ASSERT_TRUE(search.runner_up());
+  EXPECT_GT(search.runner_up()->score, 0.9 * search.best()->score);
+  // The two are the pose and its mirror through the room's centre.
+  const bool best_is_truth = (search.best()->pose.translation() - truth.translation()).norm() < 0.1;
+  const GlobalMatch& mirror = best_is_truth ? *search.runner_up() : *search.best();
+  EXPECT_LT((mirror.pose.translation() + truth.translation()).norm(), 0.1);
+}
+
+TEST(GlobalSearchTest, AnytimeSlicesKeepTheirShareAndEndWhereOneCallEnds) {
+  const std::vector<Vec2> outline = LRoomOutline();
+  auto field = std::make_shared<const MatchField>(MatchField::FromGrid(DrawnGrid(outline), {}));
+  const std::vector<Vec2> seen = SeenFrom(outline, {0.1, 0.2, -2.0}, 1.5, 3);
+  GlobalSearch whole(field, seen, GlobalRegion{});
+  whole.Finish();
+  GlobalSearch sliced(field, seen, GlobalRegion{});
+  const int64_t share = 5000;
+  const auto per_node = static_cast<int64_t>(4 * seen.size());
+  int calls = 0;
+  while (!sliced.done()) {
+    const int64_t before = sliced.lookups();
+    sliced.Continue(share);
+    // A call stops at its share, overrunning by at most the expansion in progress.
+    EXPECT_LE(sliced.lookups() - before, share + per_node);
+    EXPECT_GT(sliced.lookups(), before);
+    ++calls;
+    if (calls == 3) {
+      ASSERT_FALSE(sliced.done());
+    }
+  }
+  EXPECT_GT(calls, 10);
+  ASSERT_TRUE(sliced.best() && whole.best());
+  EXPECT_EQ(sliced.best()->raw, whole.best()->raw);
+  EXPECT_EQ(sliced.lookups(), whole.lookups());
+}
+
+TEST(GlobalSearchTest, NothingToMatchEndsAtOnceWithoutAnAnswer) {
+  const OccupancyGrid empty(GridGeometry(kMapCell), EncodeLogOdds(5.0));
+  auto none = std::make_shared<const MatchField>(MatchField::FromGrid(empty, {}));
+  EXPECT_TRUE(none->empty());
+  GlobalSearch on_empty(none, {{1.0, 0.0}}, GlobalRegion{});
+  EXPECT_TRUE(on_empty.Continue(100));
+  EXPECT_FALSE(on_empty.best());
+  EXPECT_EQ(on_empty.lookups(), 0);
+
+  auto field =
+      std::make_shared<const MatchField>(MatchField::FromGrid(DrawnGrid(LRoomOutline()), {}));
+  GlobalSearch no_points(field, {}, GlobalRegion{});
+  EXPECT_TRUE(no_points.Continue(100));
+  EXPECT_FALSE(no_points.best());
+  // Points that fit nowhere as well as the floor asks find no answer.
+  GlobalSearchConfig strict;
+  strict.min_score = 0.99;
+  std::vector<Vec2> spread;
+  for (int i = 0; i < 40; ++i) spread.push_back({0.05 * i, 0.03 * (i % 7)});
+  GlobalSearch unfit(field, spread, GlobalRegion{}, strict);
+  unfit.Finish();
+  EXPECT_FALSE(unfit.best());
+}
+
+}  // namespace
+}  // namespace slam
