@@ -178,8 +178,13 @@ int64_t GlobalSearch::Bound(const Node& node) {
 }
 
 int64_t GlobalSearch::Threshold() const {
-  // A node must beat the runner-up to change either answer; below min_score nothing counts.
+  // A node must beat the runner-up, and unique_ratio of the best, to change either answer;
+  // below min_score nothing counts.
   int64_t t = min_raw_ - 1;
+  if (best_) {
+    t = std::max(t, static_cast<int64_t>(
+                        std::floor(config_.unique_ratio * static_cast<double>(best_->raw))));
+  }
   if (runner_up_) t = std::max(t, runner_up_->raw);
   return t;
 }
@@ -196,7 +201,11 @@ void GlobalSearch::Offer(const Node& leaf) {
   if (!best_ || match.raw > best_->raw) {
     if (best_ && distinct(*best_, match)) runner_up_ = best_;
     best_ = match;
-    if (runner_up_ && !distinct(*best_, *runner_up_)) runner_up_.reset();
+    if (runner_up_ && (!distinct(*best_, *runner_up_) ||
+                       static_cast<double>(runner_up_->raw) <=
+                           config_.unique_ratio * static_cast<double>(best_->raw))) {
+      runner_up_.reset();
+    }
   } else if (distinct(*best_, match) && (!runner_up_ || match.raw > runner_up_->raw)) {
     runner_up_ = match;
   }

@@ -37,8 +37,8 @@ namespace slam {
 
 /// How a map is turned into a MatchField.
 struct MatchFieldConfig {
-  double resolution_m = 0.04;  // of the field's cells (a multiple of nothing: any size works)
-  double sigma_m = 0.04;       // the score's Gaussian in the distance to an occupied cell
+  double resolution_m = 0.05;  // of the field's cells (any size: the tracker refines)
+  double sigma_m = 0.05;       // the score's Gaussian in the distance to an occupied cell
   int levels = 6;              // views above the field itself: the quadtree's top covers 2^6 cells
   LogOdds occupied_above = 0;  // a map cell above this log odds is occupied
 };
@@ -106,8 +106,11 @@ struct GlobalSearchConfig {
   /// Candidates scoring below this (a fraction of the perfect score) are never answers; a
   /// higher floor prunes more.
   double min_score = 0.3;
-  /// The runner-up is the best candidate at least this far from the best (either bound): how
-  /// much a second place scores says how unique the answer is.
+  /// The runner-up is sought among the candidates distinct from the best (at least
+  /// `distinct_m` away on an axis, or `distinct_rad` turned) that score above this share of the
+  /// best: whether one does says whether the answer is unique. The search prunes everything
+  /// below that share of the best found so far, so a lower share costs more.
+  double unique_ratio = 0.85;
   double distinct_m = 0.3;
   double distinct_rad = DegToRad(20.0);
 };
@@ -128,9 +131,11 @@ class GlobalSearch {
   bool done() const { return done_; }
   /// The best candidate scoring at least min_score found so far (the best of all once done()).
   const std::optional<GlobalMatch>& best() const { return best_; }
-  /// The best candidate found so far that is distinct from best() (GlobalSearchConfig), as
-  /// far as the search saw: candidates that could not beat the runner-up of their time are
-  /// never scored, so a later best may leave a lower second place than an exhaustive search.
+  /// The best candidate found so far that is distinct from best() and scores above
+  /// unique_ratio of it (GlobalSearchConfig); none when no such candidate was met. Candidates
+  /// that could not beat the threshold of their time are never scored, so the second place
+  /// may be lower than an exhaustive search's, but when done() a distinct candidate above the
+  /// share is reported if one exists (up to which best it was distinct from when met).
   const std::optional<GlobalMatch>& runner_up() const { return runner_up_; }
   /// Point scores looked up so far: the search's cost.
   int64_t lookups() const { return lookups_; }

@@ -143,6 +143,17 @@ bool Slam::Restore(const OccupancyGrid& map, const Pose2& pose) {
   return true;
 }
 
+bool Slam::Relocate(const Pose2& pose) {
+  if (!AcceptsPose(pose)) return false;
+  const Particle best = Best();  // a copy: its map's tiles and history are shared, not copied
+  for (Particle& p : particles_) {
+    p = best;
+    p.pose = pose;
+    p.log_weight = 0.0;
+  }
+  return true;
+}
+
 std::vector<Measurement> Slam::CollectMeasurements(const Scan& scan) const {
   std::vector<Measurement> measurements;
   const double radius = robot_.scanner.mount_radius_m;

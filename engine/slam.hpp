@@ -178,6 +178,12 @@ class Slam {
   /// AcceptsPose refuses. Precondition: same resolution as the config.
   bool Restore(const OccupancyGrid& map, const Pose2& pose);
 
+  /// Puts every particle at `pose` on the best particle's map (a relocalisation, or a pose the
+  /// user gives): the weights restart equal, the histories continue from the best's (with the
+  /// jump), the drift learnt is kept. Refuses (false, nothing changed) a pose AcceptsPose
+  /// refuses.
+  bool Relocate(const Pose2& pose);
+
   /// Whether the engine takes `pose` as a particle's: finite, its position inside the map's
   /// bound (GridGeometry::InMapBound at the config's resolution).
   bool AcceptsPose(const Pose2& pose) const;

@@ -586,6 +586,35 @@ TEST(Matching, ThinningByAngleBetweenScansAndCapsBoundTheRays) {
   EXPECT_EQ(report.rays.total(), PlannedRays(plan, thinned));
 }
 
+TEST(Relocate, PutsEveryParticleAtThePoseOnTheBestsMapAndRefusesAPoseOffTheMap) {
+  const RobotDescription robot = testing::ShippedRobot();
+  const sim::World room = TestRoom();
+  SlamParams params;
+  params.particles = 3;
+  Slam slam(robot, params, SlamConfig{});
+  for (int i = 0; i < 3; ++i) slam.ProcessScan(ScanAt(robot, room, {}, i, {}, {}), ScanPlan{3});
+  const Particle best = slam.Best();
+  const Pose2 there{0.2, -0.1, 1.0};
+  EXPECT_FALSE(slam.Relocate({1e9, 0.0, 0.0}));
+  EXPECT_FALSE(slam.Relocate({0.0, std::nan(""), 0.0}));
+  ASSERT_TRUE(slam.Relocate(there));
+  ASSERT_EQ(slam.particles().size(), 3u);
+  for (const Particle& p : slam.particles()) {
+    EXPECT_EQ(p.pose.x, there.x);
+    EXPECT_EQ(p.pose.y, there.y);
+    EXPECT_EQ(p.pose.theta, there.theta);
+    EXPECT_EQ(p.log_weight, 0.0);
+    EXPECT_EQ(p.history, best.history);
+    for (const TileRef& t : best.map.Tiles()) EXPECT_TRUE(p.map.SharesTileWith(best.map, t.index));
+  }
+  // The next scan starts there.
+  ScanPlan odometry_only{3};
+  odometry_only.refine = false;
+  const ScanReport r = slam.ProcessScan(ScanAt(robot, room, {}, 3, {}, {}), odometry_only);
+  EXPECT_NEAR(r.pose.x, there.x, 1e-9);
+  EXPECT_NEAR(r.pose.theta, there.theta, 1e-9);
+}
+
 TEST(Resampling, CopiesShareTilesAndHistoryUntilWritten) {
   const RobotDescription robot = testing::ShippedRobot();
   const sim::World room = TestRoom();
