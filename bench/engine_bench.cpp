@@ -18,6 +18,7 @@
 
 #include "bench/bench_support.hpp"
 #include "engine/cell_encoding.hpp"
+#include "engine/global_matcher.hpp"
 #include "engine/match_window.hpp"
 #include "engine/matching_rays.hpp"
 #include "engine/occupancy_grid.hpp"
@@ -548,6 +549,46 @@ BENCHMARK(BM_Scan)
     ->ArgsProduct({{std::begin(kPaperBudgets), std::end(kPaperBudgets)}, {1, 5}, {1, 2}})
     ->UseRealTime()
     ->Unit(benchmark::kMillisecond);
+
+// The relocaliser's unit of cost: a whole-map global search (global_matcher.hpp) of a
+// multiscan (the usable readings of the 15 scans after the warm-up, placed by the odometry in
+// the last one's frame, at most 400) on the warmed-up engine's map, on a field of range(0) mm
+// cells. Items are point lookups: their time against a quota ray's (BM_Scan) is the rate at
+// which a scan's quota pays for the search.
+void BM_GlobalSearch(benchmark::State& state) {
+  const Slam& warm = WarmEngine(1);
+  const std::vector<Scan>& scans = RoomsRun(300.0).scans;
+  MatchFieldConfig field_config;
+  field_config.resolution_m = static_cast<double>(state.range(0)) / 1000.0;
+  field_config.sigma_m = field_config.resolution_m;
+  auto field =
+      std::make_shared<const MatchField>(MatchField::FromGrid(warm.Best().map, field_config));
+  const Pose2 newest = scans[kWarmScans + 14].odom_end;
+  std::vector<Vec2> all;
+  for (size_t i = kWarmScans; i < kWarmScans + 15; ++i) {
+    const Pose2 to_newest = Between(newest, scans[i].odom_end);
+    for (const Vec2& p : warm.ReadingPoints(warm.Prepare(scans[i]))) {
+      all.push_back(to_newest.Transform(p));
+    }
+  }
+  std::vector<Vec2> query;
+  for (size_t i = 0; i < all.size(); i += std::max<size_t>(1, all.size() / 400)) {
+    query.push_back(all[i]);
+  }
+  GlobalSearchConfig config;
+  config.unique_ratio = 0.7;
+  config.candidates = 4;
+  int64_t lookups = 0;
+  for (auto _ : state) {
+    GlobalSearch search(field, query, GlobalRegion{}, config);
+    search.Finish();
+    lookups += search.lookups();
+    benchmark::DoNotOptimize(search.best());
+  }
+  Items(state, lookups, "lookups");
+  state.counters["points"] = static_cast<double>(query.size());
+}
+BENCHMARK(BM_GlobalSearch)->ArgName("cell_mm")->Arg(30)->Arg(100)->Unit(benchmark::kMillisecond);
 
 // A whole replay (Replay(): scheduler + engine, as slam-replay) of the rooms run of range(0)
 // seconds at 65000 rays/scan on range(1) threads, once. Counter realtime_factor = run

@@ -178,37 +178,40 @@ int64_t GlobalSearch::Bound(const Node& node) {
 }
 
 int64_t GlobalSearch::Threshold() const {
-  // A node must beat the runner-up, and unique_ratio of the best, to change either answer;
-  // below min_score nothing counts.
+  // A node must beat unique_ratio of the best and, once as many candidates as wanted are
+  // kept, the last of them, to change any; below min_score nothing counts.
   int64_t t = min_raw_ - 1;
-  if (best_) {
+  if (!top_.empty()) {
     t = std::max(t, static_cast<int64_t>(
-                        std::floor(config_.unique_ratio * static_cast<double>(best_->raw))));
+                        std::floor(config_.unique_ratio * static_cast<double>(top_[0].raw))));
   }
-  if (runner_up_) t = std::max(t, runner_up_->raw);
+  if (top_.size() >= static_cast<size_t>(std::max(config_.candidates, 1))) {
+    t = std::max(t, top_.back().raw);
+  }
   return t;
 }
 
 void GlobalSearch::Offer(const Node& leaf) {
   const auto denominator = 255.0 * static_cast<double>(point_count_);
-  GlobalMatch match{CandidatePose(leaf.heading, {leaf.x, leaf.y}), leaf.bound,
-                    static_cast<double>(leaf.bound) / denominator};
-  const auto distinct = [&](const GlobalMatch& a, const GlobalMatch& b) {
-    return (a.pose.translation() - b.pose.translation()).cwiseAbs().maxCoeff() >=
-               config_.distinct_m ||
-           std::abs(NormalizeAngle(a.pose.theta - b.pose.theta)) >= config_.distinct_rad;
-  };
-  if (!best_ || match.raw > best_->raw) {
-    if (best_ && distinct(*best_, match)) runner_up_ = best_;
-    best_ = match;
-    if (runner_up_ && (!distinct(*best_, *runner_up_) ||
-                       static_cast<double>(runner_up_->raw) <=
-                           config_.unique_ratio * static_cast<double>(best_->raw))) {
-      runner_up_.reset();
+  top_.push_back({CandidatePose(leaf.heading, {leaf.x, leaf.y}), leaf.bound,
+                  static_cast<double>(leaf.bound) / denominator});
+  // Best first (the earlier found first on ties), each kept only when distinct from every
+  // better one, as many as wanted, none at or below unique_ratio of the best.
+  std::stable_sort(top_.begin(), top_.end(),
+                   [](const GlobalMatch& a, const GlobalMatch& b) { return a.raw > b.raw; });
+  std::vector<GlobalMatch> kept;
+  for (const GlobalMatch& m : top_) {
+    if (kept.size() >= static_cast<size_t>(std::max(config_.candidates, 1))) break;
+    if (!kept.empty() &&
+        static_cast<double>(m.raw) <= config_.unique_ratio * static_cast<double>(kept[0].raw)) {
+      break;
     }
-  } else if (distinct(*best_, match) && (!runner_up_ || match.raw > runner_up_->raw)) {
-    runner_up_ = match;
+    if (std::all_of(kept.begin(), kept.end(),
+                    [&](const GlobalMatch& k) { return Distinct(k, m, config_); })) {
+      kept.push_back(m);
+    }
   }
+  top_ = std::move(kept);
 }
 
 bool GlobalSearch::Continue(int64_t max_lookups) {

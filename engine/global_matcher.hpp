@@ -25,6 +25,7 @@
 // spent that many (a scan's share of the ray budget) or has ended, keeping the best answer so
 // far, and the next call goes on where it stopped.
 
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -113,7 +114,17 @@ struct GlobalSearchConfig {
   double unique_ratio = 0.85;
   double distinct_m = 0.3;
   double distinct_rad = DegToRad(20.0);
+  /// Distinct candidates kept, the best included (at least 1): a caller that checks them
+  /// otherwise (finer, later) wants more than the runner-up.
+  int candidates = 2;
 };
+
+/// Whether two candidates are distinct places: at least distinct_m apart on an axis, or
+/// distinct_rad turned.
+inline bool Distinct(const GlobalMatch& a, const GlobalMatch& b, const GlobalSearchConfig& c) {
+  return (a.pose.translation() - b.pose.translation()).cwiseAbs().maxCoeff() >= c.distinct_m ||
+         std::abs(NormalizeAngle(a.pose.theta - b.pose.theta)) >= c.distinct_rad;
+}
 
 /// An anytime branch-and-bound search of one query over a field (see the file comment).
 class GlobalSearch {
@@ -130,13 +141,20 @@ class GlobalSearch {
 
   bool done() const { return done_; }
   /// The best candidate scoring at least min_score found so far (the best of all once done()).
-  const std::optional<GlobalMatch>& best() const { return best_; }
+  std::optional<GlobalMatch> best() const {
+    return top_.empty() ? std::nullopt : std::optional<GlobalMatch>(top_[0]);
+  }
   /// The best candidate found so far that is distinct from best() and scores above
   /// unique_ratio of it (GlobalSearchConfig); none when no such candidate was met. Candidates
   /// that could not beat the threshold of their time are never scored, so the second place
   /// may be lower than an exhaustive search's, but when done() a distinct candidate above the
   /// share is reported if one exists (up to which best it was distinct from when met).
-  const std::optional<GlobalMatch>& runner_up() const { return runner_up_; }
+  std::optional<GlobalMatch> runner_up() const {
+    return top_.size() < 2 ? std::nullopt : std::optional<GlobalMatch>(top_[1]);
+  }
+  /// The distinct candidates kept (GlobalSearchConfig::candidates), best first: best(),
+  /// runner_up() and the next ones, each above unique_ratio of the best, on the same terms.
+  const std::vector<GlobalMatch>& candidates() const { return top_; }
   /// Point scores looked up so far: the search's cost.
   int64_t lookups() const { return lookups_; }
   /// The headings the search tries (their spacing moves the farthest point by about a cell).
@@ -174,7 +192,7 @@ class GlobalSearch {
   bool started_ = false;
   bool done_ = false;
   int64_t lookups_ = 0;
-  std::optional<GlobalMatch> best_, runner_up_;
+  std::vector<GlobalMatch> top_;  // distinct, best first
 };
 
 }  // namespace slam

@@ -1,6 +1,7 @@
 #include "engine/relocalizer.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <utility>
 
 namespace slam {
@@ -15,18 +16,20 @@ void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region) {
     return std::make_shared<const MatchField>(MatchField::FromGrid(map, field));
   };
   field_ = build(config_.field);
-  confirm_field_ = build(config_.confirm_field);
+  fine_field_ = build(config_.fine_field);
   region_ = region;
   entries_.clear();
   search_.reset();
+  pending_.reset();
   search_lookups_ = 0;
   searches_ = 0;
   rejected_ = 0;
 }
 
 void Relocalizer::Cancel() {
+  pending_.reset();
   field_.reset();
-  confirm_field_.reset();
+  fine_field_.reset();
   entries_.clear();
   search_.reset();
 }
@@ -51,48 +54,106 @@ std::vector<Vec2> Relocalizer::Query() const {
   return query;
 }
 
-void Relocalizer::StartSearch(const GlobalRegion& region, const Pose2& odom_end, bool confirming) {
-  std::vector<Vec2> query = Query();
-  query_points_ = static_cast<int>(query.size());
-  query_odom_ = odom_end;
-  confirming_ = confirming;
-  search_ = std::make_unique<GlobalSearch>(confirming ? confirm_field_ : field_, std::move(query),
-                                           region, config_.search);
+void Relocalizer::StartSearch(Stage stage, std::vector<Vec2> query, const Pose2& odom,
+                              const GlobalRegion& region) {
+  stage_ = stage;
+  if (stage == Stage::kCoarse) confirmed_ = 0;
+  query_ = std::move(query);
+  query_odom_ = odom;
+  query_points_ = static_cast<int>(query_.size());
+  GlobalSearchConfig config = config_.search;
+  if (stage != Stage::kCoarse) config.min_score = 0.0;  // a fine score is always wanted
+  search_ = std::make_unique<GlobalSearch>(stage == Stage::kCoarse ? field_ : fine_field_, query_,
+                                           region, config);
   ++searches_;
 }
 
-void Relocalizer::EndSearch(const Pose2& odom_end, RelocalizerStep& step) {
-  const std::optional<GlobalMatch>& best = search_->best();
-  const bool sure =
-      best && best->score >= config_.accept_score && (confirming_ || !search_->runner_up());
-  if (sure && !confirming_) {
-    // Carried to now and confirmed there (see the file comment).
-    const Pose2 carried = Compose(best->pose, Between(query_odom_, odom_end));
-    GlobalRegion around;
-    around.whole_map = false;
-    around.center = carried.translation();
-    around.half_width_m = config_.confirm_half_width_m;
-    around.heading = carried.theta;
-    around.half_angle_rad = DegToRad(config_.confirm_half_angle_deg);
-    StartSearch(around, odom_end, /*confirming=*/true);
+std::optional<GlobalMatch> Relocalizer::Decide() const {
+  const auto best =
+      std::max_element(checked_.begin(), checked_.end(),
+                       [](const GlobalMatch& a, const GlobalMatch& b) { return a.raw < b.raw; });
+  if (best == checked_.end() || best->score < config_.accept_score) return std::nullopt;
+  for (const GlobalMatch& other : checked_) {
+    if (&other != &*best && Distinct(other, *best, config_.search) &&
+        other.score > best->score - config_.unique_margin) {
+      return std::nullopt;
+    }
+  }
+  return *best;
+}
+
+namespace {
+
+GlobalRegion Around(const Pose2& pose, double half_width_m, double half_angle_deg) {
+  GlobalRegion region;
+  region.whole_map = false;
+  region.center = pose.translation();
+  region.half_width_m = half_width_m;
+  region.heading = pose.theta;
+  region.half_angle_rad = DegToRad(half_angle_deg);
+  return region;
+}
+
+}  // namespace
+
+void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep& step) {
+  const std::optional<GlobalMatch> best = search_->best();
+  switch (stage_) {
+    case Stage::kCoarse:
+      candidates_ = search_->candidates();
+      checked_.clear();
+      break;
+    case Stage::kCheck:
+      if (best) checked_.push_back(*best);
+      break;
+    case Stage::kConfirm:
+      if (best && best->score >= config_.accept_score &&
+          ++confirmed_ < std::max(config_.confirmations, 1)) {
+        pending_ = best->pose;
+        pending_odom_ = query_odom_;
+        pending_due_t_ = t_end + config_.confirm_spacing_s;
+        search_.reset();
+        return;
+      }
+      if (best && best->score >= config_.accept_score) {
+        Relocalization found;
+        found.pose = Compose(best->pose, Between(query_odom_, odom_end));
+        found.score = best->score;
+        found.points = query_points_;
+        found.lookups = search_lookups_;
+        found.searches = searches_;
+        step.found = found;
+        step.searching = false;
+        Cancel();
+        return;
+      }
+      candidates_.clear();  // not confirmed: start over
+      checked_.clear();
+      pending_.reset();
+      break;
+  }
+  if (stage_ != Stage::kConfirm && checked_.size() < candidates_.size()) {
+    // The next candidate's check, on the same multiscan.
+    StartSearch(Stage::kCheck, std::move(query_), query_odom_,
+                Around(candidates_[checked_.size()].pose, config_.check_half_width_m,
+                       config_.check_half_angle_deg));
     return;
   }
-  if (sure) {
-    Relocalization found;
-    found.pose = Compose(best->pose, Between(query_odom_, odom_end));
-    found.score = best->score;
-    found.points = query_points_;
-    found.lookups = search_lookups_;
-    found.searches = searches_;
-    step.found = found;
-    step.searching = false;
-    Cancel();
-    return;
+  if (stage_ == Stage::kCheck) {
+    if (const std::optional<GlobalMatch> answer = Decide()) {
+      // Carried to the newest scan and confirmed there with the newest multiscan.
+      StartSearch(Stage::kConfirm, Query(), odom_end,
+                  Around(Compose(answer->pose, Between(query_odom_, odom_end)),
+                         config_.confirm_half_width_m, config_.confirm_half_angle_deg));
+      return;
+    }
   }
   // Not sure: gather the next scans' readings and search the whole region again with them.
   ++rejected_;
-  step.rejected_best = best;
-  step.rejected_runner_up = search_->runner_up() ? search_->runner_up()->score : 0.0;
+  std::sort(checked_.begin(), checked_.end(),
+            [](const GlobalMatch& a, const GlobalMatch& b) { return a.raw > b.raw; });
+  step.rejected_best = checked_.empty() ? best : std::optional<GlobalMatch>(checked_.front());
+  step.rejected_runner_up = checked_.size() > 1 ? checked_[1].score : 0.0;
   search_.reset();
 }
 
@@ -106,11 +167,18 @@ RelocalizerStep Relocalizer::Add(const std::vector<Vec2>& points, const Pose2& o
   const double window_s =
       std::min(config_.window_s * (1.0 + 0.5 * rejected_), config_.max_window_s);
   while (entries_.size() > 1 && entries_.front().t < t_end - window_s) entries_.pop_front();
+  if (!search_ && pending_) {
+    if (t_end < pending_due_t_) return step;
+    const Pose2 carried = Compose(*pending_, Between(pending_odom_, odom_end));
+    pending_.reset();
+    StartSearch(Stage::kConfirm, Query(), odom_end,
+                Around(carried, config_.confirm_half_width_m, config_.confirm_half_angle_deg));
+  }
   if (!search_) {
     size_t total = 0;
     for (const Entry& e : entries_) total += e.points.size();
     if (total < static_cast<size_t>(config_.min_points)) return step;
-    StartSearch(region_, odom_end, /*confirming=*/false);
+    StartSearch(Stage::kCoarse, Query(), odom_end, region_);
   }
   // The confirming search starts where the global one ends, on the same share.
   while (search_ && step.lookups < max_lookups) {
@@ -121,7 +189,7 @@ RelocalizerStep Relocalizer::Add(const std::vector<Vec2>& points, const Pose2& o
     search_lookups_ += spent;
     total_lookups_ += spent;
     if (!search_->done()) break;
-    EndSearch(odom_end, step);
+    EndSearch(odom_end, t_end, step);
     if (step.found || !search_) break;
   }
   return step;

@@ -2,15 +2,21 @@
 // Relocalisation: where the robot is in a map it already has, without a prior. A sparse
 // scanner sees too little in one scan to be placed in a whole map, so the query is a
 // multiscan: the readings of the last seconds, each scan's placed by the odometry from its end
-// to the newest scan's end (over seconds the odometry errs by far less than a field cell). The
-// global scan matcher (global_matcher.hpp) searches it over the map, anytime, a share of each
-// scan's budget at a time; the answer is taken when it scores well and no distinct pose scores
-// nearly as well (a corridor, a symmetric room: the robot keeps gathering readings and searches
-// again). The search takes scans; meanwhile the robot moves, and a heading off by half a
-// heading step at the query grows into centimetres over metres driven. So the pose found is
-// carried to the newest scan's end by the odometry and confirmed there: a second, small search
-// of the newest multiscan around it (confirm_half_width_m, confirm_half_angle_deg), whose
-// answer is taken when it scores at least accept_score.
+// to the newest scan's end (over seconds the odometry errs by far less than a field cell).
+// Three searches of the global scan matcher (global_matcher.hpp), anytime, a share of each
+// scan's budget at a time:
+//
+// 1. the whole map on a coarse field: the best pose and the distinct candidates that score
+//    nearly as well (search.candidates of them, above search.unique_ratio of the best);
+// 2. each candidate checked on a fine field around it with the same multiscan: the answer is the
+//    fine best when it scores at least accept_score and no distinct candidate comes within
+//    unique_margin of it (a corridor, a symmetric room: the robot gathers readings and
+//    searches again, over a wider window);
+// 3. confirmed at the newest scan: the search took scans, the robot moved, and a heading off
+//    by a fraction of a degree grows into centimetres over the metres driven; the answer is
+//    carried there by the odometry and searched again around it (confirm_half_width_m,
+//    confirm_half_angle_deg) with the newest multiscan, and taken when that scores at least
+//    accept_score, `confirmations` times, seconds apart.
 
 #include <cstdint>
 #include <deque>
@@ -24,6 +30,12 @@
 
 namespace slam {
 
+/// What a scan's quota pays the search: point lookups per quota ray. A lookup is one byte read
+/// and an add, a quota ray a cast through tens of cells; a ray costs some 35-50 lookups
+/// (bench: BM_GlobalSearch against BM_Scan, docs/performance.md), and the rate errs low so
+/// that a search never costs more than the rays it replaces.
+inline constexpr int64_t kLookupsPerRay = 32;
+
 struct RelocalizerConfig {
   /// The multiscan: the readings of this many seconds of scans, half as many more after each
   /// search that ended unsure, up to max_window_s.
@@ -33,14 +45,22 @@ struct RelocalizerConfig {
   /// Readings of a multiscan kept at most (evenly spaced): the search's cost per candidate.
   int max_points = 400;
   /// The whole-map search's field is coarse (fewer translations and headings to try), the
-  /// confirming search's fine (a small region, an answer the tracker takes from there).
+  /// checks' and the confirmation's fine (small regions).
   MatchFieldConfig field{0.10, 0.10, 6, 0};
-  MatchFieldConfig confirm_field{0.03, 0.03, 4, 0};
-  GlobalSearchConfig search;
-  double accept_score = 0.55;  // the best's score (GlobalMatch::score) at least; unique:
-                               // no runner-up (GlobalSearchConfig::unique_ratio)
+  MatchFieldConfig fine_field{0.03, 0.03, 4, 0};
+  /// The coarse search's: its candidates (and unique_ratio) are the ones checked.
+  GlobalSearchConfig search{0.3, 0.7, 0.3, DegToRad(20.0), 4};
+  double check_half_width_m = 0.15;
+  double check_half_angle_deg = 5.0;
+  double accept_score = 0.8;    // a fine score at least this
+  double unique_margin = 0.05;  // ... and no distinct candidate's fine score within this of it
   double confirm_half_width_m = 0.3;
   double confirm_half_angle_deg = 8.0;
+  /// Confirmations wanted, each `confirm_spacing_s` after the last with the multiscan of
+  /// then: a place that only looked right from where the robot was is seldom right from
+  /// where it drove on to.
+  int confirmations = 2;
+  double confirm_spacing_s = 4.0;
 };
 
 /// One answer of the relocaliser.
@@ -58,7 +78,8 @@ struct RelocalizerStep {
   int64_t lookups = 0;  // spent in this step
   bool searching = false;
   std::optional<Relocalization> found;
-  /// A search ended without an answer taken: its best's score and the runner-up's (for logs).
+  /// A search ended without an answer taken: the best candidate's fine check (the coarse
+  /// best when none was checked) and the next distinct one's fine score (0: none), for logs.
   std::optional<GlobalMatch> rejected_best;
   double rejected_runner_up = 0.0;
 };
@@ -92,18 +113,29 @@ class Relocalizer {
   };
   /// The multiscan in the newest scan's frame, at most max_points readings.
   std::vector<Vec2> Query() const;
-  /// Starts a search of the multiscan as it is now, over `region`.
-  void StartSearch(const GlobalRegion& region, const Pose2& odom_end, bool confirming);
-  /// A search ended: the step's answer, or the next search.
-  void EndSearch(const Pose2& odom_end, RelocalizerStep& step);
+  enum class Stage { kCoarse, kCheck, kConfirm };
+  /// Starts a search of `query` (taken at odometry `odom`) over `region`.
+  void StartSearch(Stage stage, std::vector<Vec2> query, const Pose2& odom,
+                   const GlobalRegion& region);
+  /// A search ended: the step's answer, or the next search (none: start over).
+  void EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep& step);
+  /// The checks ended: the unique fine answer, if any.
+  std::optional<GlobalMatch> Decide() const;
 
   RelocalizerConfig config_;
-  std::shared_ptr<const MatchField> field_, confirm_field_;
+  std::shared_ptr<const MatchField> field_, fine_field_;
   GlobalRegion region_;
   std::deque<Entry> entries_;
   std::unique_ptr<GlobalSearch> search_;
-  bool confirming_ = false;  // search_ is the confirming one
-  Pose2 query_odom_;         // the odometry at the newest scan's end when search_ started
+  Stage stage_ = Stage::kCoarse;         // search_'s
+  std::vector<Vec2> query_;              // search_'s query
+  Pose2 query_odom_;                     // the odometry at the newest scan's end when it was taken
+  std::vector<GlobalMatch> candidates_;  // the coarse search's, to check
+  std::vector<GlobalMatch> checked_;     // their fine answers so far
+  int confirmed_ = 0;                    // confirmations of the answer so far
+  std::optional<Pose2> pending_;         // the answer between confirmations, at pending_odom_
+  Pose2 pending_odom_;
+  double pending_due_t_ = 0.0;
   int query_points_ = 0;
   int64_t search_lookups_ = 0;  // of the searches since Start
   int64_t total_lookups_ = 0;

@@ -116,6 +116,9 @@ TEST(GlobalSearchTest, EqualsAnExhaustiveSearchOnRandomFields) {
     }
     GlobalSearchConfig config;
     config.min_score = 0.0;
+    config.unique_ratio = 0.6;
+    config.distinct_m = 0.2;
+    config.candidates = 1 + static_cast<int>(seed % 5);
     GlobalSearch search(field, points, region, config);
     search.Finish();
     const int64_t expected = BruteForceBest(*field, search);
@@ -124,6 +127,16 @@ TEST(GlobalSearchTest, EqualsAnExhaustiveSearchOnRandomFields) {
     EXPECT_EQ(search.best()->raw, expected) << seed;
     EXPECT_EQ(ScoreAt(*field, search, *search.best()), expected) << seed;
     EXPECT_DOUBLE_EQ(search.best()->score, static_cast<double>(expected) / (255.0 * count));
+    // The candidates kept: best first, distinct from one another, above unique_ratio of the
+    // best, no more than asked for.
+    const std::vector<GlobalMatch>& kept = search.candidates();
+    ASSERT_LE(kept.size(), static_cast<size_t>(config.candidates));
+    for (size_t i = 1; i < kept.size(); ++i) {
+      EXPECT_LE(kept[i].raw, kept[i - 1].raw);
+      EXPECT_GT(static_cast<double>(kept[i].raw),
+                config.unique_ratio * static_cast<double>(expected));
+      for (size_t j = 0; j < i; ++j) EXPECT_TRUE(Distinct(kept[i], kept[j], config));
+    }
     // Branch and bound looked at fewer candidates than there are.
     const int64_t candidates = static_cast<int64_t>(search.headings()) *
                                (search.max_offset().x - search.min_offset().x + 1) *
@@ -143,7 +156,7 @@ TEST(GlobalSearchTest, PlacesAViewOfAnLShapedRoomAnywhereInIt) {
     GlobalSearch search(field, seen, GlobalRegion{});
     search.Finish();
     ASSERT_TRUE(search.best());
-    const GlobalMatch& m = *search.best();
+    const GlobalMatch m = *search.best();
     EXPECT_LT((m.pose.translation() - truth.translation()).norm(), 0.06)
         << m.pose.x << " " << m.pose.y;
     EXPECT_LT(std::abs(NormalizeAngle(m.pose.theta - truth.theta)), DegToRad(3.0));
@@ -166,7 +179,7 @@ TEST(GlobalSearchTest, ASymmetricRoomGivesARunnerUpAsGoodAsTheBest) {
   EXPECT_GT(search.runner_up()->score, 0.9 * search.best()->score);
   // The two are the pose and its mirror through the room's centre.
   const bool best_is_truth = (search.best()->pose.translation() - truth.translation()).norm() < 0.1;
-  const GlobalMatch& mirror = best_is_truth ? *search.runner_up() : *search.best();
+  const GlobalMatch mirror = best_is_truth ? *search.runner_up() : *search.best();
   EXPECT_LT((mirror.pose.translation() + truth.translation()).norm(), 0.1);
 }
 

@@ -51,6 +51,8 @@ TEST(Relocalizer, FindsARobotDrivingInADrawnRoomAndCarriesItsPoseToTheNewestScan
   EXPECT_LT(std::abs(NormalizeAngle(found->pose.theta - truth.theta)), DegToRad(2.0));
   EXPECT_GE(found->score, RelocalizerConfig{}.accept_score);
   EXPECT_EQ(found->lookups, relocalizer.lookups());
+  // The whole map, at least one check, two confirmations.
+  EXPECT_GE(found->searches, 4);
   EXPECT_FALSE(relocalizer.active());  // done: the engine takes over
   // Slower than one scan: the search was spread over several.
   EXPECT_GT(scans, 3);
