@@ -33,6 +33,17 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
     ++switches_;
   }
   result.prepared = engine_.Prepare(scan);
+  if (relocalizer_ != nullptr && relocalizer_->active()) {
+    RelocalizerStep step = relocalizer_->Add(engine_.ReadingPoints(result.prepared), scan.odom_end,
+                                             scan.t_end, scheduler_.Quota(period) * kLookupsPerRay);
+    if (step.found) {
+      result.relocated = engine_.Relocate(step.found->pose);
+      if (!result.relocated) relocalizer_->Start(engine_.Best().map);
+    }
+    result.relocalization = std::move(step);
+    result.cpu_s = CpuSeconds(clock_) - cpu_start;
+    return result;
+  }
   ScanSummary summary = result.prepared.summary;
   if (!refine) {  // phase B off: nothing to match
     summary.matching_measurements = 0;

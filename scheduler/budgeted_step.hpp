@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <optional>
 
+#include "engine/relocalizer.hpp"
 #include "engine/scan.hpp"
 #include "engine/slam.hpp"
 #include "scheduler/params_catalog.hpp"
@@ -34,6 +35,12 @@ class BudgetedStep {
   /// How many times a scan's quota switched the engine to another set.
   int64_t switches() const { return switches_; }
 
+  /// The relocalisation stage (may be null; must outlive its use here): while it is active
+  /// (Relocalizer::Start), each scan goes to it instead of the engine, with the scan's whole
+  /// quota as lookups (kLookupsPerRay), nothing matched and the map untouched; its answer
+  /// moves the engine there (Slam::Relocate), and the engine maps again from the next scan.
+  void SetRelocalizer(Relocalizer* relocalizer) { relocalizer_ = relocalizer; }
+
   struct Result {
     PreparedScan prepared;  // the scan as the engine measured it (refers to the scan)
     ScanReport report;
@@ -41,6 +48,12 @@ class BudgetedStep {
     /// learns nothing from a scan that did nothing).
     std::optional<PlanRecord> record;
     double cpu_s = 0.0;  // the whole step's
+    /// Set when the scan went to the relocaliser (then `report` is empty and `record` none):
+    /// what it spent and found.
+    std::optional<RelocalizerStep> relocalization;
+    /// The engine took the relocaliser's answer (false: it refused the pose, see
+    /// Slam::AcceptsPose, and the relocaliser searches again).
+    bool relocated = false;
   };
   /// Runs one scan; `refine` false maps on the odometry alone (phase B off, nothing matched).
   Result Run(const Scan& scan, bool refine = true);
@@ -51,6 +64,7 @@ class BudgetedStep {
   ParamsChoice choice_;
   ParamsSet in_use_;
   CpuClock clock_;
+  Relocalizer* relocalizer_ = nullptr;
   int64_t switches_ = 0;
 };
 

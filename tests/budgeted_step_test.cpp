@@ -7,6 +7,7 @@
 #include <cmath>
 #include <limits>
 
+#include "engine/relocalizer.hpp"
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
 #include "test_support.hpp"
@@ -77,6 +78,69 @@ TEST(BudgetedStep, PlansEachScanWithinItsQuotaSwitchesSetsAndSkipsWhatTheEngineR
   EXPECT_EQ(mapping.report.rays.matching, 0);
   EXPECT_EQ(mapping.report.update_rays, mapping.prepared.summary.usable_measurements);
   EXPECT_EQ(mapping.record->planned_rays, mapping.record->used_rays);
+}
+
+TEST(BudgetedStep,
+     WhileRelocalisingScansGoToTheRelocaliserWithinTheQuotaAndItsAnswerMovesTheEngine) {
+  const std::vector<Scan> scans = RoomScans(120.0);
+  BudgetSettings settings;
+  settings.rays_per_scan = 16250;
+  RayBudgetScheduler scheduler(settings);
+  const ParamsChoice choice;
+  const ParamsSet set = choice.For(16250);
+  SlamConfig config;
+  config.parallel = false;
+  config.history_samples = false;
+  Slam engine(ShippedRobot(), set.params, config);
+  BudgetedStep step(engine, scheduler, choice, set, CpuClock::kThread);
+  Relocalizer relocalizer;
+  step.SetRelocalizer(&relocalizer);  // inactive: scans go to the engine
+  size_t k = 0;
+  for (; k < scans.size() && scans[k].t_end < 60.0; ++k) {
+    const BudgetedStep::Result r = step.Run(scans[k]);
+    ASSERT_FALSE(r.relocalization) << k;
+    ASSERT_TRUE(r.record) << k;
+  }
+  // The robot is then carried: the engine is told it is half a metre and a quarter turn
+  // from where it is, and relocalises on its own map.
+  Slam reference = engine;  // goes on tracking undisturbed, for comparison
+  RayBudgetScheduler reference_scheduler(settings);
+  BudgetedStep reference_step(reference, reference_scheduler, choice, set, CpuClock::kThread);
+  const Pose2 where = engine.Best().pose;
+  ASSERT_TRUE(engine.Relocate(Compose(where, Pose2{0.5, 0.0, kPi / 2})));
+  relocalizer.Start(engine.Best().map);
+  const uint64_t map_version = engine.Best().map.Version();
+  const int64_t processed = engine.scans_processed();
+  const int64_t recorded = scheduler.totals().scans;
+  bool relocated = false;
+  for (; k < scans.size() && !relocated; ++k) {
+    reference_step.Run(scans[k]);
+    const BudgetedStep::Result r = step.Run(scans[k]);
+    ASSERT_TRUE(r.relocalization) << k;
+    EXPECT_FALSE(r.record);
+    EXPECT_LE(r.relocalization->lookups, 16250 * kLookupsPerRay + 4 * 400) << k;
+    relocated = r.relocated;
+    if (!relocated) {
+      EXPECT_EQ(engine.Best().map.Version(), map_version) << "mapped while lost";
+    }
+  }
+  ASSERT_TRUE(relocated) << "not relocalised in 60 s";
+  EXPECT_EQ(engine.scans_processed(), processed);  // the engine saw none of those scans
+  EXPECT_EQ(scheduler.totals().scans, recorded);
+  EXPECT_FALSE(relocalizer.active());
+  // Back on track: the next scans go to the engine again, which tracks on to where the
+  // undisturbed engine is (the answer is a few centimetres and degrees off; tracking mends it).
+  const size_t end = std::min(scans.size(), k + 15);
+  for (; k < end; ++k) {
+    reference_step.Run(scans[k]);
+    const BudgetedStep::Result next = step.Run(scans[k]);
+    EXPECT_FALSE(next.relocalization);
+    EXPECT_TRUE(next.record);
+  }
+  const Pose2 there = reference.Best().pose, found = engine.Best().pose;
+  EXPECT_LT((found.translation() - there.translation()).norm(), 0.05)
+      << found.x << " " << found.y << " vs " << there.x << " " << there.y;
+  EXPECT_LT(std::abs(NormalizeAngle(found.theta - there.theta)), DegToRad(3.0));
 }
 
 }  // namespace
