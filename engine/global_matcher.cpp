@@ -10,10 +10,8 @@ namespace slam {
 
 namespace {
 
-int32_t FloorToCell(double v) { return static_cast<int32_t>(std::floor(v)); }
-
-/// The largest of `view` over [x, x + span) along one axis (x or y, by `stride`), in place,
-/// for span a power of two built from the view of half that span.
+/// In place, each cell the larger of itself and the cell `half` further along one axis: from a
+/// view of windows `half` wide along that axis, the view of windows twice as wide.
 void WindowMax(std::vector<uint8_t>& view, int64_t width, int64_t height, int64_t half,
                bool along_x) {
   for (int64_t v = 0; v < height; ++v) {
@@ -30,8 +28,8 @@ void WindowMax(std::vector<uint8_t>& view, int64_t width, int64_t height, int64_
 
 MatchField MatchField::FromGrid(const OccupancyGrid& grid, const MatchFieldConfig& config) {
   assert(config.resolution_m > 0 && config.sigma_m > 0);
-  const double map_res = grid.geometry().resolution();
   const double res = config.resolution_m;
+  const GridGeometry field_cells(res);
   // The field cells holding an occupied map cell (its centre inside them).
   std::vector<CellIndex> occupied;
   for (const TileRef& ref : grid.Tiles()) {
@@ -41,8 +39,8 @@ MatchField MatchField::FromGrid(const OccupancyGrid& grid, const MatchFieldConfi
         if (ref.tile->cells[static_cast<size_t>(j * kTileSize + i)] <= config.occupied_above) {
           continue;
         }
-        occupied.push_back({FloorToCell((first.x + i + 0.5) * map_res / res),
-                            FloorToCell((first.y + j + 0.5) * map_res / res)});
+        occupied.push_back(
+            field_cells.CellOf(grid.geometry().CellCenter({first.x + i, first.y + j})));
       }
     }
   }
@@ -120,6 +118,8 @@ GlobalSearch::GlobalSearch(std::shared_ptr<const MatchField> field, std::vector<
                            const GlobalRegion& region, const GlobalSearchConfig& config)
     : field_(std::move(field)), config_(config), point_count_(points.size()) {
   const double res = field_->resolution();
+  // Field cells as the grid's (GridGeometry::CellOf: floor, saturated far beyond the map).
+  const GridGeometry field_cells(res);
   double reach = res;
   for (const Vec2& p : points) reach = std::max(reach, p.norm());
   // Headings spaced so that the farthest point moves by about a cell (Olson's, Hess et al.'s).
@@ -139,8 +139,7 @@ GlobalSearch::GlobalSearch(std::shared_ptr<const MatchField> field, std::vector<
     std::vector<CellIndex>& cells = cells_.emplace_back();
     cells.reserve(points.size());
     for (const Vec2& p : points) {
-      cells.push_back(
-          {FloorToCell((c * p.x() - s * p.y()) / res), FloorToCell((s * p.x() + c * p.y()) / res)});
+      cells.push_back(field_cells.CellOf({c * p.x() - s * p.y(), s * p.x() + c * p.y()}));
     }
   }
   if (region.whole_map) {
@@ -148,10 +147,9 @@ GlobalSearch::GlobalSearch(std::shared_ptr<const MatchField> field, std::vector<
     min_offset_ = field_->min_cell();
     max_offset_ = {field_->max_cell().x - 1, field_->max_cell().y - 1};
   } else {
-    min_offset_ = {FloorToCell((region.center.x() - region.half_width_m) / res),
-                   FloorToCell((region.center.y() - region.half_width_m) / res)};
-    max_offset_ = {FloorToCell((region.center.x() + region.half_width_m) / res),
-                   FloorToCell((region.center.y() + region.half_width_m) / res)};
+    const Vec2 half(region.half_width_m, region.half_width_m);
+    min_offset_ = field_cells.CellOf(region.center - half);
+    max_offset_ = field_cells.CellOf(region.center + half);
   }
   min_raw_ =
       std::max<int64_t>(1, static_cast<int64_t>(std::ceil(config_.min_score * 255.0 *

@@ -162,7 +162,19 @@ RelocalizerStep Relocalizer::Add(const std::vector<Vec2>& points, const Pose2& o
   RelocalizerStep step;
   if (!active()) return step;
   step.searching = true;
-  entries_.push_back({t_end, odom_end, points});
+  // A scan whose time or odometry is not finite says nothing of where its readings lie (the
+  // engine refuses it too); readings that are not finite, or beyond any sensor's reach, are
+  // dropped.
+  if (!std::isfinite(t_end) || !std::isfinite(odom_end.x) || !std::isfinite(odom_end.y) ||
+      !std::isfinite(odom_end.theta)) {
+    return step;
+  }
+  std::vector<Vec2> usable;
+  usable.reserve(points.size());
+  for (const Vec2& p : points) {
+    if (p.allFinite() && p.norm() <= kMaxReadingRangeM) usable.push_back(p);
+  }
+  entries_.push_back({t_end, odom_end, std::move(usable)});
   // Each search that ended unsure widens the window: more of the room to tell places apart.
   const double window_s =
       std::min(config_.window_s * (1.0 + 0.5 * rejected_), config_.max_window_s);

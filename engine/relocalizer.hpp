@@ -95,10 +95,15 @@ class Relocalizer {
   void Cancel();
   bool active() const { return field_ != nullptr; }
 
+  /// Readings farther than this from the robot are dropped (no range sensor it takes reaches
+  /// that far; a reading there is bad input).
+  static constexpr double kMaxReadingRangeM = 1000.0;
+
   /// One scan: its readings in the robot's frame at its end (Slam::ReadingPoints), the
   /// odometry's pose at its end and its end time; spends at most about `max_lookups` on the
   /// search (GlobalSearch::Continue). Once an answer is taken (`found`), the relocaliser is no
-  /// longer active. Nothing is done while not active.
+  /// longer active. Nothing is done while not active, nor with a scan whose time or odometry
+  /// is not finite; readings that are not finite or beyond kMaxReadingRangeM are dropped.
   RelocalizerStep Add(const std::vector<Vec2>& points, const Pose2& odom_end, double t_end,
                       int64_t max_lookups);
 

@@ -26,7 +26,8 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
   const double cpu_start = CpuSeconds(clock_);
   const double period = scan.t_end - scan.t_begin;
   // A CPU share's quota moves with the measured cost per ray, and may call for another set.
-  const ParamsSet& set = choice_.For(scheduler_.Quota(period));
+  const int64_t quota = scheduler_.Quota(period);
+  const ParamsSet& set = choice_.For(quota);
   if (set != in_use_) {
     engine_.SetParams(set.params);
     in_use_ = set;
@@ -35,7 +36,7 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
   result.prepared = engine_.Prepare(scan);
   if (relocalizer_ != nullptr && relocalizer_->active()) {
     RelocalizerStep step = relocalizer_->Add(engine_.ReadingPoints(result.prepared), scan.odom_end,
-                                             scan.t_end, scheduler_.Quota(period) * kLookupsPerRay);
+                                             scan.t_end, quota * kLookupsPerRay);
     if (step.found) {
       result.relocated = engine_.Relocate(step.found->pose);
       if (!result.relocated) relocalizer_->Start(engine_.Best().map);

@@ -6,6 +6,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -22,40 +24,73 @@ using testing::Draw;
 using testing::LRoom;
 using testing::SeenFrom;
 
-TEST(Relocalizer, FindsARobotDrivingInADrawnRoomAndCarriesItsPoseToTheNewestScan) {
-  const std::vector<Vec2> outline = LRoom();
-  const OccupancyGrid map = Draw(outline, 0.01);
-  Relocalizer relocalizer;
-  relocalizer.Start(map);
-  EXPECT_TRUE(relocalizer.active());
-  // The robot drives a slow arc; its odometry starts at another origin (it was carried).
-  const Pose2 odom_origin{5.0, -3.0, 1.0};
-  const Pose2 start{-0.6, -0.5, 0.3};
+struct Drive {
   std::optional<Relocalization> found;
   Pose2 truth;
   int scans = 0;
-  for (; scans < 60 && !found; ++scans) {
-    const double t = 0.6 * scans;
-    truth = Compose(start, Pose2{0.08 * t, 0.0, 0.0});
-    truth.theta = start.theta + 0.05 * t;
-    const Pose2 odom = Compose(odom_origin, Between(start, truth));
-    const RelocalizerStep step =
-        relocalizer.Add(SeenFrom(outline, truth, 1.2, 40), odom, t, 200'000);
+  int64_t lookups = 0;
+};
+
+// A robot driving a slow arc in the drawn L room, its odometry from another origin (it was
+// carried), each scan's view given to the relocaliser until it answers. With `bad_input`, every
+// scan also brings readings that are not finite or absurdly far, and a scan of odometry that is
+// not finite comes before each.
+Drive DriveInLRoom(bool bad_input) {
+  const std::vector<Vec2> outline = LRoom();
+  Relocalizer relocalizer;
+  relocalizer.Start(Draw(outline, 0.01));
+  EXPECT_TRUE(relocalizer.active());
+  const Pose2 odom_origin{5.0, -3.0, 1.0};
+  const Pose2 start{-0.6, -0.5, 0.3};
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  Drive drive;
+  for (; drive.scans < 60 && !drive.found; ++drive.scans) {
+    const double t = 0.6 * drive.scans;
+    drive.truth = Compose(start, Pose2{0.08 * t, 0.0, 0.0});
+    drive.truth.theta = start.theta + 0.05 * t;
+    const Pose2 odom = Compose(odom_origin, Between(start, drive.truth));
+    std::vector<Vec2> points = SeenFrom(outline, drive.truth, 1.2, 40);
+    if (bad_input) {
+      const RelocalizerStep skipped = relocalizer.Add(points, {nan, 0.0, 0.0}, t - 0.1, 200'000);
+      EXPECT_EQ(skipped.lookups, 0);
+      EXPECT_FALSE(skipped.found);
+      points.insert(points.begin(), {Vec2{nan, 0.5}, Vec2{1e300, -1e300}});
+    }
+    const RelocalizerStep step = relocalizer.Add(points, odom, t, 200'000);
     EXPECT_TRUE(step.searching || step.found);
     EXPECT_LE(step.lookups, 200'000 + 4 * RelocalizerConfig{}.max_points);
-    found = step.found;
+    drive.found = step.found;
   }
-  ASSERT_TRUE(found) << "not found in " << scans << " scans";
+  drive.lookups = relocalizer.lookups();
+  EXPECT_FALSE(relocalizer.active());  // done: the engine takes over
+  return drive;
+}
+
+TEST(Relocalizer, FindsARobotDrivingInADrawnRoomAndCarriesItsPoseToTheNewestScan) {
+  const Drive drive = DriveInLRoom(false);
+  const std::optional<Relocalization>& found = drive.found;
+  const Pose2& truth = drive.truth;
+  ASSERT_TRUE(found) << "not found in " << drive.scans << " scans";
   EXPECT_LT((found->pose.translation() - truth.translation()).norm(), 0.03)
       << found->pose.x << " " << found->pose.y << " vs " << truth.x << " " << truth.y;
   EXPECT_LT(std::abs(NormalizeAngle(found->pose.theta - truth.theta)), DegToRad(2.0));
   EXPECT_GE(found->score, RelocalizerConfig{}.accept_score);
-  EXPECT_EQ(found->lookups, relocalizer.lookups());
+  EXPECT_EQ(found->lookups, drive.lookups);
   // The whole map, at least one check, two confirmations.
   EXPECT_GE(found->searches, 4);
-  EXPECT_FALSE(relocalizer.active());  // done: the engine takes over
   // Slower than one scan: the search was spread over several.
-  EXPECT_GT(scans, 3);
+  EXPECT_GT(drive.scans, 3);
+}
+
+TEST(Relocalizer, ReadingsAndOdometryThatAreNotFiniteAreSkipped) {
+  const Drive clean = DriveInLRoom(false);
+  const Drive bad = DriveInLRoom(true);
+  ASSERT_TRUE(clean.found && bad.found);
+  EXPECT_EQ(bad.scans, clean.scans);
+  EXPECT_EQ(bad.found->pose.x, clean.found->pose.x);
+  EXPECT_EQ(bad.found->pose.y, clean.found->pose.y);
+  EXPECT_EQ(bad.found->pose.theta, clean.found->pose.theta);
+  EXPECT_EQ(bad.lookups, clean.lookups);
 }
 
 TEST(Relocalizer, AnAmbiguousSearchIsNotTakenAndAnInactiveOneDoesNothing) {
