@@ -108,6 +108,14 @@ Result<void> WriteSimulatedExperiment(const std::string& dir, const World& world
   meta["seed"] = config.seed;
   meta["odometry"] = config.odometry.profile;
   if (config.people > 0) meta["people"] = config.people;
+  if (!output.kidnaps.empty()) {
+    // The jump as the ground truth shows it: when (the control step's start, to the microsecond)
+    // and from where to where, in the world frame.
+    const Kidnapping& k = output.kidnaps.front();
+    const auto pose = [](const Pose2& p) { return nlohmann::json::array({p.x, p.y, p.theta}); };
+    meta["kidnap"] = {
+        {"t", std::round(k.t * 1e6) * 1e-6}, {"from", pose(k.from)}, {"to", pose(k.to)}};
+  }
 
   const std::string base = (std::filesystem::path(dir) / "").string();
   for (const auto& [name, text] :

@@ -28,7 +28,9 @@ struct ExperimentSummary {
 };
 
 /// Simulates `config` in `world` and writes the experiment into `dir` (created if needed; files
-/// are replaced atomically). `world_name` goes into meta.json.
+/// are replaced atomically). `world_name` goes into meta.json, and so does a kidnapping
+/// (config.kidnap_t_s), as "kidnap": {"t": s, "from": [x, y, theta], "to": [x, y, theta]} (metres,
+/// radians, world frame).
 Result<void> WriteSimulatedExperiment(const std::string& dir, const World& world,
                                       const std::string& world_name, const RobotDescription& robot,
                                       const ScenarioConfig& config,

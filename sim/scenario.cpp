@@ -397,7 +397,31 @@ std::vector<std::string> ScenarioConfig::Validate() const {
   if (!(near_floor_fraction >= 0.0 && near_floor_fraction <= 1.0)) {
     errors.push_back("/near_floor_fraction: must be in [0, 1]");
   }
+  if (kidnap_t_s && !(*kidnap_t_s > 0.0 && *kidnap_t_s < duration_s)) {
+    errors.push_back("/kidnap_t_s: must be in (0, duration_s)");
+  }
+  if (kidnap_to) {
+    if (!std::isfinite(kidnap_to->x) || !std::isfinite(kidnap_to->y) ||
+        !std::isfinite(kidnap_to->theta)) {
+      errors.push_back("/kidnap_to: must be finite");
+    }
+    if (!kidnap_t_s) errors.push_back("/kidnap_to: needs kidnap_t_s");
+  }
   return errors;
+}
+
+Result<void> CheckFreePose(const World& world, double robot_radius_m, const Pose2& pose) {
+  if (!std::isfinite(pose.x) || !std::isfinite(pose.y) || !std::isfinite(pose.theta)) {
+    return Error("the pose is not finite");
+  }
+  const auto& b = world.bounds;
+  if (!(pose.x >= b[0] && pose.x <= b[2] && pose.y >= b[1] && pose.y <= b[3])) {
+    return Error("the pose is outside the world's bounds");
+  }
+  if (!(ClearanceAt(MotionWorld(world), pose.translation()) >= robot_radius_m)) {
+    return Error("the robot's disc overlaps a wall, a circle or the edge of the world's bounds");
+  }
+  return {};
 }
 
 std::optional<OdometryProfile> OdometryProfileFromName(std::string_view name) {
@@ -643,6 +667,45 @@ struct Simulator::State {
     }
   }
 
+  /// The kidnapping due at the start of this step, if any: a request (Simulator::Kidnap), else
+  /// the config's once its time has come (a request in that step takes its place).
+  std::optional<Pose2> DueKidnap() {
+    std::optional<Pose2> due;
+    std::swap(due, requested_kidnap);
+    if (config.kidnap_t_s && !config_kidnap_done &&
+        static_cast<double>(step) * kControlDt >= *config.kidnap_t_s - 1e-9) {
+      config_kidnap_done = true;
+      if (!due) {
+        if (config.kidnap_to) {
+          if (CheckFreePose(world, config.robot_radius_m, *config.kidnap_to).ok())
+            due = config.kidnap_to;
+        } else {
+          due = half_kidnap_pose;
+        }
+      }
+    }
+    return due;
+  }
+
+  /// Sets the robot down at `target` before the step: the true pose jumps, and the heading the
+  /// gyro last saw turns with it, so that its next rate is the robot's own; the encoders' counts
+  /// and the commanded twist are untouched (the wanderer reacts to what its proximity sensors
+  /// see from the new pose, and Drive keeps it clear of obstacles there).
+  void SetDown(const Pose2& target, ScenarioOutput& out) {
+    const Pose2 from = Normalized(pose);
+    const double turn = NormalizeAngle(target.theta - pose.theta);
+    pose = {target.x, target.y, pose.theta + turn};
+    last_gyro_theta += turn;
+    out.kidnaps.push_back({static_cast<double>(step) * kControlDt, from, Normalized(target)});
+  }
+
+  /// Remembers the true pose at half the config's kidnapping time, the default target.
+  void NoteHalfKidnapPose(const Motion& m) {
+    if (!config.kidnap_t_s || config.kidnap_to || half_kidnap_pose) return;
+    const double half = *config.kidnap_t_s / 2.0;
+    if (m.t1 > half) half_kidnap_pose = Normalized(m.At(std::max(half, m.t0)));
+  }
+
   /// The overhead tracker's noisy poses of the step (the ground truth).
   void EmitTracker(const Motion& m, ScenarioOutput& out) {
     while (m.InStep(next_tracker, config.tracker_rate_hz)) {
@@ -680,6 +743,10 @@ struct Simulator::State {
   Rng people_rng;
   std::vector<Walker> walkers;
   World sensed;  // the world with the walkers' legs, as the sensors see it
+
+  std::optional<Pose2> requested_kidnap;  // Simulator::Kidnap, for the next step
+  bool config_kidnap_done = false;        // config.kidnap_t_s has come
+  std::optional<Pose2> half_kidnap_pose;  // the true pose at config.kidnap_t_s / 2
 };
 
 Simulator::Simulator(const World& world, const RobotDescription& robot,
@@ -694,9 +761,20 @@ double Simulator::time() const { return static_cast<double>(state_->step) * kCon
 
 Pose2 Simulator::pose() const { return Normalized(state_->pose); }
 
+Result<void> Simulator::Kidnap(const Pose2& target) {
+  if (Result<void> free = CheckFreePose(state_->world, state_->config.robot_radius_m, target);
+      !free.ok()) {
+    return free;
+  }
+  state_->requested_kidnap = target;
+  return {};
+}
+
 void Simulator::Step(ScenarioOutput& out) {
   State& st = *state_;
+  if (const std::optional<Pose2> kidnap = st.DueKidnap()) st.SetDown(*kidnap, out);
   const State::Motion motion = st.Drive();
+  st.NoteHalfKidnapPose(motion);
   st.EmitOdometry(motion, out);
   st.EmitScanner(motion, out);
   st.EmitTracker(motion, out);
@@ -716,6 +794,7 @@ ScenarioOutput RunScenario(const World& world, const RobotDescription& robot,
   std::erase_if(out.scanner, after_end);
   std::erase_if(out.ground_truth, after_end);
   std::erase_if(out.true_path, after_end);
+  std::erase_if(out.kidnaps, after_end);
   return out;
 }
 

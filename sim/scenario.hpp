@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "engine/pose.hpp"
+#include "engine/result.hpp"
 #include "engine/robot.hpp"
 #include "engine/scan.hpp"
 #include "sim/world.hpp"
@@ -96,9 +97,24 @@ struct ScenarioConfig {
   double tracker_noise_m = 0.001;
   double tracker_noise_rad = 0.005;
 
+  // Kidnapping: the robot lifted and set down elsewhere, which its odometry does not see (the
+  // encoders and the gyro go on as if nothing happened) and the tracker does. At the first
+  // control step starting at or after kidnap_t_s the true pose jumps to kidnap_to or, when that
+  // is not given, to the true pose at kidnap_t_s / 2 (a place the robot has seen, with the
+  // heading it had there); it drives on from there. None when kidnap_t_s is not given; else it
+  // is within (0, duration_s), also for the live virtual marXbot. The target must be free in the
+  // world (CheckFreePose); one that is not is not jumped to.
+  std::optional<double> kidnap_t_s;
+  std::optional<Pose2> kidnap_to;
+
   /// Problems with the configuration as "/key: detail" lines; empty when valid.
   std::vector<std::string> Validate() const;
 };
+
+/// Whether a robot of `robot_radius_m` may stand at `pose` in `world`: the pose finite, the centre
+/// inside the bounds and the disc overlapping no wall, circle or edge of the bounds; else an
+/// error saying why.
+Result<void> CheckFreePose(const World& world, double robot_radius_m, const Pose2& pose);
 
 /// "gentle", "tracked"; nullopt for anything else.
 std::optional<OdometryProfile> OdometryProfileFromName(std::string_view name);
@@ -114,6 +130,14 @@ struct LaserSweep {
   std::vector<float> ranges;
 };
 
+/// The robot lifted and set down elsewhere: its true pose jumped from `from` to `to` at time t
+/// (the start of a control step), world frame, headings in (-pi, pi].
+struct Kidnapping {
+  double t = 0.0;
+  Pose2 from;
+  Pose2 to;
+};
+
 /// Everything a simulated run produces, time-ordered; times in seconds from the start.
 struct ScenarioOutput {
   std::vector<OdometryReading> odometry;  // at odometry_rate_hz, the first at t = 0
@@ -123,6 +147,7 @@ struct ScenarioOutput {
   std::vector<LaserSweep> sweeps;
   std::vector<TimedPose> ground_truth;  // tracker poses (with tracker noise) at tracker_rate_hz
   std::vector<TimedPose> true_path;     // exact poses at every scanner sample or sweep
+  std::vector<Kidnapping> kidnaps;      // ScenarioConfig::kidnap_t_s, Simulator::Kidnap
 };
 
 /// The simulation advancing step by step (10 ms each), without an end: the live virtual
@@ -142,14 +167,21 @@ class Simulator {
   /// The robot's true pose now.
   Pose2 pose() const;
 
+  /// Requests that the next step starts with the robot set down at `target` (heading included),
+  /// driving on from there: the tracker and the true path jump, the odometry does not (encoder
+  /// counts and gyro go on as if nothing happened); the step appends a Kidnapping to its output.
+  /// A later request before that step replaces this one. An error, and nothing requested, when
+  /// `target` is not free (CheckFreePose).
+  Result<void> Kidnap(const Pose2& target);
+
  private:
   struct State;
   std::unique_ptr<State> state_;
 };
 
 /// Simulates the robot in `world` for config.duration_s (readings at t <= duration_s).
-/// Preconditions: Validate(robot) and config.Validate() are empty, and the world leaves room for
-/// the robot inside its bounds.
+/// Preconditions: Validate(robot) and config.Validate() are empty, the world leaves room for
+/// the robot inside its bounds, and config.kidnap_to, when given, is free (CheckFreePose).
 ScenarioOutput RunScenario(const World& world, const RobotDescription& robot,
                            const ScenarioConfig& config);
 

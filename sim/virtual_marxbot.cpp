@@ -89,11 +89,74 @@ VirtualMarxbotSource::VirtualMarxbotSource(const World& world, std::string world
       odometry_profile_(config.odometry.profile),
       robot_(robot),
       options_(options),
-      simulator_(world, robot, config) {}
+      simulator_(world, robot, config),
+      world_(world),
+      robot_radius_m_(config.robot_radius_m) {
+  MutexLock lock(kidnap_mutex_);
+  RememberPose(simulator_.time(), simulator_.pose());
+  next_remembered_t_ = simulator_.time() + kRememberedPoseS;
+}
+
+void VirtualMarxbotSource::RememberPose(double t, const Pose2& pose) {
+  if (!remembered_.empty() && t < remembered_.back().t + remembered_spacing_s_) return;
+  remembered_.push_back({t, pose});
+  if (remembered_.size() < kRememberedPoses) return;
+  // Every other pose, the first and the newest kept.
+  size_t kept = 0;
+  for (size_t i = 0; i < remembered_.size(); i += 2) remembered_[kept++] = remembered_[i];
+  if (remembered_.size() % 2 == 0) remembered_[kept++] = remembered_.back();
+  remembered_.resize(kept);
+  remembered_spacing_s_ *= 2.0;
+}
+
+Result<Pose2> VirtualMarxbotSource::Kidnap(std::optional<Pose2> target) {
+  MutexLock lock(kidnap_mutex_);
+  if (target) {
+    if (Result<void> free = CheckFreePose(world_, robot_radius_m_, *target); !free.ok())
+      return Error("cannot set the robot down there: " + free.Message());
+    target->theta = NormalizeAngle(target->theta);
+  } else {
+    // The remembered pose nearest half the run ago (a place the robot stood on, so free).
+    const double half = simulated_s_ / 2.0;
+    const auto nearest = std::min_element(remembered_.begin(), remembered_.end(),
+                                          [&](const TimedPose& a, const TimedPose& b) {
+                                            return std::abs(a.t - half) < std::abs(b.t - half);
+                                          });
+    target = nearest->pose;
+  }
+  requested_kidnap_ = target;
+  return *target;
+}
+
+uint64_t VirtualMarxbotSource::kidnaps() const {
+  MutexLock lock(kidnap_mutex_);
+  return kidnaps_;
+}
 
 void VirtualMarxbotSource::Advance(double until_s) {
   ScenarioOutput output;
-  while (simulator_.time() <= until_s) simulator_.Step(output);
+  {
+    MutexLock lock(kidnap_mutex_);
+    if (requested_kidnap_) {
+      // Checked when requested; the world does not change.
+      (void)simulator_.Kidnap(*requested_kidnap_);
+      requested_kidnap_.reset();
+    }
+  }
+  std::vector<TimedPose> to_remember;
+  while (simulator_.time() <= until_s) {
+    if (simulator_.time() >= next_remembered_t_) {
+      to_remember.push_back({simulator_.time(), simulator_.pose()});
+      next_remembered_t_ += kRememberedPoseS;
+    }
+    simulator_.Step(output);
+  }
+  {
+    MutexLock lock(kidnap_mutex_);
+    for (const TimedPose& p : to_remember) RememberPose(p.t, p.pose);
+    kidnaps_ += output.kidnaps.size();
+    simulated_s_ = simulator_.time();
+  }
   SendReadings(robot_, output, bus_, &events_);
   std::vector<std::pair<double, hw::CanFrame>> delivered;
   // Readings made so far are at times before simulator_.time(): everything starting before it

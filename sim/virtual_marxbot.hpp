@@ -7,11 +7,13 @@
 #include <deque>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "engine/pose.hpp"
+#include "engine/result.hpp"
 #include "engine/robot.hpp"
 #include "engine/thread_safety.hpp"
 #include "hw_link/can_frame.hpp"
@@ -87,8 +89,24 @@ class VirtualMarxbotSource : public hw::FrameSource {
   /// reader copies only what is new).
   size_t GroundTruthSince(size_t first, std::vector<TimedPose>& out) const;
 
+  /// Lifts the robot and sets it down at `target` or, when none is given, at the true pose it had
+  /// half its run ago (to within the spacing of the poses it remembers: kRememberedPoseS at
+  /// first, doubled whenever kRememberedPoses are kept), at the next simulation step
+  /// (Simulator::Kidnap: its odometry does not see it, the ground truth does). Thread-safe: an
+  /// HTTP thread may call it while another calls Read. The pose it will be set down at, or why it
+  /// will not (the target is not free; nothing is then requested).
+  Result<Pose2> Kidnap(std::optional<Pose2> target);
+  /// The kidnappings done so far (thread-safe).
+  uint64_t kidnaps() const;
+
+  /// The true poses remembered for Kidnap's default target: one every kRememberedPoseS, and when
+  /// kRememberedPoses are kept, every other one is forgotten and the spacing doubles.
+  static constexpr double kRememberedPoseS = 1.0;
+  static constexpr size_t kRememberedPoses = 1024;
+
  private:
   void Advance(double until_s);
+  void RememberPose(double t, const Pose2& pose) SLAM_REQUIRES(kidnap_mutex_);
 
   std::string world_name_;
   std::string odometry_profile_;
@@ -104,6 +122,15 @@ class VirtualMarxbotSource : public hw::FrameSource {
   mutable Mutex truth_mutex_;
   std::deque<TimedPose> ground_truth_ SLAM_GUARDED_BY(truth_mutex_);  // the newest poses
   size_t truth_dropped_ SLAM_GUARDED_BY(truth_mutex_) = 0;            // older poses, no longer kept
+  const World world_;                                                 // for Kidnap's check
+  const double robot_radius_m_;
+  double next_remembered_t_ = 0.0;  // simulated time of the next pose to remember (Read's thread)
+  mutable Mutex kidnap_mutex_;
+  std::optional<Pose2> requested_kidnap_ SLAM_GUARDED_BY(kidnap_mutex_);
+  uint64_t kidnaps_ SLAM_GUARDED_BY(kidnap_mutex_) = 0;
+  double simulated_s_ SLAM_GUARDED_BY(kidnap_mutex_) = 0.0;  // simulator time after Advance
+  std::vector<TimedPose> remembered_ SLAM_GUARDED_BY(kidnap_mutex_);  // true poses, time-ordered
+  double remembered_spacing_s_ SLAM_GUARDED_BY(kidnap_mutex_) = kRememberedPoseS;
 };
 
 }  // namespace slam::sim

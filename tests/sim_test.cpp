@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <set>
 #include <sstream>
@@ -982,6 +983,280 @@ TEST(ScenarioTest, GroundTruthIsTheTruePathWithTrackerNoise) {
   const double rms = std::sqrt(sum2 / (2 * n));  // per axis
   EXPECT_GT(rms, 0.0005);
   EXPECT_LT(rms, 0.002);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Kidnapping: the robot lifted and set down elsewhere, which the odometry does not see.
+
+constexpr double kKidnapT = 25.0;
+
+ScenarioConfig KidnapRun(uint64_t seed) {
+  ScenarioConfig config = ShortRun(40.0, seed);
+  config.kidnap_t_s = kKidnapT;
+  return config;
+}
+
+/// Encoder counts from one reading to the next, wrapping as the counters do.
+int64_t TickDelta(int32_t now, int32_t before) {
+  return static_cast<int32_t>(static_cast<uint32_t>(now) - static_cast<uint32_t>(before));
+}
+
+/// How much the odometry's rates change from one reading to the next, at most, over the readings
+/// i with from_t <= t_i < to_t: the encoders' counts per reading (either wheel) and the gyro's.
+struct RateChanges {
+  int64_t ticks = 0;
+  int64_t gyro = 0;
+};
+RateChanges LargestRateChanges(const std::vector<OdometryReading>& odometry, double from_t,
+                               double to_t) {
+  RateChanges largest;
+  for (size_t i = 2; i < odometry.size(); ++i) {
+    if (odometry[i].t < from_t - 1e-9 || odometry[i].t >= to_t - 1e-9) continue;
+    const auto change = [&](auto ticks) {
+      return std::abs(TickDelta(ticks(odometry[i]), ticks(odometry[i - 1])) -
+                      TickDelta(ticks(odometry[i - 1]), ticks(odometry[i - 2])));
+    };
+    largest.ticks =
+        std::max({largest.ticks, change([](const OdometryReading& r) { return r.left_ticks; }),
+                  change([](const OdometryReading& r) { return r.right_ticks; })});
+    largest.gyro =
+        std::max(largest.gyro, std::abs(int64_t{odometry[i].gyro_raw} - odometry[i - 1].gyro_raw));
+  }
+  return largest;
+}
+
+// What the wanderer's acceleration limits (0.6 m/s^2, 8 rad/s^2 over the 7.5 cm half track)
+// let the rates change in one 20 ms reading, the encoders running ahead by 20 ms times the
+// acceleration (accel_slip_s), with 11375 ticks/m: 2 x (0.6 + 0.6) x 0.02 x 0.02 x 11375 = 11
+// ticks, plus slip and rounding; the gyro 0.16 rad/s (917 units of 0.01 deg/s) plus its noise.
+// A robot set down facing a wall turns away at once, as it does whenever it comes upon one.
+constexpr int64_t kTurnStartTicks = 14;
+constexpr int64_t kTurnStartGyro = 1100;
+
+/// The pose of `path` before `before_t` farthest from `from`: a place the robot stood on.
+Pose2 FarthestBefore(const std::vector<TimedPose>& path, const Pose2& from, double before_t) {
+  Pose2 farthest = from;
+  for (const TimedPose& p : path) {
+    if (p.t < before_t && (p.pose.translation() - from.translation()).norm() >
+                              (farthest.translation() - from.translation()).norm()) {
+      farthest = p.pose;
+    }
+  }
+  return farthest;
+}
+
+/// Checks a run kidnapped at kKidnapT to `to` against the same seed's run without: bit for bit
+/// the same before, the ground truth jumping to `to` at kKidnapT, the odometry not seeing it,
+/// the robot clear of obstacles after.
+void ExpectKidnapped(const World& world, const ScenarioOutput& plain,
+                     const ScenarioOutput& kidnapped, const Pose2& to) {
+  ASSERT_EQ(kidnapped.kidnaps.size(), 1u);
+  const Kidnapping& k = kidnapped.kidnaps.front();
+  EXPECT_NEAR(k.t, kKidnapT, 1e-9);
+  const Pose2 from = At(plain.true_path, kKidnapT);
+  EXPECT_NEAR(k.from.x, from.x, 1e-12);
+  EXPECT_NEAR(k.from.y, from.y, 1e-12);
+  EXPECT_NEAR(NormalizeAngle(k.from.theta - from.theta), 0.0, 1e-12);
+  EXPECT_NEAR(k.to.x, to.x, 1e-12);
+  EXPECT_NEAR(k.to.y, to.y, 1e-12);
+  EXPECT_NEAR(NormalizeAngle(k.to.theta - to.theta), 0.0, 1e-12);
+
+  // Before kKidnapT: every reading and pose bit for bit the same.
+  const auto before = [](const auto& r) { return r.t < kKidnapT - 1e-9; };
+  ASSERT_EQ(kidnapped.odometry.size(), plain.odometry.size());
+  ASSERT_EQ(kidnapped.scanner.size(), plain.scanner.size());
+  ASSERT_EQ(kidnapped.ground_truth.size(), plain.ground_truth.size());
+  ASSERT_EQ(kidnapped.true_path.size(), plain.true_path.size());
+  size_t first_after = 0;  // the first odometry reading at or after kKidnapT
+  for (size_t i = 0; i < plain.odometry.size() && before(plain.odometry[i]); ++i) {
+    ASSERT_EQ(kidnapped.odometry[i], plain.odometry[i]) << i;
+    first_after = i + 1;
+  }
+  for (size_t i = 0; i < plain.scanner.size() && before(plain.scanner[i]); ++i) {
+    ASSERT_EQ(kidnapped.scanner[i], plain.scanner[i]) << i;
+  }
+  for (const auto* paths : {&plain.ground_truth, &plain.true_path}) {
+    const auto& other = paths == &plain.ground_truth ? kidnapped.ground_truth : kidnapped.true_path;
+    for (size_t i = 0; i < paths->size() && before((*paths)[i]); ++i) {
+      ASSERT_EQ(other[i].t, (*paths)[i].t);
+      ASSERT_EQ(other[i].pose.x, (*paths)[i].pose.x) << i;
+      ASSERT_EQ(other[i].pose.y, (*paths)[i].pose.y) << i;
+      ASSERT_EQ(other[i].pose.theta, (*paths)[i].pose.theta) << i;
+    }
+  }
+
+  // The odometry does not see it: the reading at kKidnapT counts as without, and the rates
+  // change across it no more than they did before or than the wanderer's turning away from an
+  // obstacle makes them; dead reckoning moves as little there as a robot at cruising speed does
+  // in 20 ms.
+  const OdometryReading& at = kidnapped.odometry[first_after];
+  ASSERT_NEAR(at.t, kKidnapT, 1e-9);
+  EXPECT_EQ(at.left_ticks, plain.odometry[first_after].left_ticks);
+  EXPECT_EQ(at.right_ticks, plain.odometry[first_after].right_ticks);
+  EXPECT_NEAR(at.gyro_raw, plain.odometry[first_after].gyro_raw, 1);
+  const RateChanges across = LargestRateChanges(kidnapped.odometry, kKidnapT - 0.1, kKidnapT + 0.1);
+  const RateChanges earlier = LargestRateChanges(kidnapped.odometry, 0.0, kKidnapT);
+  EXPECT_LE(across.ticks, std::max(earlier.ticks, kTurnStartTicks));
+  EXPECT_LE(across.gyro, std::max(earlier.gyro, kTurnStartGyro));
+  const std::vector<TimedPose> odom = DeadReckoning(TestRobot(), kidnapped.odometry);
+  for (size_t i = first_after - 5; i < first_after + 5; ++i) {
+    EXPECT_LT((odom[i + 1].pose.translation() - odom[i].pose.translation()).norm(), 0.01) << i;
+    EXPECT_LT(std::abs(NormalizeAngle(odom[i + 1].pose.theta - odom[i].pose.theta)), 0.1) << i;
+  }
+
+  // The ground truth does: at kKidnapT the tracker sees the robot at `to` (within its noise),
+  // the true path is there exactly.
+  const Pose2 true_at = At(kidnapped.true_path, kKidnapT);
+  EXPECT_NEAR((true_at.translation() - to.translation()).norm(), 0.0, 1e-9);
+  EXPECT_NEAR(NormalizeAngle(true_at.theta - to.theta), 0.0, 1e-9);
+  size_t j = 0;
+  while (before(kidnapped.ground_truth[j])) ++j;
+  ASSERT_GT(j, 0u);
+  const Pose2& seen = kidnapped.ground_truth[j].pose;
+  const Pose2& seen_before = kidnapped.ground_truth[j - 1].pose;
+  EXPECT_NEAR(kidnapped.ground_truth[j].t, kKidnapT, 1e-9);
+  EXPECT_LT((seen.translation() - to.translation()).norm(), 0.006);
+  EXPECT_LT(std::abs(NormalizeAngle(seen.theta - to.theta)), 0.025);
+  const double moved = (to.translation() - from.translation()).norm();
+  const double turned = std::abs(NormalizeAngle(to.theta - from.theta));
+  if (moved > 0.4 || turned > DegToRad(30.0)) {
+    EXPECT_TRUE((seen.translation() - seen_before.translation()).norm() > 0.3 ||
+                std::abs(NormalizeAngle(seen.theta - seen_before.theta)) > DegToRad(20.0))
+        << "moved " << moved << " m, turned " << RadToDeg(turned) << " degrees";
+  }
+
+  // Set down there, it drives on clear of the obstacles.
+  double min_clearance = 1e9;
+  for (const TimedPose& p : kidnapped.true_path) {
+    if (before(p)) continue;
+    min_clearance = std::min(min_clearance, ClearanceAt(world, p.pose.translation()));
+    EXPECT_TRUE(p.pose.x >= world.bounds[0] && p.pose.x <= world.bounds[2] &&
+                p.pose.y >= world.bounds[1] && p.pose.y <= world.bounds[3]);
+  }
+  EXPECT_GE(min_clearance, 0.085);
+  EXPECT_GT((kidnapped.true_path.back().pose.translation() - to.translation()).norm(), 0.05)
+      << "it does not drive on";
+}
+
+TEST(KidnapTest, InEveryBuiltinWorldTheTruthJumpsAndTheOdometryDoesNot) {
+  const RobotDescription robot = TestRobot();
+  for (const std::string& name : BuiltinWorldNames()) {
+    SCOPED_TRACE(name);
+    const World world = *BuiltinWorld(name);
+    const ScenarioOutput plain = RunScenario(world, robot, ShortRun(40.0, 1));
+    // Set down where it was at half the kidnapping's time, with that heading.
+    const ScenarioOutput back = RunScenario(world, robot, KidnapRun(1));
+    ExpectKidnapped(world, plain, back, At(plain.true_path, kKidnapT / 2.0));
+    // And at the place farthest from where it was lifted, with another heading.
+    ScenarioConfig config = KidnapRun(1);
+    Pose2 far = FarthestBefore(plain.true_path, At(plain.true_path, kKidnapT), kKidnapT);
+    far.theta = NormalizeAngle(far.theta + 2.0);
+    ASSERT_GT((far.translation() - At(plain.true_path, kKidnapT).translation()).norm(), 0.4);
+    config.kidnap_to = far;
+    ASSERT_TRUE(config.Validate().empty());
+    ASSERT_TRUE(CheckFreePose(world, config.robot_radius_m, far).ok());
+    ExpectKidnapped(world, plain, RunScenario(world, robot, config), far);
+  }
+}
+
+TEST(KidnapTest, TheSameKidnappingGivesTheSameRun) {
+  const World world = *BuiltinWorld("cluttered");
+  const ScenarioOutput a = RunScenario(world, TestRobot(), KidnapRun(3));
+  const ScenarioOutput b = RunScenario(world, TestRobot(), KidnapRun(3));
+  ASSERT_EQ(a.odometry.size(), b.odometry.size());
+  EXPECT_EQ(a.odometry, b.odometry);
+  EXPECT_EQ(a.scanner, b.scanner);
+  ASSERT_EQ(a.kidnaps.size(), 1u);
+  EXPECT_EQ(a.kidnaps[0].to.x, b.kidnaps[0].to.x);
+  EXPECT_EQ(a.ground_truth.back().pose.x, b.ground_truth.back().pose.x);
+}
+
+TEST(KidnapTest, ConfigValidationNamesTheKidnapKeys) {
+  ScenarioConfig config = ShortRun(40.0, 1);
+  for (const double t : {0.0, -1.0, 40.0, 41.0, std::nan("")}) {
+    config.kidnap_t_s = t;
+    EXPECT_EQ(config.Validate(),
+              std::vector<std::string>{"/kidnap_t_s: must be in (0, duration_s)"})
+        << t;
+  }
+  config.kidnap_t_s = 39.9;
+  EXPECT_TRUE(config.Validate().empty());
+  config.kidnap_to = Pose2{0.0, std::numeric_limits<double>::infinity(), 0.0};
+  EXPECT_EQ(config.Validate(), std::vector<std::string>{"/kidnap_to: must be finite"});
+  config.kidnap_t_s.reset();
+  config.kidnap_to = Pose2{0.5, 0.5, 0.0};
+  EXPECT_EQ(config.Validate(), std::vector<std::string>{"/kidnap_to: needs kidnap_t_s"});
+}
+
+TEST(KidnapTest, ATargetInAWallOrOutsideIsRefused) {
+  const World rooms = *BuiltinWorld("rooms");
+  const World cluttered = *BuiltinWorld("cluttered");
+  ASSERT_FALSE(rooms.segments.empty());
+  ASSERT_FALSE(cluttered.circles.empty());
+  const Segment& wall = rooms.segments.front();
+  const Vec2 on_wall = 0.5 * (wall.a + wall.b);
+  const Circle& pillar = cluttered.circles.front();
+  const double radius = ScenarioConfig{}.robot_radius_m;
+  const auto refused = [&](const World& world, const Pose2& pose) {
+    return !CheckFreePose(world, radius, pose).ok();
+  };
+  EXPECT_TRUE(refused(rooms, {on_wall.x(), on_wall.y(), 0.0}));
+  // Beside the wall, the disc overlapping it by a millimetre; two millimetres farther it fits.
+  const Vec2 along = (wall.b - wall.a).normalized();
+  const Vec2 normal(-along.y(), along.x());
+  for (const double side : {1.0, -1.0}) {
+    const Vec2 near = on_wall + side * (radius - 0.001) * normal;
+    const Vec2 clear = on_wall + side * (radius + 0.001) * normal;
+    if (!(ClearanceAt(rooms, clear) > radius)) continue;  // another wall there
+    EXPECT_TRUE(refused(rooms, {near.x(), near.y(), 0.0}));
+  }
+  EXPECT_TRUE(refused(cluttered, {pillar.center.x(), pillar.center.y(), 1.0}));
+  EXPECT_TRUE(refused(rooms, {rooms.bounds[2] + 1.0, rooms.bounds[3] - 0.5, 0.0}));   // outside
+  EXPECT_TRUE(refused(rooms, {rooms.bounds[0] + 0.05, rooms.bounds[1] + 0.5, 0.0}));  // the edge
+  EXPECT_TRUE(refused(rooms, {std::nan(""), 0.5, 0.0}));
+  const ScenarioOutput plain = RunScenario(rooms, TestRobot(), ShortRun(40.0, 1));
+  const Pose2 visited = At(plain.true_path, 10.0);
+  EXPECT_TRUE(CheckFreePose(rooms, radius, visited).ok());
+  const Result<void> message = CheckFreePose(rooms, radius, {on_wall.x(), on_wall.y(), 0.0});
+  EXPECT_NE(message.Message().find("overlaps a wall"), std::string::npos) << message.Message();
+
+  // The simulator refuses it and goes on as without.
+  Simulator simulator(rooms, TestRobot(), ShortRun(40.0, 1));
+  ScenarioOutput out;
+  while (simulator.time() < 10.0 - 1e-9) simulator.Step(out);
+  EXPECT_FALSE(simulator.Kidnap({on_wall.x(), on_wall.y(), 0.0}).ok());
+  while (simulator.time() < 20.0 - 1e-9) simulator.Step(out);
+  EXPECT_TRUE(out.kidnaps.empty());
+  ASSERT_GE(plain.odometry.size(), out.odometry.size());
+  for (size_t i = 0; i < out.odometry.size(); ++i) ASSERT_EQ(out.odometry[i], plain.odometry[i]);
+  // A config whose target is in a wall is no kidnapping (RunScenario's precondition).
+  ScenarioConfig config = KidnapRun(1);
+  config.kidnap_to = Pose2{on_wall.x(), on_wall.y(), 0.0};
+  const ScenarioOutput walled = RunScenario(rooms, TestRobot(), config);
+  EXPECT_TRUE(walled.kidnaps.empty());
+  EXPECT_EQ(walled.odometry, plain.odometry);
+}
+
+TEST(KidnapTest, TheSimulatorSetsTheRobotDownAtTheNextStep) {
+  const World world = *BuiltinWorld("box");
+  const ScenarioOutput plain = RunScenario(world, TestRobot(), ShortRun(20.0, 2));
+  const Pose2 target{At(plain.true_path, 3.0).x, At(plain.true_path, 3.0).y, 2.5};
+  Simulator simulator(world, TestRobot(), ShortRun(20.0, 2));
+  ScenarioOutput out;
+  while (simulator.time() < 12.0 - 1e-9) simulator.Step(out);
+  const Pose2 lifted = simulator.pose();
+  ASSERT_TRUE(simulator.Kidnap(target).ok());
+  EXPECT_EQ(simulator.pose().x, lifted.x);  // not before the next step
+  simulator.Step(out);
+  ASSERT_EQ(out.kidnaps.size(), 1u);
+  EXPECT_NEAR(out.kidnaps[0].t, 12.0, 1e-9);
+  EXPECT_EQ(out.kidnaps[0].from.x, lifted.x);
+  EXPECT_EQ(out.kidnaps[0].to.x, target.x);
+  EXPECT_NEAR(out.kidnaps[0].to.theta, 2.5, 1e-12);
+  // One step (10 ms) on from the target.
+  EXPECT_LT((simulator.pose().translation() - target.translation()).norm(), 0.002);
+  EXPECT_LT(std::abs(NormalizeAngle(simulator.pose().theta - target.theta)), 0.03);
+  EXPECT_NEAR(out.true_path.back().pose.x, target.x, 0.002);
 }
 
 TEST(BuildScansTest, HalfTurnsOfFortySamplesWithOdometryPoses) {

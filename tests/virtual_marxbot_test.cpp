@@ -3,12 +3,15 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <thread>
+#include <utility>
 #include <vector>
 
 #include "engine/io/robot_json.hpp"
@@ -276,6 +279,134 @@ TEST_F(ExperimentTest, TheVirtualMarxbotKeepsTheLastMinuteOfGroundTruthOnly) {
   std::vector<TimedPose> late;
   EXPECT_EQ(source.GroundTruthSince(0, late), next);
   EXPECT_EQ(late.size(), kept.size());
+}
+
+/// Reads `source` (unpaced: 0.2 s of simulated time a read) until its ground truth reaches
+/// `until_s`.
+void ReadUntil(VirtualMarxbotSource& source, double until_s) {
+  std::vector<hw::TimedFrame> frames;
+  for (int i = 0; i < 10000; ++i) {
+    const std::vector<TimedPose> truth = source.GroundTruth();
+    if (!truth.empty() && truth.back().t >= until_s) return;
+    frames.clear();
+    ASSERT_EQ(source.Read(frames, std::chrono::milliseconds(20)).status, hw::ReadStatus::kOk);
+  }
+  FAIL() << "never reached " << until_s << " s";
+}
+
+/// The largest distance between consecutive tracker poses after `from_t`, and the first pose
+/// after the largest jump.
+std::pair<double, TimedPose> LargestJumpAfter(const std::vector<TimedPose>& truth, double from_t) {
+  std::pair<double, TimedPose> largest{0.0, {}};
+  for (size_t i = 1; i < truth.size(); ++i) {
+    if (truth[i - 1].t < from_t) continue;
+    const double jump = (truth[i].pose.translation() - truth[i - 1].pose.translation()).norm();
+    if (jump > largest.first) largest = {jump, truth[i]};
+  }
+  return largest;
+}
+
+TEST_F(ExperimentTest, AKidnappedVirtualMarxbotsGroundTruthJumpsAndItCountsKidnaps) {
+  VirtualMarxbotOptions options;
+  options.paced = false;
+  config_.seed = 2;
+  VirtualMarxbotSource source(world_, "cluttered", robot_, config_, options);
+  ReadUntil(source, 20.0);
+  EXPECT_EQ(source.kidnaps(), 0u);
+  const std::vector<TimedPose> before = source.GroundTruth();
+  const double lifted_t = before.back().t;
+
+  // Set down where it was half its run ago (a pose remembered each second).
+  const Result<Pose2> back = source.Kidnap(std::nullopt);
+  ASSERT_TRUE(back.ok()) << back.Message();
+  const auto truth_near = [&](double t) {
+    for (const TimedPose& p : before) {
+      if (std::abs(p.t - t) < 1e-6) return p.pose;
+    }
+    ADD_FAILURE() << "no tracker pose at " << t;
+    return Pose2{};
+  };
+  // Simulated to just past 20 s: half is 10 s, remembered on the second.
+  const Pose2 at_half = truth_near(10.0);
+  EXPECT_LT((back.value().translation() - at_half.translation()).norm(), 0.01);
+  ReadUntil(source, lifted_t + 1.0);
+  EXPECT_EQ(source.kidnaps(), 1u);
+  const auto [jump, landed] = LargestJumpAfter(source.GroundTruth(), lifted_t - 1.0);
+  // Unpaced, it is set down at the start of the next read, after the last pose seen.
+  const double moved = (back.value().translation() - before.back().pose.translation()).norm();
+  ASSERT_GT(moved, 0.3);
+  EXPECT_NEAR(jump, moved, 0.01);
+  EXPECT_LT((landed.pose.translation() - back.value().translation()).norm(), 0.01);
+  EXPECT_LT(landed.t - lifted_t, 0.05);
+
+  // Set down at a given free pose.
+  const Pose2 target{at_half.x, at_half.y, 1.0};
+  const Result<Pose2> there = source.Kidnap(target);
+  ASSERT_TRUE(there.ok()) << there.Message();
+  EXPECT_EQ(there.value().x, target.x);
+  const double second_t = source.GroundTruth().back().t;
+  ReadUntil(source, second_t + 1.0);
+  EXPECT_EQ(source.kidnaps(), 2u);
+  const auto [jump2, landed2] = LargestJumpAfter(source.GroundTruth(), second_t - 1.0);
+  EXPECT_LT((landed2.pose.translation() - target.translation()).norm(), 0.01);
+  EXPECT_LT(std::abs(NormalizeAngle(landed2.pose.theta - target.theta)), 0.03);
+
+  // A target the robot does not fit at is refused: nothing happens.
+  const Circle& pillar = world_.circles.front();
+  const Result<Pose2> refused = source.Kidnap(Pose2{pillar.center.x(), pillar.center.y(), 0.0});
+  EXPECT_FALSE(refused.ok());
+  EXPECT_NE(refused.Message().find("overlaps"), std::string::npos) << refused.Message();
+  EXPECT_FALSE(source.Kidnap(Pose2{world_.bounds[2] + 1.0, 0.0, 0.0}).ok());
+  const double third_t = source.GroundTruth().back().t;
+  ReadUntil(source, third_t + 2.0);
+  EXPECT_EQ(source.kidnaps(), 2u);
+  EXPECT_LT(LargestJumpAfter(source.GroundTruth(), third_t - 0.5).first, 0.02);
+}
+
+TEST_F(ExperimentTest, AfterLongRunsTheDefaultTargetIsStillWhereTheRobotWasHalfItsRunAgo) {
+  // Past kRememberedPoses seconds every other remembered pose is forgotten: 1100 s leave one
+  // every 2 s.
+  VirtualMarxbotOptions options;
+  options.paced = false;
+  VirtualMarxbotSource source(world_, "cluttered", robot_, config_, options);
+  std::vector<TimedPose> truth;
+  std::vector<hw::TimedFrame> frames;
+  size_t next = 0;
+  while (truth.empty() || truth.back().t < 1100.0) {
+    frames.clear();
+    ASSERT_EQ(source.Read(frames, std::chrono::milliseconds(20)).status, hw::ReadStatus::kOk);
+    next = source.GroundTruthSince(next, truth);
+  }
+  const Result<Pose2> target = source.Kidnap(std::nullopt);
+  ASSERT_TRUE(target.ok()) << target.Message();
+  const double half = truth.back().t / 2.0;
+  double nearest = 1e9;
+  for (const TimedPose& p : truth) {
+    if (std::abs(p.t - half) <= 2.0) {
+      nearest = std::min(nearest, (p.pose.translation() - target.value().translation()).norm());
+    }
+  }
+  EXPECT_LT(nearest, 0.01);
+}
+
+TEST_F(ExperimentTest, AVirtualMarxbotMayBeKidnappedFromAnotherThreadWhileRead) {
+  VirtualMarxbotOptions options;
+  options.paced = false;
+  VirtualMarxbotSource source(world_, "cluttered", robot_, config_, options);
+  std::atomic<int> accepted{0};
+  std::atomic<bool> done{false};
+  std::thread http([&] {
+    while (!done) {
+      if (source.Kidnap(std::nullopt).ok()) ++accepted;
+      std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    }
+  });
+  ReadUntil(source, 30.0);
+  done = true;
+  http.join();
+  EXPECT_GT(accepted.load(), 0);
+  EXPECT_GT(source.kidnaps(), 0u);
+  EXPECT_LE(source.kidnaps(), static_cast<uint64_t>(accepted.load()));
 }
 
 }  // namespace

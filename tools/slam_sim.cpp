@@ -1,5 +1,6 @@
 // slam-sim: writes recorded experiments of the virtual marXbot (docs/design.md section 6).
 //   slam-sim --world NAME|FILE --duration S --seed N --out DIR    one experiment
+//     [--kidnap T [--kidnap-to X,Y,THETA_DEG]]                     the robot lifted at T
 //   slam-sim dataset [--set NAME] --out DIR                        a set of experiments
 //   slam-sim dataset --set all --out DIR                           training, validation, reference
 // The same arguments always write the same files.
@@ -7,9 +8,12 @@
 #include <tbb/parallel_for.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <iostream>
 #include <mutex>
@@ -61,6 +65,8 @@ struct SimConfig {
   double turn_rate_rad_s = slam::sim::ScenarioConfig{}.turn_rate_rad_s;
   std::string odometry = "tracked";
   int people = 0;
+  std::string kidnap, kidnap_to;  // as typed; checked by KidnapOptions
+  bool kidnap_given = false, kidnap_to_given = false;
   // slam-sim dataset
   std::string dataset_out, set_name = "reference";
   int runs = 0;
@@ -98,6 +104,16 @@ CLI::App* AddOptions(CLI::App& app, SimConfig& c) {
                  "reference set's small zero-mean slip)")
       ->capture_default_str()
       ->check(CLI::IsMember({"tracked", "gentle"}));
+  app.add_option("--kidnap", c.kidnap,
+                 "kidnap the robot at this simulated time T in seconds (0 < T < --duration): it "
+                 "is lifted and set down at the pose it had at T/2, or at --kidnap-to; its "
+                 "odometry does not see it, the ground truth does (meta.json's \"kidnap\"). One "
+                 "experiment only")
+      ->type_name("T");
+  app.add_option("--kidnap-to", c.kidnap_to,
+                 "where --kidnap sets the robot down: X,Y,THETA_DEG in the world frame (metres, "
+                 "degrees), a place where the robot fits")
+      ->type_name("X,Y,THETA_DEG");
 
   CLI::App* dataset = app.add_subcommand(
       "dataset",
@@ -115,6 +131,58 @@ CLI::App* AddOptions(CLI::App& app, SimConfig& c) {
       ->check(CLI::Range(0.1, 86400.0));
   app.set_version_flag("--version", std::string("slam-sim ") + SLAM_VERSION);
   return dataset;
+}
+
+/// `text` as a whole finite number, nullopt otherwise.
+std::optional<double> FiniteNumber(const std::string& text) {
+  if (text.empty()) return std::nullopt;
+  char* end = nullptr;
+  const double value = std::strtod(text.c_str(), &end);
+  if (end != text.c_str() + text.size() || !std::isfinite(value)) return std::nullopt;
+  return value;
+}
+
+/// --kidnap and --kidnap-to into `config` for a run in `world` (called `world_name`); false when
+/// they are bad (said on stderr).
+bool KidnapOptions(const SimConfig& c, const slam::sim::World& world, const std::string& world_name,
+                   slam::sim::ScenarioConfig& config) {
+  if (c.kidnap_to_given && !c.kidnap_given) {
+    std::cerr << "slam-sim: --kidnap-to needs --kidnap T\n";
+    return false;
+  }
+  if (!c.kidnap_given) return true;
+  const std::optional<double> t = FiniteNumber(c.kidnap);
+  if (!t || !(*t > 0.0 && *t < config.duration_s)) {
+    std::cerr << "slam-sim: --kidnap " << c.kidnap
+              << ": expected a time in seconds within the run, 0 < T < " << config.duration_s
+              << " (--duration)\n";
+    return false;
+  }
+  config.kidnap_t_s = *t;
+  if (!c.kidnap_to_given) return true;
+  std::vector<double> values;
+  for (size_t from = 0; from <= c.kidnap_to.size();) {
+    const size_t comma = std::min(c.kidnap_to.find(',', from), c.kidnap_to.size());
+    const std::optional<double> value = FiniteNumber(c.kidnap_to.substr(from, comma - from));
+    if (!value) break;
+    values.push_back(*value);
+    from = comma + 1;
+  }
+  if (values.size() != 3 || std::count(c.kidnap_to.begin(), c.kidnap_to.end(), ',') != 2) {
+    std::cerr << "slam-sim: --kidnap-to " << c.kidnap_to
+              << ": expected X,Y,THETA_DEG (three finite numbers: metres, metres, degrees)\n";
+    return false;
+  }
+  const slam::Pose2 target{values[0], values[1], slam::NormalizeAngle(slam::DegToRad(values[2]))};
+  if (const slam::Result<void> free =
+          slam::sim::CheckFreePose(world, config.robot_radius_m, target);
+      !free.ok()) {
+    std::cerr << "slam-sim: --kidnap-to " << c.kidnap_to << ": " << free.Message() << " ("
+              << world_name << ", a robot of radius " << config.robot_radius_m << " m)\n";
+    return false;
+  }
+  config.kidnap_to = target;
+  return true;
 }
 
 /// The jobs of `slam-sim dataset`, and each set's directory with the jobs of its index.json.
@@ -191,6 +259,8 @@ int main(int argc, char** argv) {
   SimConfig config;
   CLI::App* dataset = AddOptions(app, config);
   if (const std::optional<int> exit_code = slam::cli::Parse(app, argc, argv)) return *exit_code;
+  config.kidnap_given = app.count("--kidnap") > 0;
+  config.kidnap_to_given = app.count("--kidnap-to") > 0;
 
   auto robot = slam::io::LoadRobot(config.robot_path);
   if (!robot.ok()) {
@@ -208,6 +278,10 @@ int main(int argc, char** argv) {
   // Each set's directory and the jobs of its index.json.
   std::vector<std::pair<std::string, std::vector<size_t>>> indexes;
   if (dataset->parsed()) {
+    if (config.kidnap_given || config.kidnap_to_given) {
+      std::cerr << "slam-sim: --kidnap and --kidnap-to are for one experiment, not 'dataset'\n";
+      return 2;
+    }
     PlanDatasetJobs(config, dataset->count("--duration") > 0, base, jobs, indexes);
   } else {
     if (config.world_spec.empty() || config.out_dir.empty()) {
@@ -222,6 +296,7 @@ int main(int argc, char** argv) {
     job.config =
         slam::sim::WithOdometryProfile(base, *slam::sim::OdometryProfileFromName(config.odometry));
     job.config.seed = config.seed;
+    if (!KidnapOptions(config, job.world, job.world_name, job.config)) return 2;
     jobs.push_back(std::move(job));
   }
 
