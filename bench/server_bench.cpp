@@ -67,7 +67,7 @@ class Slamd {
     virtual_options.duration_s = 20.0;
     auto source = std::make_unique<sim::VirtualMarxbotSource>(
         *sim::BuiltinWorld("rooms"), "rooms", ShippedRobot(), scenario, virtual_options);
-    const sim::VirtualMarxbotSource* truth = source.get();
+    sim::VirtualMarxbotSource* truth = source.get();
     hw::LinkOptions link_options;
     link_options.queue_capacity = 1 << 16;  // the unpaced source must not lose events
     link_ = std::make_unique<hw::Link>(std::move(source), ShippedRobot(), link_options);

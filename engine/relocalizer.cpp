@@ -8,7 +8,8 @@ namespace slam {
 
 Relocalizer::Relocalizer(const RelocalizerConfig& config) : config_(config) {}
 
-void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region) {
+void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region,
+                        const std::optional<Pose2>& region_odom) {
   // A field is never finer than the map it comes from.
   const auto build = [&](MatchFieldConfig field) {
     field.resolution_m = std::max(field.resolution_m, map.geometry().resolution());
@@ -18,6 +19,7 @@ void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region) {
   field_ = build(config_.field);
   fine_field_ = build(config_.fine_field);
   region_ = region;
+  region_odom_ = region.whole_map ? std::nullopt : region_odom;
   entries_.clear();
   search_.reset();
   pending_.reset();
@@ -119,6 +121,7 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
         Relocalization found;
         found.pose = Compose(best->pose, Between(query_odom_, odom_end));
         found.score = best->score;
+        found.runner_up_score = runner_up_;
         found.points = query_points_;
         found.lookups = search_lookups_;
         found.searches = searches_;
@@ -141,6 +144,12 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
   }
   if (stage_ == Stage::kCheck) {
     if (const std::optional<GlobalMatch> answer = Decide()) {
+      // The next distinct candidate's fine score: how far the answer stood out.
+      runner_up_ = 0.0;
+      for (const GlobalMatch& other : checked_) {
+        if (Distinct(other, *answer, config_.search))
+          runner_up_ = std::max(runner_up_, other.score);
+      }
       // Carried to the newest scan and confirmed there with the newest multiscan.
       StartSearch(Stage::kConfirm, Query(), odom_end,
                   Around(Compose(answer->pose, Between(query_odom_, odom_end)),
@@ -190,7 +199,14 @@ RelocalizerStep Relocalizer::Add(const std::vector<Vec2>& points, const Pose2& o
     size_t total = 0;
     for (const Entry& e : entries_) total += e.points.size();
     if (total < static_cast<size_t>(config_.min_points)) return step;
-    StartSearch(Stage::kCoarse, Query(), odom_end, region_);
+    GlobalRegion region = region_;
+    if (region_odom_) {  // a hint given a while ago: where it is now, by the odometry
+      const Pose2 carried = Compose(Pose2{region.center.x(), region.center.y(), region.heading},
+                                    Between(*region_odom_, odom_end));
+      region.center = carried.translation();
+      region.heading = carried.theta;
+    }
+    StartSearch(Stage::kCoarse, Query(), odom_end, region);
   }
   // The confirming search starts where the global one ends, on the same share.
   while (search_ && step.lookups < max_lookups) {

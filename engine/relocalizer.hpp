@@ -89,8 +89,11 @@ class Relocalizer {
   explicit Relocalizer(const RelocalizerConfig& config = {});
 
   /// Starts relocalising on `map` (its field built now), over `region` (the whole map by
-  /// default); forgets any earlier multiscan and search.
-  void Start(const OccupancyGrid& map, const GlobalRegion& region = {});
+  /// default); forgets any earlier multiscan and search. A region given where the odometry read
+  /// `region_odom` (a hint: "the robot is about here") moves with the robot: each search looks
+  /// around the region carried by the odometry from there to its newest scan.
+  void Start(const OccupancyGrid& map, const GlobalRegion& region = {},
+             const std::optional<Pose2>& region_odom = std::nullopt);
   /// Stops relocalising.
   void Cancel();
   bool active() const { return field_ != nullptr; }
@@ -130,6 +133,7 @@ class Relocalizer {
   RelocalizerConfig config_;
   std::shared_ptr<const MatchField> field_, fine_field_;
   GlobalRegion region_;
+  std::optional<Pose2> region_odom_;  // where the odometry read when region_ was given
   std::deque<Entry> entries_;
   std::unique_ptr<GlobalSearch> search_;
   Stage stage_ = Stage::kCoarse;         // search_'s
@@ -138,6 +142,7 @@ class Relocalizer {
   std::vector<GlobalMatch> candidates_;  // the coarse search's, to check
   std::vector<GlobalMatch> checked_;     // their fine answers so far
   int confirmed_ = 0;                    // confirmations of the answer so far
+  double runner_up_ = 0.0;               // the answer's distinct runner-up's fine score
   std::optional<Pose2> pending_;         // the answer between confirmations, at pending_odom_
   Pose2 pending_odom_;
   double pending_due_t_ = 0.0;

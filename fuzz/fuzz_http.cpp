@@ -57,7 +57,7 @@ struct Slamd {
     options.duration_s = 4.0;
     auto source = std::make_unique<slam::sim::VirtualMarxbotSource>(
         *slam::sim::BuiltinWorld("box"), "box", robot.value(), scenario, options);
-    const slam::sim::VirtualMarxbotSource* truth = source.get();
+    slam::sim::VirtualMarxbotSource* truth = source.get();
     slam::hw::LinkOptions link_options;
     link_options.queue_capacity = 1 << 16;
     link = std::make_unique<slam::hw::Link>(std::move(source), robot.value(), link_options);

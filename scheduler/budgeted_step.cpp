@@ -27,6 +27,7 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
   const double period = scan.t_end - scan.t_begin;
   // A CPU share's quota moves with the measured cost per ray, and may call for another set.
   const int64_t quota = scheduler_.Quota(period);
+  result.quota = quota;
   const ParamsSet& set = choice_.For(quota);
   if (set != in_use_) {
     engine_.SetParams(set.params);

@@ -48,6 +48,7 @@ class BudgetedStep {
     /// learns nothing from a scan that did nothing).
     std::optional<PlanRecord> record;
     double cpu_s = 0.0;  // the whole step's
+    int64_t quota = 0;   // the scan's quota, rays
     /// Set when the scan went to the relocaliser (then `report` is empty and `record` none):
     /// what it spent and found.
     std::optional<RelocalizerStep> relocalization;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 #include <cstdint>
 #include <limits>
 #include <optional>
@@ -176,6 +177,65 @@ Result<BudgetSettings> MergeBudget(const BudgetSettings& current, const json& pa
   return BudgetFromJson(target);
 }
 
+Result<PoseRequest> PoseRequestFromJson(const json& body, double resolution_m) {
+  if (!body.is_object()) return ConfigErrors{{"", "must be a JSON object", 0}};
+  ConfigErrors errors;
+  static const std::vector<std::string> kKeys{"x", "y", "theta_deg", "sigma_m", "sigma_deg"};
+  for (const auto& [key, value] : body.items()) {
+    if (std::find(kKeys.begin(), kKeys.end(), key) == kKeys.end()) {
+      errors.push_back({"/" + key, "unknown field", 0});
+    }
+  }
+  PoseRequest request;
+  const auto number = [&](const std::string& key, bool required) -> std::optional<double> {
+    if (!body.contains(key)) {
+      if (required) errors.push_back({"/" + key, "required", 0});
+      return std::nullopt;
+    }
+    if (!body[key].is_number()) {
+      errors.push_back({"/" + key, "must be a number", 0});
+      return std::nullopt;
+    }
+    return body[key].get<double>();
+  };
+  const std::optional<double> x = number("x", true), y = number("y", true),
+                              theta_deg = number("theta_deg", true);
+  request.sigma_m = number("sigma_m", false);
+  request.sigma_deg = number("sigma_deg", false);
+  if (!errors.empty()) return errors;
+  // JSON numbers beyond a double's range (1e999) read as infinite: ValidatePoseRequest says so.
+  request.pose =
+      Pose2{*x, *y, std::isfinite(*theta_deg) ? NormalizeAngle(DegToRad(*theta_deg)) : *theta_deg};
+  errors = ValidatePoseRequest(request, resolution_m);
+  if (!errors.empty()) return errors;
+  return request;
+}
+
+namespace {
+
+json RecordJson(const RelocalizationRecord& r) {
+  return {{"cause", ToString(r.cause)},
+          {"t", r.t},
+          {"x", r.pose.x},
+          {"y", r.pose.y},
+          {"theta", r.pose.theta},
+          {"score", r.score},
+          {"runner_up_score", r.runner_up_score},
+          {"points", r.points},
+          {"searches", r.searches},
+          {"lookups", r.lookups},
+          {"scans", r.scans},
+          {"search_s", r.search_s}};
+}
+
+}  // namespace
+
+json RelocalizationJson(const SlamSnapshot& s) {
+  return {{"active", s.relocalizing.has_value()},
+          {"cause", s.relocalizing ? json(ToString(*s.relocalizing)) : json(nullptr)},
+          {"last", s.last_relocalization ? RecordJson(*s.last_relocalization) : json(nullptr)}};
+}
+
 json MetricsEventJson(const SlamSnapshot& s) {
   const ScanMetrics& m = *s.last;
   return {{"scan", m.scan},
@@ -189,6 +249,8 @@ json MetricsEventJson(const SlamSnapshot& s) {
           {"particles", m.particles},
           {"candidates", m.candidates},
           {"ess", m.ess},
+          {"relocalizing", m.relocalizing},
+          {"lookups", m.lookups},
           {"pose_error_m", m.pose_error_m ? json(*m.pose_error_m) : json(nullptr)},
           {"ate_m", m.ate_m ? json(*m.ate_m) : json(nullptr)}};
 }
@@ -196,6 +258,7 @@ json MetricsEventJson(const SlamSnapshot& s) {
 json PoseEventJson(const SlamSnapshot& s) {
   json j = PoseJson(s.pose);
   j["scan"] = s.last ? s.last->scan : 0;
+  j["localized"] = !s.relocalizing.has_value();  // false: the pose is the last known, searching
   j["truth"] = s.truth ? json{{"x", s.truth->x}, {"y", s.truth->y}, {"theta", s.truth->theta}}
                        : json(nullptr);
   return j;

@@ -55,6 +55,15 @@ Result<BudgetSettings> BudgetFromJson(const nlohmann::json& body);
 /// removed member takes its default), then read as BudgetFromJson reads a whole object.
 Result<BudgetSettings> MergeBudget(const BudgetSettings& current, const nlohmann::json& patch);
 
+/// A pose request's body (POST /api/v1/pose): {"x": m, "y": m, "theta_deg": d} with optional
+/// "sigma_m" and "sigma_deg", numbers, no other key; then ValidatePoseRequest at
+/// `resolution_m`.
+Result<PoseRequest> PoseRequestFromJson(const nlohmann::json& body, double resolution_m);
+
+/// The relocalisation's state for /status and the event stream: {"active", "cause" (null
+/// when not active), "last": the last one taken or null}.
+nlohmann::json RelocalizationJson(const SlamSnapshot& s);
+
 /// The data of the event stream's `metrics` and `pose` events for a snapshot.
 nlohmann::json MetricsEventJson(const SlamSnapshot& s);
 nlohmann::json PoseEventJson(const SlamSnapshot& s);

@@ -32,6 +32,7 @@ struct HttpServer::Impl::EventStream {
   int64_t last_pose_scan = -1;
   uint64_t budget_revision = 0, params_revision = 0, job_revision = 0;
   std::string link_state, slam_state;
+  std::string relocalization;  // the last relocalization event's data, as sent
 };
 
 void HttpServer::Impl::HandleEvents(const httplib::Request& req, httplib::Response& res) {
@@ -136,6 +137,14 @@ std::string HttpServer::Impl::MapEvents(EventStream& s, const SlamSnapshot& snap
     s.last_pose = now;
     out += SseEvent("pose", s.covered, PoseEventJson(snapshot));
     out += SseEvent("metrics", s.covered, MetricsEventJson(snapshot));
+  }
+  // The relocalisation's state when it changes (started, ended, a new one taken); the first
+  // one with the hello's state.
+  std::string relocalization = Dump(RelocalizationJson(snapshot));
+  if (relocalization != s.relocalization) {
+    out += "event: relocalization\nid: " + std::to_string(s.covered) + "\ndata: " + relocalization +
+           "\n\n";
+    s.relocalization = std::move(relocalization);
   }
   s.sequence = snapshot.sequence;
   return out;

@@ -194,6 +194,14 @@ json HttpServer::Impl::StatusJson() {
                {"late_scans", c.late_scans},
                {"refused_scans", c.refused_scans},
                {"resets", c.resets},
+               {"relocalization",
+                {{"state", RelocalizationJson(*snapshot)},
+                 {"relocalizations", c.relocalizations},
+                 {"refused", c.relocalizations_refused},
+                 {"unsure_searches", c.relocalization_searches_unsure},
+                 {"scans", c.relocalizing_scans},
+                 {"lookups", c.relocalization_lookups},
+                 {"poses_set", c.poses_set}}},
                {"particles", snapshot->last ? snapshot->last->particles : 0},
                {"map_version", snapshot->map_version},
                {"tiles", snapshot->tiles.size()},
@@ -238,12 +246,31 @@ std::string HttpServer::Impl::MetricsText() {
       "refused_scans_total", "counter",
       "Scans the SLAM refused: odometry not finite, implausibly fast, or beyond the map's bound.",
       c.refused_scans);
+  metric("relocalizing", "gauge",
+         "1 while the SLAM relocalises (searches the map for the robot; nothing is mapped).",
+         snapshot->relocalizing ? 1 : 0);
+  metric("relocalizations_total", "counter", "Relocalisations taken.", c.relocalizations);
+  metric("relocalizations_refused_total", "counter",
+         "Relocalisation answers the engine refused (beyond the map's bound).",
+         c.relocalizations_refused);
+  metric("relocalization_unsure_searches_total", "counter",
+         "Relocalisation searches that ended without a unique answer (searched again).",
+         c.relocalization_searches_unsure);
+  metric("relocalizing_scans_total", "counter", "Scans that went to the relocaliser.",
+         c.relocalizing_scans);
+  metric("relocalization_lookups_total", "counter",
+         "Point lookups of the relocaliser's global search (32 are paid as one quota ray).",
+         c.relocalization_lookups);
+  metric("poses_set_total", "counter", "Poses given for the robot and taken as they were.",
+         c.poses_set);
   metric("rays_planned_total", "counter", "Rays planned by the scheduler.", c.rays_planned);
   metric("rays_used_total", "counter", "Rays cast by the engine.", c.rays_used);
   const ScanMetrics last = snapshot->last.value_or(ScanMetrics{});
   metric("rays_per_scan_planned", "gauge", "Rays planned for the latest scan.", last.rays_planned);
   metric("rays_per_scan_used", "gauge", "Rays cast on the latest scan.", last.rays_used);
   metric("ray_quota", "gauge", "The scheduler's quota for the latest scan, rays.", last.quota);
+  metric("lookups_per_scan", "gauge", "The relocaliser's point lookups on the latest scan.",
+         last.lookups);
   o << "# HELP slamd_scan_latency_seconds From a scan's last event to its published result.\n"
        "# TYPE slamd_scan_latency_seconds histogram\n";
   uint64_t cumulative = 0;
@@ -518,6 +545,54 @@ void HttpServer::Impl::AddMapRoutes() {
   Route("POST", "/api/v1/reset", [this](const Request& req, Response& res) {
     json body;
     if (ParseBody(req, res, "application/json", body)) HandleReset(res);
+  });
+  Route("POST", "/api/v1/pose", [this](const Request& req, Response& res) {
+    json body;
+    if (!ParseBody(req, res, "application/json", body)) return;
+    const Result<PoseRequest> request = PoseRequestFromJson(body, service.config().resolution_m);
+    if (!request.ok()) {
+      SendProblem(res, 422, "Invalid pose", "the pose was not changed", request.errors());
+      return;
+    }
+    service.RequestPose(request.value());
+    const bool hint = request.value().sigma_m || request.value().sigma_deg;
+    SendJson(res, {{"pending", true}, {"mode", hint ? "relocalize_around" : "set"}}, 202);
+  });
+  Route("POST", "/api/v1/sim/kidnap", [this](const Request& req, Response& res) {
+    json body;
+    if (!ParseBody(req, res, "application/json", body)) return;
+    if (!service.simulated()) {
+      SendProblem(res, 409, "Conflict", "the source is not the virtual marXbot: nothing to lift");
+      return;
+    }
+    std::optional<Pose2> target;
+    if (!(body.is_object() && body.empty())) {
+      // A target in the world frame, as the pose route's body (no deviations).
+      const Result<PoseRequest> parsed = PoseRequestFromJson(body, service.config().resolution_m);
+      if (!parsed.ok() || parsed.value().sigma_m || parsed.value().sigma_deg) {
+        SendProblem(res, 422, "Invalid target", "the robot was not moved",
+                    parsed.ok() ? ConfigErrors{{"", "a target has no sigma_m or sigma_deg", 0}}
+                                : parsed.errors());
+        return;
+      }
+      target = parsed.value().pose;
+    }
+    const Result<Pose2> landed = service.KidnapSimulatedRobot(target);
+    if (!landed.ok()) {
+      SendProblem(res, 422, "Invalid target", landed.Message(), {{"", landed.Message(), 0}});
+      return;
+    }
+    const Pose2& p = landed.value();
+    SendJson(res, {{"x", p.x}, {"y", p.y}, {"theta", p.theta}, {"frame", "world"}}, 202);
+  });
+  Route("POST", "/api/v1/relocalize", [this](const Request& req, Response& res) {
+    json body;
+    if (!ParseBody(req, res, "application/json", body)) return;
+    if (!service.RequestRelocalize()) {
+      SendProblem(res, 409, "Conflict", "nothing is mapped yet: there is nothing to relocalise in");
+      return;
+    }
+    SendJson(res, {{"pending", true}}, 202);
   });
 }
 

@@ -77,8 +77,40 @@ const char* ToString(SlamState state) {
       return "waiting";
     case SlamState::kRunning:
       return "running";
+    case SlamState::kRelocalizing:
+      return "relocalizing";
   }
   return "unknown";
+}
+
+const char* ToString(RelocalizationCause cause) {
+  switch (cause) {
+    case RelocalizationCause::kResume:
+      return "resume";
+    case RelocalizationCause::kRequest:
+      return "request";
+    case RelocalizationCause::kHint:
+      return "hint";
+  }
+  return "unknown";
+}
+
+ConfigErrors ValidatePoseRequest(const PoseRequest& request, double resolution_m) {
+  ConfigErrors errors;
+  const Pose2& p = request.pose;
+  if (!std::isfinite(p.x)) errors.push_back({"/x", "must be a finite number of metres"});
+  if (!std::isfinite(p.y)) errors.push_back({"/y", "must be a finite number of metres"});
+  if (!std::isfinite(p.theta)) errors.push_back({"/theta_deg", "must be a finite number"});
+  if (errors.empty() && !GridGeometry(resolution_m).InMapBound(p.translation())) {
+    errors.push_back({"", "the position is beyond the map's bound"});
+  }
+  if (request.sigma_m && !(*request.sigma_m > 0.0 && *request.sigma_m <= 50.0)) {
+    errors.push_back({"/sigma_m", "must be above 0 and at most 50 (metres)"});
+  }
+  if (request.sigma_deg && !(*request.sigma_deg > 0.0 && *request.sigma_deg <= 180.0)) {
+    errors.push_back({"/sigma_deg", "must be above 0 and at most 180 (degrees)"});
+  }
+  return errors;
 }
 
 const std::vector<double>& LatencyBuckets() {
@@ -117,13 +149,14 @@ OccupancyGrid SnapshotGrid(const SlamSnapshot& snapshot, int encoded_logodds_lim
   return grid;
 }
 
-SlamService::SlamService(hw::Link& link, const sim::VirtualMarxbotSource* truth_source,
+SlamService::SlamService(hw::Link& link, sim::VirtualMarxbotSource* truth_source,
                          const ServiceOptions& options)
     : link_(link),
       truth_source_(truth_source),
       options_(options),
       scheduler_(options.budget, options.scheduler),
       assembler_(options.robot, options.assembler),
+      relocalizer_(options.relocalizer),
       params_(options.params.ForRobot(options.robot)) {
   options_.config.parallel = false;
   // slamd serves, saves and evaluates scan ends only (ScanEndTrajectory).
@@ -177,6 +210,9 @@ void SlamService::BuildEngine() {
   step_ = std::make_unique<BudgetedStep>(*engine_, scheduler_, std::move(choice), set,
                                          CpuClock::kThread);
   engine_->set_interrupt(&stop_);  // a scan of a huge budget ends soon after Stop()
+  step_->SetRelocalizer(&relocalizer_);
+  relocalizer_.Cancel();
+  relocalizing_.reset();
   if (options_.resume) {
     const SavedState& saved = *options_.resume;
     OccupancyGrid grid(GridGeometry(options_.config.resolution_m), encoded_logodds_limit());
@@ -184,19 +220,55 @@ void SlamService::BuildEngine() {
     for (const SavedTile& tile : saved.tiles) {
       std::copy(tile.cells.begin(), tile.cells.end(), grid.MutableTile(tile.index).cells.begin());
     }
-    Pose2 pose;
-    if (!options_.resume_at_origin && !saved.trajectory.empty())
-      pose = saved.trajectory.back().pose;
-    // LoadState refuses saved poses beyond the map's bound; one that got here anyway (another
-    // resolution, say) would leave the engine without the map: keep the map, start at the
-    // origin, and say so.
-    if (!engine_->Restore(grid, pose)) {
-      std::fprintf(stderr,
-                   "slamd: the saved pose (%g, %g, %g) is outside the map's bound: resuming the "
-                   "saved map at its origin\n",
-                   pose.x, pose.y, pose.theta);
+    // Where the robot is on the map is known only when given: it may have been carried while
+    // slamd was off (the virtual marXbot starts over from its start pose), and mapping from a
+    // wrong pose draws a second copy of the room over the first.
+    const Pose2 pose = options_.resume_pose.value_or(Pose2{});
+    // slamd validates a given pose; one beyond the map's bound got here anyway: relocalise.
+    const bool given = options_.resume_pose && engine_->Restore(grid, pose);
+    if (!given) {
       engine_->Restore(grid, Pose2{});
+      if (grid.Tiles().empty()) return;  // nothing to find the robot in: map from the origin
+      StartRelocalizing(RelocalizationCause::kResume);
     }
+  }
+}
+
+void SlamService::StartRelocalizing(RelocalizationCause cause, const GlobalRegion& region) {
+  relocalizer_.Start(engine_->Best().map, region, last_odom_);
+  relocalizing_ = cause;
+  relocalizing_since_t_ = -1.0;
+  relocalizing_scans_ = 0;
+  MutexLock lock(mutex_);
+  counters_.state = SlamState::kRelocalizing;
+}
+
+void SlamService::ApplyPose(const PoseRequest& request) {
+  // A hint on a map with nothing in it has nothing to be searched for: the pose is taken as is.
+  const bool mapped = !engine_->Best().map.Tiles().empty();
+  if (mapped && (request.sigma_m || request.sigma_deg)) {
+    GlobalRegion region;
+    region.whole_map = false;
+    region.center = request.pose.translation();
+    region.half_width_m = 3.0 * request.sigma_m.value_or(PoseRequest::kDefaultHintSigmaM);
+    region.heading = request.pose.theta;
+    region.half_angle_rad = std::min(
+        kPi, DegToRad(3.0 * request.sigma_deg.value_or(PoseRequest::kDefaultHintSigmaDeg)));
+    StartRelocalizing(RelocalizationCause::kHint, region);
+    std::fprintf(stderr,
+                 "slamd: relocalising around the pose given (%.3f, %.3f, %.1f deg), within "
+                 "%.2f m and %.0f deg\n",
+                 request.pose.x, request.pose.y, RadToDeg(request.pose.theta), region.half_width_m,
+                 RadToDeg(region.half_angle_rad));
+    return;
+  }
+  relocalizer_.Cancel();
+  relocalizing_.reset();
+  const bool taken = engine_->Relocate(request.pose);  // validated: always taken
+  MutexLock lock(mutex_);
+  if (taken) ++counters_.poses_set;
+  if (counters_.state == SlamState::kRelocalizing) {
+    counters_.state = counters_.scans > 0 ? SlamState::kRunning : SlamState::kWaiting;
   }
 }
 
@@ -332,6 +404,20 @@ void SlamService::RequestReset() {
   reset_requested_ = true;
 }
 
+void SlamService::RequestPose(const PoseRequest& request) {
+  MutexLock lock(mutex_);
+  pose_requested_ = request;
+  relocalize_requested_ = false;  // the latest request wins
+}
+
+bool SlamService::RequestRelocalize() {
+  MutexLock lock(mutex_);
+  if (snapshot_->tiles.empty()) return false;
+  relocalize_requested_ = true;
+  pose_requested_.reset();
+  return true;
+}
+
 std::shared_ptr<const SlamSnapshot> SlamService::Snapshot() const {
   MutexLock lock(mutex_);
   return snapshot_;
@@ -352,6 +438,11 @@ ServiceCounters SlamService::Counters() const {
   return counters_;
 }
 
+Result<Pose2> SlamService::KidnapSimulatedRobot(const std::optional<Pose2>& target) {
+  if (truth_source_ == nullptr) return Error("the source is not the virtual marXbot");
+  return truth_source_->Kidnap(target);
+}
+
 std::vector<TimedPose> SlamService::GroundTruth() const {
   MutexLock lock(mutex_);
   return truth_map_;
@@ -359,10 +450,14 @@ std::vector<TimedPose> SlamService::GroundTruth() const {
 
 void SlamService::ApplyCommands() {
   bool reset = false;
+  bool relocalize = false;
+  std::optional<PoseRequest> pose;
   std::optional<ParamsChoice> params;
   {
     MutexLock lock(mutex_);
     std::swap(reset, reset_requested_);
+    std::swap(relocalize, relocalize_requested_);
+    std::swap(pose, pose_requested_);
     if (params_changed_) params = params_;
     params_changed_ = false;
     if (reset) {
@@ -381,6 +476,15 @@ void SlamService::ApplyCommands() {
     Publish(std::nullopt);
   } else if (params) {
     step_->SetChoice(*params);  // the next scan takes the set of its quota
+  }
+  // A reset forgets the map: a pose on it or a search in it means nothing any more.
+  if (pose && !reset) {
+    ApplyPose(*pose);
+    Publish(std::nullopt);
+  } else if (relocalize && !reset) {
+    StartRelocalizing(RelocalizationCause::kRequest);
+    std::fprintf(stderr, "slamd: relocalising on the map, as requested\n");
+    Publish(std::nullopt);
   }
 }
 
@@ -431,6 +535,11 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
   const double period = scan.t_end - scan.t_begin;
   FollowPeriod(period);
   const BudgetedStep::Result step = step_->Run(scan);
+  last_odom_ = scan.odom_end;
+  if (step.relocalization) {
+    ProcessRelocalizingScan(step, scan, period, wall_start, receive_ns);
+    return;
+  }
   if (!step.record) {  // refused by the engine
     MutexLock lock(mutex_);
     ++counters_.refused_scans;
@@ -506,15 +615,9 @@ std::vector<TimedPose> SlamService::NewlyMappedTruth() {
   return newly_mapped;
 }
 
-void SlamService::CountScan(const ScanMetrics& m, double period,
-                            const std::vector<TimedPose>& newly_mapped) {
-  MutexLock lock(mutex_);
-  ServiceCounters& c = counters_;
-  c.state = SlamState::kRunning;
+void SlamService::CountCommon(ServiceCounters& c, const ScanMetrics& m, double period) {
   ++c.scans;
   c.late_scans += m.late ? 1 : 0;
-  c.rays_planned += m.rays_planned;
-  c.rays_used += m.rays_used;
   c.busy_s += m.busy_s;
   c.cpu_s += m.cpu_s;
   c.robot_s += period;
@@ -523,8 +626,76 @@ void SlamService::CountScan(const ScanMetrics& m, double period,
       std::lower_bound(bounds.begin(), bounds.end(), m.latency_s) - bounds.begin());
   ++c.latency_counts[bucket];
   c.latency_sum_s += m.latency_s;
+}
+
+void SlamService::CountScan(const ScanMetrics& m, double period,
+                            const std::vector<TimedPose>& newly_mapped) {
+  MutexLock lock(mutex_);
+  ServiceCounters& c = counters_;
+  c.state = SlamState::kRunning;
+  CountCommon(c, m, period);
+  c.rays_planned += m.rays_planned;
+  c.rays_used += m.rays_used;
   c.assembler = assembler_.counters();
   truth_map_.insert(truth_map_.end(), newly_mapped.begin(), newly_mapped.end());
+}
+
+void SlamService::ProcessRelocalizingScan(const BudgetedStep::Result& step, const Scan& scan,
+                                          double period, int64_t wall_start, int64_t receive_ns) {
+  const RelocalizerStep& r = *step.relocalization;
+  if (options_.scan_points) {
+    scan_points_ = std::make_shared<const std::vector<Vec2>>(engine_->ReadingPoints(step.prepared));
+  }
+  const int64_t now = SteadyNs();
+  ScanMetrics m;
+  m.scan = engine_->scans_processed();
+  m.quota = step.quota;
+  m.relocalizing = true;
+  m.lookups = r.lookups;
+  m.particles = static_cast<int>(engine_->particles().size());
+  m.scan_period_s = period;
+  m.busy_s = static_cast<double>(now - wall_start) * 1e-9;
+  m.latency_s = static_cast<double>(now - receive_ns) * 1e-9;
+  m.cpu_s = step.cpu_s;
+  m.cpu_share = period > 0.0 ? step.cpu_s / period : 0.0;
+  m.realtime_ratio = m.busy_s > 0.0 ? period / m.busy_s : 0.0;
+  m.late = period > 0.0 && m.latency_s > period;
+  if (relocalizing_since_t_ < 0.0) relocalizing_since_t_ = scan.t_begin;
+  ++relocalizing_scans_;
+  const RelocalizationCause cause = relocalizing_.value_or(RelocalizationCause::kRequest);
+  if (r.found && step.relocated) {
+    RelocalizationRecord record;
+    record.cause = cause;
+    record.t = scan.t_end + time_offset_s_;
+    record.pose = r.found->pose;
+    record.score = r.found->score;
+    record.runner_up_score = r.found->runner_up_score;
+    record.points = r.found->points;
+    record.searches = r.found->searches;
+    record.lookups = r.found->lookups;
+    record.scans = relocalizing_scans_;
+    record.search_s = scan.t_end - relocalizing_since_t_;
+    last_relocalization_ = record;
+    relocalizing_.reset();
+    std::fprintf(stderr,
+                 "slamd: relocalised (%s) at (%.3f, %.3f, %.1f deg), score %.2f, %d readings, "
+                 "%d searches, %.1f M lookups over %d scans (%.1f s)\n",
+                 ToString(cause), record.pose.x, record.pose.y, RadToDeg(record.pose.theta),
+                 record.score, record.points, record.searches,
+                 static_cast<double>(record.lookups) * 1e-6, record.scans, record.search_s);
+  }
+  {
+    MutexLock lock(mutex_);
+    ServiceCounters& c = counters_;
+    CountCommon(c, m, period);
+    ++c.relocalizing_scans;
+    c.relocalization_lookups += r.lookups;
+    c.relocalization_searches_unsure += r.rejected_best ? 1 : 0;
+    if (r.found) ++(step.relocated ? c.relocalizations : c.relocalizations_refused);
+    c.state = relocalizer_.active() ? SlamState::kRelocalizing : SlamState::kRunning;
+    c.assembler = assembler_.counters();
+  }
+  Publish(m);
 }
 
 void SlamService::MeasureAgainstTruth(ScanMetrics& m) {
@@ -569,6 +740,8 @@ void SlamService::Publish(const std::optional<ScanMetrics>& metrics) {
     s->pose = resumed_->back();
   }
   s->last = metrics;
+  s->relocalizing = relocalizing_;
+  s->last_relocalization = last_relocalization_;
   if (world_to_map_ && s->has_pose) {
     if (const auto truth = PoseAt(truth_world_, s->pose.t - time_offset_s_)) {
       const Vec2 p = world_to_map_->Apply(truth->translation());

@@ -21,6 +21,7 @@
 #include "engine/params.hpp"
 #include "engine/pose.hpp"
 #include "engine/quality.hpp"
+#include "engine/relocalizer.hpp"
 #include "engine/result.hpp"
 #include "engine/robot.hpp"
 #include "engine/scan_assembler.hpp"
@@ -51,12 +52,53 @@ struct ScanMetrics {
   double cpu_share = 0.0;       // cpu_s / scan_period_s
   double realtime_ratio = 0.0;  // scan_period_s / busy_s: how many times faster than real time
   bool late = false;            // latency above the scan period: the next scan was already due
+  /// The scan went to the relocaliser (nothing matched or mapped; rays 0): the point lookups
+  /// its global search spent, within quota x kLookupsPerRay.
+  bool relocalizing = false;
+  int64_t lookups = 0;
   // Against the ground truth (simulated sources), both trajectories aligned by the rigid
   // transform that fits this run so far best, as the ATE is: the latest pose's distance, and
   // the RMS over the run (its ATE so far).
   std::optional<double> pose_error_m;
   std::optional<double> ate_m;
 };
+
+/// Why the SLAM relocalises: a map resumed without the robot's pose, a request (POST
+/// /api/v1/relocalize), or a pose given as a hint with its uncertainty (POST /api/v1/pose).
+enum class RelocalizationCause { kResume, kRequest, kHint };
+/// "resume", "request", "hint".
+const char* ToString(RelocalizationCause cause);
+
+/// One relocalisation the engine took.
+struct RelocalizationRecord {
+  RelocalizationCause cause = RelocalizationCause::kRequest;
+  double t = 0.0;  // robot time (as in snapshots) of the scan that completed it
+  Pose2 pose;      // where it put the robot, map frame
+  double score = 0.0;
+  double runner_up_score = 0.0;
+  int points = 0;  // readings in its multiscan
+  int searches = 0;
+  int64_t lookups = 0;
+  int scans = 0;          // scans it searched over
+  double search_s = 0.0;  // robot time from its start to the answer
+};
+
+/// A pose the user gives for the robot (POST /api/v1/pose), map frame.
+struct PoseRequest {
+  Pose2 pose;
+  /// Given: the pose is a hint, and the relocaliser searches the map within three deviations
+  /// of it (the missing one of the two takes kDefaultHintSigmaM or kDefaultHintSigmaDeg).
+  /// Neither: the robot is put there as it is.
+  std::optional<double> sigma_m;
+  std::optional<double> sigma_deg;
+  static constexpr double kDefaultHintSigmaM = 0.2;
+  static constexpr double kDefaultHintSigmaDeg = 10.0;
+};
+
+/// What is wrong with a pose request (JSON pointers /x, /y, /theta_deg, /sigma_m, /sigma_deg):
+/// values not finite, a position beyond the map's bound at `resolution_m`, deviations not
+/// positive or beyond 50 m and 180 degrees. Empty when valid.
+ConfigErrors ValidatePoseRequest(const PoseRequest& request, double resolution_m);
 
 /// Everything a reader needs, as of one scan. Immutable once published.
 struct SlamSnapshot {
@@ -78,6 +120,10 @@ struct SlamSnapshot {
   /// The latest scan's readings in the robot's frame at `pose` (Slam::ReadingPoints); null
   /// before the first scan, after a reset, and always without ServiceOptions::scan_points.
   std::shared_ptr<const std::vector<Vec2>> scan_points;
+  /// Set while the SLAM relocalises (the pose is then the last one known, not updated, and the
+  /// map is not changed): why.
+  std::optional<RelocalizationCause> relocalizing;
+  std::optional<RelocalizationRecord> last_relocalization;
 
   /// Tile version as reported (0 for a missing tile).
   uint64_t ReportedVersion(const Tile& tile) const { return version_base + tile.version; }
@@ -90,7 +136,7 @@ std::vector<TimedPose> ScanEndTrajectory(const SlamSnapshot& snapshot);
 /// `encoded_logodds_limit` is the cells' clamp in the grid's encoding (EncodeLogOdds).
 OccupancyGrid SnapshotGrid(const SlamSnapshot& snapshot, int encoded_logodds_limit);
 
-enum class SlamState { kWaiting, kRunning };
+enum class SlamState { kWaiting, kRunning, kRelocalizing };
 const char* ToString(SlamState state);
 
 /// Running totals for /metrics and /status.
@@ -104,6 +150,15 @@ struct ServiceCounters {
   int64_t rays_planned = 0;
   int64_t rays_used = 0;
   int64_t resets = 0;
+  /// Relocalisation: scans that went to it, its lookups, answers taken, answers the engine
+  /// refused (off the map), searches that ended unsure, and poses given (POST /api/v1/pose
+  /// without deviations).
+  int64_t relocalizing_scans = 0;
+  int64_t relocalization_lookups = 0;
+  int64_t relocalizations = 0;
+  int64_t relocalizations_refused = 0;
+  int64_t relocalization_searches_unsure = 0;
+  int64_t poses_set = 0;
   double busy_s = 0.0;
   double cpu_s = 0.0;
   double robot_s = 0.0;
@@ -126,10 +181,11 @@ struct ServiceOptions {
   ScanAssemblerConfig assembler;
   /// Restored state (map, trajectory) to continue from, if any.
   std::optional<SavedState> resume;
-  /// Restart the robot at the origin of the restored map (the virtual marXbot starts over from
-  /// its start pose) instead of at its last saved pose (a real robot does not move while slamd
-  /// restarts).
-  bool resume_at_origin = false;
+  /// The robot's pose on the restored map, when known (slamd --pose); otherwise the SLAM
+  /// relocalises on the restored map before it maps anything (a robot may have been carried
+  /// while slamd was off; the virtual marXbot starts over from its start pose).
+  std::optional<Pose2> resume_pose;
+  RelocalizerConfig relocalizer;
   /// Keep each scan's readings for the snapshot (SlamSnapshot::scan_points, Foxglove's /scan);
   /// off, the SLAM thread does not compute them.
   bool scan_points = true;
@@ -139,7 +195,7 @@ class SlamService {
  public:
   /// `truth_source` (may be null): the virtual marXbot inside `link`, for the ground truth.
   /// Preconditions: options valid (robot, params, config, budget).
-  SlamService(hw::Link& link, const sim::VirtualMarxbotSource* truth_source,
+  SlamService(hw::Link& link, sim::VirtualMarxbotSource* truth_source,
               const ServiceOptions& options);
   ~SlamService();  // stops the thread
   SlamService(const SlamService&) = delete;
@@ -220,11 +276,21 @@ class SlamService {
           change);
   /// Clears the map and trajectory; takes effect before the next scan.
   void RequestReset();
+  /// Puts the robot at a pose, or relocalises around it (PoseRequest); takes effect before the
+  /// next scan and ends any relocalisation under way. Precondition: ValidatePoseRequest is empty.
+  void RequestPose(const PoseRequest& request);
+  /// Relocalises on the map as it is (the whole map) from the next scan; false (nothing
+  /// requested) when nothing is mapped yet.
+  bool RequestRelocalize();
 
   ServiceCounters Counters() const;
   /// The ground truth so far in the map frame (decimated to 10 Hz), empty if not simulated.
   std::vector<TimedPose> GroundTruth() const;
   bool simulated() const { return truth_source_ != nullptr; }
+  /// Lifts the virtual marXbot and sets it down at `target` (by default where it was half its
+  /// run ago): its odometry does not see it, the ground truth does. Thread-safe. The pose it
+  /// lands on, or why not (a target that is not free, or no virtual marXbot).
+  Result<Pose2> KidnapSimulatedRobot(const std::optional<Pose2>& target);
   const RobotDescription& robot() const { return options_.robot; }
   const SlamConfig& config() const { return options_.config; }
   /// config().logodds_limit (natural log-odds) in the grid's cell encoding (EncodeLogOdds).
@@ -249,11 +315,21 @@ class SlamService {
   void MeasureAgainstTruth(ScanMetrics& m);
   void ApplyCommands();
   void BuildEngine();
+  /// Starts relocalising on the best particle's map (over `region`, a hint's, carried by the
+  /// odometry from the latest scan's end).
+  void StartRelocalizing(RelocalizationCause cause, const GlobalRegion& region = {});
+  /// Applies a pose request between scans.
+  void ApplyPose(const PoseRequest& request);
+  /// A scan that went to the relocaliser: counted, logged when it ends, published.
+  void ProcessRelocalizingScan(const BudgetedStep::Result& step, const Scan& scan, double period,
+                               int64_t wall_start, int64_t receive_ns);
+  /// Counts what every scan shares (latency, CPU, robot time) into `c`.
+  static void CountCommon(ServiceCounters& c, const ScanMetrics& m, double period);
   void Publish(const std::optional<ScanMetrics>& metrics);
   void UpdateGroundTruth();
 
   hw::Link& link_;
-  const sim::VirtualMarxbotSource* truth_source_;
+  sim::VirtualMarxbotSource* truth_source_;
   ServiceOptions options_;
   RayBudgetScheduler scheduler_;
 
@@ -269,6 +345,12 @@ class SlamService {
   size_t truth_read_ = 0;                        // ground-truth poses taken from the source
   std::vector<TimedPose> truth_world_;           // since the last reset, world frame, 10 Hz
   std::optional<RigidTransform2> world_to_map_;  // set at the first scan after (re)start
+  Relocalizer relocalizer_;
+  std::optional<RelocalizationCause> relocalizing_;  // while relocalizer_ is active
+  double relocalizing_since_t_ = -1.0;               // robot time of its first scan (-1: none yet)
+  int relocalizing_scans_ = 0;
+  std::optional<RelocalizationRecord> last_relocalization_;
+  std::optional<Pose2> last_odom_;  // the latest scan's odometry at its end
 
   // Shared with readers.
   mutable Mutex mutex_;
@@ -288,6 +370,8 @@ class SlamService {
   // SLAM thread only: each scan through the budget (the engine's set included).
   std::unique_ptr<BudgetedStep> step_;
   bool reset_requested_ SLAM_GUARDED_BY(mutex_) = false;
+  std::optional<PoseRequest> pose_requested_ SLAM_GUARDED_BY(mutex_);
+  bool relocalize_requested_ SLAM_GUARDED_BY(mutex_) = false;
 
   std::atomic<bool> stop_{false};
   std::thread thread_;

@@ -10,6 +10,7 @@
 
 #include <CLI/CLI.hpp>
 #include <cctype>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -78,6 +79,7 @@ struct SlamdConfig {
   double speed = 1.0;
   uint64_t seed = 1;
   std::string odometry = "tracked";
+  std::string pose;  // --pose: "X,Y,THETA_DEG" or "saved"; empty: relocalise on a resumed map
   int max_streams = 16;
   bool quiet = false;
 };
@@ -122,6 +124,10 @@ void AddOptions(CLI::App& app, SlamdConfig& c) {
       ->capture_default_str();
   app.add_option("--state-dir", c.state_dir,
                  "where map/save writes; the saved map and trajectory are resumed at start");
+  app.add_option("--pose", c.pose,
+                 "the robot's pose on the resumed map: X,Y,THETA_DEG (metres, degrees, map "
+                 "frame) or \"saved\" (the last pose saved: the robot was not moved while slamd "
+                 "was off); without it slamd relocalises on the resumed map before mapping");
   app.add_option("--experiments", c.experiments_dir,
                  "recorded experiments with ground truth for tuning jobs");
   app.add_option("--token-file", c.token_file,
@@ -247,9 +253,43 @@ slam::server::ServiceOptions ServiceOptionsOf(const SlamdConfig& c,
   options.budget = budget;
   options.config.seed = c.seed;
   options.config.resolution_m = slam::DefaultResolution(robot);
-  options.resume_at_origin = c.source.rfind("sim:", 0) == 0;
   options.scan_points = c.foxglove_port != 0;  // only Foxglove's /scan shows them
   return options;
+}
+
+/// The pose of --pose on the resumed map (none: relocalise); an exit status when it is bad.
+std::optional<int> ResumePose(const std::string& text,
+                              slam::server::ServiceOptions& service_options) {
+  if (text.empty()) return std::nullopt;
+  std::optional<slam::Pose2> pose;  // none: "saved"
+  if (text != "saved") {
+    double x = 0, y = 0, theta_deg = 0;
+    char tail = 0;
+    if (std::sscanf(text.c_str(), "%lf,%lf,%lf%c", &x, &y, &theta_deg, &tail) != 3) {
+      return Fail("--pose must be X,Y,THETA_DEG (metres, degrees) or \"saved\", not \"" + text +
+                  "\"");
+    }
+    slam::server::PoseRequest request;
+    request.pose = slam::Pose2{
+        x, y,
+        std::isfinite(theta_deg) ? slam::NormalizeAngle(slam::DegToRad(theta_deg)) : theta_deg};
+    const slam::ConfigErrors errors =
+        slam::server::ValidatePoseRequest(request, service_options.config.resolution_m);
+    if (!errors.empty()) return Fail("--pose " + text + ": " + slam::FormatErrors(errors));
+    pose = request.pose;
+  }
+  if (!service_options.resume) {
+    std::fprintf(stderr,
+                 "slamd: no saved map to resume: --pose ignored, mapping from the origin\n");
+    return std::nullopt;
+  }
+  if (!pose) {
+    const auto& saved = service_options.resume->trajectory;
+    if (saved.empty()) return Fail("--pose saved: the saved state holds no trajectory");
+    pose = saved.back().pose;
+  }
+  service_options.resume_pose = pose;
+  return std::nullopt;
 }
 
 /// The frame source of --source, paced at --speed.
@@ -349,12 +389,12 @@ int main(int argc, char** argv) {
   // Held until slamd exits: a second slamd on the same directory would race its saves.
   std::optional<slam::server::StateDirLock> state_lock;
   if (const auto status = LockAndResume(state_dir, service_options, state_lock)) return *status;
+  if (const auto status = ResumePose(config.pose, service_options)) return *status;
 
   auto opened = OpenSource(config, robot.value());
   if (!opened.ok()) return Fail(opened.Message(), 1);
   auto frame_source = std::move(opened).value();
-  const auto* virtual_robot =
-      dynamic_cast<const slam::sim::VirtualMarxbotSource*>(frame_source.get());
+  auto* virtual_robot = dynamic_cast<slam::sim::VirtualMarxbotSource*>(frame_source.get());
 
   // Signals go to one thread that stops the server cleanly; every other thread blocks them.
   // SIGHUP (the terminal went away) and SIGQUIT stop it cleanly too, instead of killing it
@@ -398,6 +438,11 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "slamd: resumed the map saved in %s (%zu tiles, version %llu)\n",
                  state_dir.c_str(), service_options.resume->tiles.size(),
                  static_cast<unsigned long long>(service_options.resume->version));
+    if (!service_options.resume_pose) {
+      std::fprintf(stderr,
+                   "slamd: relocalising on the resumed map (nothing is mapped until the robot is "
+                   "found; --pose gives its pose)\n");
+    }
   }
 
   ServeUntilSignal(signals, server, service, link, quiet);

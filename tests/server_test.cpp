@@ -777,6 +777,7 @@ TEST_F(SlamServiceTest, ResumesASavedMap) {
   ASSERT_TRUE(loaded.ok() && loaded.value()) << loaded.Message();
   ServiceOptions options = Options();
   options.resume = loaded.value();
+  options.resume_pose = Pose2{};  // the log starts over where the map's origin is
   auto link = MakeLink();
   SlamService service(*link, nullptr, options);
   const auto resumed = service.Snapshot();

@@ -1427,7 +1427,10 @@ TEST(SlamdStateDirTest, SaveWritesTheFilesAndARestartResumes) {
   }
   SlamdProcess resumed;
   std::string error;
-  ASSERT_TRUE(resumed.Start({"--state-dir", state.path().string(), "--budget", "8000"}, &error))
+  // The virtual marXbot starts over from its start pose, the map's origin (no reset here): said
+  // with --pose, so that mapping goes on at once (without it slamd relocalises first).
+  ASSERT_TRUE(resumed.Start(
+      {"--state-dir", state.path().string(), "--budget", "8000", "--pose", "0,0,0"}, &error))
       << error;
   Http http(resumed.host(), resumed.port());
   // Right after the start: the saved map is there.
@@ -1454,6 +1457,143 @@ TEST(SlamdStateDirTest, SaveWritesTheFilesAndARestartResumes) {
   int64_t version = 0;
   while ((version = MapVersion(http)) <= saved_version && Clock::now() < deadline) Nap();
   EXPECT_GT(version, saved_version);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Where the robot is: a pose given, a relocalisation requested, the virtual marXbot kidnapped
+
+class LocalizationSlamd : public SlamdSuite {
+ protected:
+  static void SetUpTestSuite() { StartShared({"--budget", "16250"}); }
+  static void TearDownTestSuite() { StopShared(); }
+
+  json Relocalization() { return GetJson(http(), "/api/v1/status")["slam"]["relocalization"]; }
+};
+
+TEST_F(LocalizationSlamd, PoseRequestsAreValidatedAndChangeNothingWhenWrong) {
+  Expect422At(http().PostJson("/api/v1/pose", "{}"), {"/x", "/y", "/theta_deg"});
+  Expect422At(http().PostJson("/api/v1/pose", R"({"x": "1", "y": 0, "theta_deg": 0})"), {"/x"});
+  Expect422At(http().PostJson("/api/v1/pose", R"({"x": 0, "y": 0, "theta_deg": 0, "z": 1})"),
+              {"/z"});
+  Expect422At(http().PostJson("/api/v1/pose", R"({"x": 1e9, "y": 0, "theta_deg": 0})"), {""});
+  Expect422At(http().PostJson("/api/v1/pose", R"({"x": 0, "y": 0, "theta_deg": 0, "sigma_m": -1})"),
+              {"/sigma_m"});
+  Expect422At(
+      http().PostJson("/api/v1/pose", R"({"x": 0, "y": 0, "theta_deg": 0, "sigma_deg": 181})"),
+      {"/sigma_deg"});
+  ExpectProblem(http().PostJson("/api/v1/pose", "[1, 2]"), 422);
+  ExpectProblem(http().Send("POST", "/api/v1/pose", "x=1", "text/plain"), 415);
+  EXPECT_EQ(Relocalization()["poses_set"], 0);
+}
+
+TEST_F(LocalizationSlamd, APoseGivenIsTakenAndTrackedFrom) {
+  WaitForTrajectory(http(), 10);
+  const Reply set = http().PostJson("/api/v1/pose", R"({"x": 0.3, "y": -0.2, "theta_deg": 45})");
+  ASSERT_EQ(set.status, 202) << set;
+  EXPECT_EQ(set.Json()["mode"], "set");
+  const auto deadline = After(10.0);
+  while (Relocalization()["poses_set"] != 1 && Clock::now() < deadline) Nap();
+  ASSERT_EQ(Relocalization()["poses_set"], 1);
+  // The next scans start there: a scan end within one scan's driving and turning of it (the
+  // browser test compares with the ground truth's motion since).
+  const size_t before = GetJson(http(), "/api/v1/trajectory")["slam"].size();
+  const json trajectory = WaitForTrajectory(http(), before + 3);
+  bool near = false;
+  for (const json& p : trajectory["slam"]) {
+    const double dx = p[1].get<double>() - 0.3, dy = p[2].get<double>() + 0.2;
+    const double dtheta = std::remainder(p[3].get<double>() - M_PI / 4, 2 * M_PI);
+    near = near || (std::hypot(dx, dy) < 0.15 && std::abs(dtheta) < 0.6);
+  }
+  EXPECT_TRUE(near) << trajectory["slam"].dump();
+  EXPECT_EQ(Metric(GetMetrics(http()), "slamd_poses_set_total"), 1.0);
+}
+
+TEST_F(LocalizationSlamd, ARelocalisationRequestedMapsNothingPaysFromTheQuotaAndAPoseEndsIt) {
+  WaitForTrajectory(http(), 30, 30.0);  // a map to search in
+  const Reply asked = http().PostJson("/api/v1/relocalize", "{}");
+  ASSERT_EQ(asked.status, 202) << asked;
+  const auto status = [&] { return GetJson(http(), "/api/v1/status")["slam"]; };
+  json first = status();
+  const auto deadline = After(10.0);
+  while (first["relocalization"]["scans"].get<int>() < 1 && Clock::now() < deadline) {
+    Nap();
+    first = status();
+  }
+  ASSERT_GE(first["relocalization"]["scans"].get<int>(), 1) << first.dump();
+  json later = first;
+  const auto three_more = After(10.0);
+  while (later["relocalization"]["scans"].get<int>() <
+             first["relocalization"]["scans"].get<int>() + 3 &&
+         Clock::now() < three_more) {
+    Nap();
+    later = status();
+  }
+  const json& r = later["relocalization"];
+  EXPECT_GT(r["lookups"].get<int64_t>(), 0);
+  EXPECT_LE(r["lookups"].get<int64_t>(), r["scans"].get<int64_t>() * 16250 * 32);
+  if (r["relocalizations"] == 0) {
+    // Still searching: nothing was mapped meanwhile.
+    EXPECT_EQ(later["state"], "relocalizing");
+    EXPECT_TRUE(r["state"]["active"].get<bool>());
+    EXPECT_EQ(r["state"]["cause"], "request");
+    EXPECT_EQ(later["map_version"], first["map_version"]);
+    EXPECT_EQ(Metric(GetMetrics(http()), "slamd_relocalizing"), 1.0);
+    ASSERT_EQ(http().PostJson("/api/v1/pose", R"({"x": 0, "y": 0, "theta_deg": 0})").status, 202);
+  } else {  // found within the scans above
+    ASSERT_TRUE(r["state"]["last"].is_object()) << r.dump();
+    EXPECT_EQ(r["state"]["last"]["cause"], "request");
+    EXPECT_GE(r["state"]["last"]["score"].get<double>(), 0.8);
+  }
+  // Mapping goes on.
+  const auto running = After(10.0);
+  while (status()["state"] != "running" && Clock::now() < running) Nap();
+  EXPECT_EQ(status()["state"], "running");
+  const size_t before = GetJson(http(), "/api/v1/trajectory")["slam"].size();
+  WaitForTrajectory(http(), before + 2);
+  const auto samples = GetMetrics(http());
+  EXPECT_EQ(Metric(samples, "slamd_relocalizing"), 0.0);
+  EXPECT_GT(Metric(samples, "slamd_relocalizing_scans_total").value_or(0.0), 0.0);
+  EXPECT_GT(Metric(samples, "slamd_relocalization_lookups_total").value_or(0.0), 0.0);
+}
+
+TEST_F(LocalizationSlamd, TheVirtualMarxbotIsKidnappedOnRequestAndRefusesAWall) {
+  WaitForTrajectory(http(), 5);
+  const Reply wall = http().PostJson("/api/v1/sim/kidnap", R"({"x": 50, "y": 50, "theta_deg": 0})");
+  ExpectProblem(wall, 422);
+  const Reply lifted = http().PostJson("/api/v1/sim/kidnap", "{}");
+  ASSERT_EQ(lifted.status, 202) << lifted;
+  EXPECT_EQ(lifted.Json()["frame"], "world");
+  EXPECT_TRUE(lifted.Json()["x"].is_number());
+}
+
+TEST(SlamdProcessTest, NothingMappedNothingToRelocaliseInAndNoRobotToKidnap) {
+  SlamdProcess slamd;
+  std::string error;
+  // A UDP source nobody sends to: no scan ever comes.
+  ASSERT_TRUE(slamd.Start({"--source", "udp:" + std::to_string(FreeTcpPort())}, &error)) << error;
+  Http http(slamd.host(), slamd.port());
+  ExpectProblem(http.PostJson("/api/v1/relocalize", "{}"), 409);
+  ExpectProblem(http.PostJson("/api/v1/sim/kidnap", "{}"), 409);
+  // A pose on an empty map is taken as it is, even as a hint.
+  EXPECT_EQ(
+      http.PostJson("/api/v1/pose", R"({"x": 1, "y": 2, "theta_deg": 90, "sigma_m": 0.1})").status,
+      202);
+}
+
+TEST(SlamdProcessTest, ABadPoseFlagExits2AndOneWithoutASavedMapIsIgnored) {
+  for (const std::string bad : {"1,2", "a,b,c", "1,2,3,4", "1e9,0,0", "nan,0,0", "0,0,inf"}) {
+    SlamdProcess slamd;
+    std::string error;
+    ASSERT_TRUE(slamd.Spawn({"--pose", bad}, &error)) << error;
+    const auto code = slamd.WaitExit(10.0);
+    ASSERT_TRUE(code.has_value()) << bad;
+    EXPECT_EQ(*code, 2) << bad << ": " << slamd.Stderr();
+    EXPECT_NE(slamd.Stderr().find("--pose"), std::string::npos) << slamd.Stderr();
+  }
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start({"--pose", "0.5,0,90"}, &error)) << error;
+  EXPECT_NE(slamd.Stderr().find("--pose ignored"), std::string::npos) << slamd.Stderr();
 }
 
 // ---------------------------------------------------------------------------------------------
