@@ -1,12 +1,14 @@
-// The slamd page: wires the map, the plots, the status, the budget and tuning forms to the HTTP
-// API and its event stream (docs/http-api.md).
+// The slamd page: wires the map, the plots, the status, the budget and tuning forms, and the map's
+// set-pose and relocalise tools to the HTTP API and its event stream (docs/http-api.md).
 //
 // State the browser test reads is mirrored on <body> as data attributes: connected, tilesDrawn,
-// tilesLoaded, trajectoryPoints, truthPoints, metricsPoints, budgetState, mapScale.
+// tilesLoaded, trajectoryPoints, truthPoints, metricsPoints, budgetState, mapScale, localized
+// (false while slamd relocalises), poseTool ('on' or 'off') and poseState ('dragging',
+// 'cancelled', 'sending', 'sent', 'invalid', 'error').
 
-import { describeError, getJson, installTokenPrompt, mutate } from './api.js';
+import { ApiError, describeError, getJson, installTokenPrompt, mutate } from './api.js';
 import { BudgetForm } from './budget.js';
-import { setMessage } from './forms.js';
+import { clearFieldErrors, numberOf, setMessage, showFieldErrors } from './forms.js';
 import { MapView } from './map-view.js';
 import { LivePlots, plotsAvailable } from './plots.js';
 import { TuningPanel } from './tuning.js';
@@ -59,6 +61,9 @@ const map = new MapView($('map-canvas'), {
   onViewChange: () => {
     $('map-follow').checked = map.follow;
   },
+  onPoseDrag: (pose) => poseDragged(pose),
+  onPoseDrawn: (pose) => poseDrawn(pose),
+  onPoseCancelled: (why) => poseCancelled(why),
 });
 window.slamdPage = { map };  // for the browser test and the console
 $('map-fit').addEventListener('click', () => map.fit());
@@ -89,6 +94,8 @@ async function loadTrajectory() {
 }
 
 function onPose(pose) {
+  // While slamd relocalises the pose is the last known one: the robot is drawn as stale.
+  if (typeof pose.localized === 'boolean') showLocalized(pose.localized);
   map.appendPose(pose);
   for (const buffer of poseBuffers) buffer.push(pose);
 }
@@ -120,9 +127,10 @@ const number = (value) => (value == null ? '–' : Number(value).toLocaleString(
 const fixed = (value, digits, unit = '') =>
   (value == null ? '–' : `${value.toFixed(digits)}${unit}`);
 
-function setBadge(element, state, good, bad) {
+function setBadge(element, state, good, bad, warn = []) {
   element.textContent = state ?? '–';
-  const look = good.includes(state) ? 'badge-ok' : bad.includes(state) ? 'badge-bad' : '';
+  const look = good.includes(state) ? 'badge-ok' : bad.includes(state) ? 'badge-bad'
+    : warn.includes(state) ? 'badge-warn' : '';
   element.className = `badge ${look}`;
 }
 
@@ -131,7 +139,51 @@ function setLinkState(state) {
 }
 
 function setSlamState(state) {
-  setBadge($('st-slam'), state, ['running'], []);
+  // Relocalising: slamd searches the map for the robot and maps nothing meanwhile.
+  setBadge($('st-slam'), state, ['running'], [], ['relocalizing']);
+}
+
+/** Whether slamd knows where the robot is (false while it relocalises). */
+function showLocalized(localized) {
+  map.setLocalized(localized);
+  $('legend-stale').hidden = localized;
+}
+
+const kCauses = { resume: 'resume', request: 'request', hint: 'around a pose' };
+
+/**
+ * The relocalisation row: how many were taken, the last one's score, search time and cause, and
+ * whether one is under way. `counts` is status.slam.relocalization (null from an event, which
+ * carries only the state: the count stays as the last status said).
+ */
+function showRelocalization(state, counts) {
+  const element = $('st-reloc');
+  if (counts) element.dataset.count = String(counts.relocalizations ?? 0);
+  const count = element.dataset.count;
+  const last = state?.last;
+  let text = count === undefined ? '–' : number(Number(count));
+  if (last) {
+    const cause = kCauses[last.cause] ?? last.cause;
+    text += ` (last: score ${fixed(last.score, 2)} after ${fixed(last.search_s, 1, ' s')}, ${cause})`;
+  }
+  if (state?.active) text += ` — searching now (${kCauses[state.cause] ?? state.cause ?? '?'})`;
+  element.textContent = text;
+  const details = [];
+  if (last) {
+    details.push(`last: x ${fixed(last.x, 3)} m, y ${fixed(last.y, 3)} m, ` +
+                 `heading ${fixed(last.theta * 180 / Math.PI, 1)}° at t ${fixed(last.t, 1)} s; ` +
+                 `runner-up score ${fixed(last.runner_up_score, 2)}, ${number(last.points)} ` +
+                 `points, ${number(last.searches)} searches, ${number(last.scans)} scans, ` +
+                 `${number(last.lookups)} lookups`);
+  }
+  if (counts) {
+    details.push(`poses set ${number(counts.poses_set)}, refused ${number(counts.refused)}, ` +
+                 `unsure searches ${number(counts.unsure_searches)}, relocalising scans ` +
+                 `${number(counts.scans)}`);
+  }
+  element.title = details.join('\n');
+  if (state) showLocalized(!state.active);
+  relocalizationSeen(state);
 }
 
 /** The parameter set in use: a shipped one follows the budget, a given one holds. */
@@ -157,6 +209,11 @@ function showStatus(status) {
   linkError.hidden = !link.last_error;
   linkError.textContent = link.last_error ? `link: ${link.last_error}` : '';
   setSlamState(slam.state);
+  if (slam.relocalization) showRelocalization(slam.relocalization.state, slam.relocalization);
+  const relocalize = $('map-relocalize');
+  relocalize.disabled = slam.tiles === 0;
+  relocalize.title = relocalize.disabled ? 'Nothing is mapped yet: there is nothing to search'
+    : 'Let slamd search the whole map for the robot';
   $('st-scans').textContent = number(slam.scans);
   $('st-late').textContent = number(slam.late_scans);
   $('st-particles').textContent = number(slam.particles);
@@ -230,6 +287,171 @@ $('map-reset').addEventListener('click', async () => {
   }
 });
 
+// ---- set pose and relocalise -----------------------------------------------------------------
+
+const poseForm = $('pose-form');
+const poseMessage = $('pose-message');
+const kDeg = 180 / Math.PI;
+// "search around": slamd relocalises within three deviations, ±0.3 m and ±15°.
+const kAround = { sigma_m: 0.1, sigma_deg: 5 };
+let poseSending = false;
+let watchedSearch = null;  // {since: the last record's t before we asked}: a search we asked for
+
+function setPoseState(state) {
+  body.dataset.poseState = state;
+}
+
+function setPoseTool(on) {
+  map.setTool(on ? 'pose' : null);
+  $('pose-tool').setAttribute('aria-pressed', String(on));
+  poseForm.hidden = !on;
+  body.dataset.poseTool = on ? 'on' : 'off';
+  if (!on) clearFieldErrors(poseForm);
+}
+
+function fillPoseFields(pose) {
+  poseForm.elements.namedItem('x').value = pose.x.toFixed(3);
+  poseForm.elements.namedItem('y').value = pose.y.toFixed(3);
+  poseForm.elements.namedItem('theta_deg').value = (pose.theta * kDeg).toFixed(1);
+}
+
+function poseDragged(pose) {
+  if (!pose) return;
+  clearFieldErrors(poseForm);
+  fillPoseFields(pose);
+  setPoseState('dragging');
+}
+
+function poseDrawn(pose) {
+  fillPoseFields(pose);
+  // The drag's own numbers, not the fields' rounded ones.
+  sendPose({ x: pose.x, y: pose.y, theta_deg: pose.theta * kDeg });
+}
+
+function poseCancelled(why) {
+  setPoseState('cancelled');
+  if (why === 'escape') setMessage(poseMessage, 'Set pose cancelled.');
+  if (why === 'short') {
+    setMessage(poseMessage, 'Drag from the robot\'s position towards where it faces: a press ' +
+                            'alone gives no heading.', 'error');
+  }
+}
+
+/** POST /api/v1/pose with `{x, y, theta_deg}` and the sigmas of the mode chosen. */
+async function sendPose(pose) {
+  if (poseSending) return;
+  clearFieldErrors(poseForm);
+  const around = poseForm.elements.namedItem('mode').value === 'around';
+  const request = around ? { ...pose, ...kAround } : { ...pose };
+  poseSending = true;
+  setPoseState('sending');
+  setMessage(poseMessage, 'Setting the pose…');
+  map.showPendingPose({ x: pose.x, y: pose.y, theta: pose.theta_deg / kDeg });
+  const where = `x ${pose.x.toFixed(2)} m, y ${pose.y.toFixed(2)} m, ` +
+                `heading ${pose.theta_deg.toFixed(0)}°`;
+  try {
+    const before = lastRelocalization;
+    const { body: answer } = await mutate('POST', '/api/v1/pose', { body: request });
+    if (answer?.mode === 'relocalize_around') {
+      watchedSearch = { since: before?.t ?? null };
+      setMessage(poseMessage, `Searching around ${where} (±0.3 m, ±15°)…`, 'ok');
+    } else {
+      setMessage(poseMessage, `Pose set: ${where}.`, 'ok');
+    }
+    setPoseState('sent');
+    setPoseTool(false);  // one pose per use, as a tool of a map viewer
+    // The dashed arrow stays until the scan that takes the pose is drawn.
+    setTimeout(() => map.showPendingPose(null), 1200);
+    loadStatus().catch(() => {});
+  } catch (error) {
+    map.showPendingPose(null);
+    if (error instanceof ApiError && error.status === 422) {
+      const unplaced = showFieldErrors(poseForm, error.errors);
+      setMessage(poseMessage, unplaced.length > 0 ? `Not set: ${unplaced.join('; ')}`
+        : 'Not set: see the highlighted field.', 'error');
+      setPoseState('invalid');
+    } else {
+      setMessage(poseMessage, describeError(error), 'error');
+      setPoseState('error');
+    }
+  } finally {
+    poseSending = false;
+  }
+}
+
+/** The pose typed in the form. */
+function submitTypedPose() {
+  clearFieldErrors(poseForm);
+  const pose = {};
+  const problems = [];
+  for (const key of ['x', 'y', 'theta_deg']) {
+    const value = numberOf(poseForm.elements.namedItem(key));
+    if (value === null) problems.push({ pointer: `/${key}`, detail: 'a number is required' });
+    else pose[key] = value;
+  }
+  if (problems.length > 0) {
+    showFieldErrors(poseForm, problems);
+    setMessage(poseMessage, 'Please correct the highlighted field.', 'error');
+    setPoseState('invalid');
+    return;
+  }
+  sendPose(pose);
+}
+
+let lastRelocalization = null;  // the last record slamd told of (status or event)
+
+/** Tells how a search the page asked for ended, once slamd reports it. */
+function relocalizationSeen(state) {
+  if (!state) return;
+  const last = state.last ?? null;
+  if (watchedSearch && !state.active && last && last.t !== watchedSearch.since) {
+    setMessage(poseMessage, `Relocalised: x ${fixed(last.x, 2)} m, y ${fixed(last.y, 2)} m, ` +
+               `score ${fixed(last.score, 2)} after ${fixed(last.search_s, 1, ' s')}.`, 'ok');
+    watchedSearch = null;
+  }
+  lastRelocalization = last;
+}
+
+$('pose-tool').addEventListener('click', () => {
+  const on = body.dataset.poseTool !== 'on';
+  setPoseTool(on);
+  setMessage(poseMessage, '');
+});
+poseForm.addEventListener('submit', (event) => {
+  event.preventDefault();
+  submitTypedPose();
+});
+poseForm.addEventListener('input', (event) => {
+  clearFieldErrors(poseForm, `/${event.target.name}`);
+  if (event.target.name === 'mode') clearFieldErrors(poseForm);
+});
+window.addEventListener('keydown', (event) => {
+  if (event.key !== 'Escape' || body.dataset.poseTool !== 'on') return;
+  // Esc cancels a drag under way, else puts the tool away.
+  if (!map.cancelPoseDrag('escape')) {
+    setPoseTool(false);
+    setMessage(poseMessage, '');
+  }
+});
+body.dataset.poseTool = 'off';
+
+$('map-relocalize').addEventListener('click', async () => {
+  setMessage(poseMessage, 'Asking slamd to relocalise…');
+  const before = lastRelocalization;
+  try {
+    await mutate('POST', '/api/v1/relocalize', { body: {} });
+    watchedSearch = { since: before?.t ?? null };
+    setMessage(poseMessage, 'Relocalising: slamd searches the whole map for the robot…', 'ok');
+    loadStatus().catch(() => {});
+  } catch (error) {
+    if (error instanceof ApiError && error.status === 409) {
+      setMessage(poseMessage, 'Nothing to relocalise in: slamd has mapped nothing yet.', 'error');
+    } else {
+      setMessage(poseMessage, describeError(error), 'error');
+    }
+  }
+});
+
 // ---- event stream ----------------------------------------------------------------------------
 
 let needsSync = false;  // set when the stream dropped: the next `hello` refetches everything
@@ -286,6 +508,11 @@ function connect() {
     loadStatus().catch(() => {});
   }));
   events.addEventListener('job', parse((job) => tuning.show(job)));
+  // A relocalisation started or ended: its state is in the event, the counts in the status.
+  events.addEventListener('relocalization', parse((state) => {
+    showRelocalization(state, null);
+    loadStatus().catch(() => {});
+  }));
   events.addEventListener('status', parse((states) => {
     setLinkState(states.link);
     setSlamState(states.slam);

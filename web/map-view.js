@@ -1,9 +1,13 @@
 // The map canvas: occupancy tiles from slamd, the SLAM trajectory, the ground truth and the robot,
-// with pan (drag), zoom (wheel, around the cursor) and fit.
+// with pan (drag), zoom (wheel, around the cursor) and fit, and the "set pose" tool: with it
+// active, a drag from the robot's position towards its heading draws an arrow and hands the pose
+// it means to the page (hooks.onPoseDrawn); the view holds still meanwhile (no auto-fit, no
+// follow), so that the point under the pointer stays the one pressed.
 //
 // Coordinates: the view keeps a world centre (metres) and a scale in CSS pixels per metre; the
 // canvas backing store is sized at device pixel ratio and everything is drawn in device pixels.
-// World y grows upwards, screen y downwards.
+// World y grows upwards, screen y downwards. toWorld() and toScreen() convert between the map
+// frame and CSS pixels relative to the canvas; the pose tool uses toWorld() and nothing else.
 
 const kMaxConcurrentFetches = 4;  // the browser allows 6 per host; the event stream holds one
 const kRetryDelayMs = 3000;       // doubled after each failure of the same tile
@@ -11,12 +15,15 @@ const kMaxRetries = 3;
 const kMinScale = 2;              // CSS px per metre
 const kMaxScale = 4000;
 const kRobotRadiusM = 0.085;      // the marXbot is 17 cm across
+const kMinPoseDragPx = 8;         // a shorter drag says no heading: the pose tool ignores it
 const kColours = {
   background: 'rgb(205, 205, 205)',  // "unknown" of the map_server trinary grey levels
   slam: '#1565c0',
   truth: 'rgba(245, 124, 0, 0.6)',
   truthRobot: '#ef6c00',
   robot: '#1565c0',
+  stale: '#757575',              // the robot's last known pose while slamd relocalises
+  pose: '#8e24aa',               // the pose tool's arrow
   scale: '#222',
 };
 
@@ -43,7 +50,10 @@ export class MapView {
   /**
    * @param {HTMLCanvasElement} canvas
    * @param {{onCursor?: (world: {x:number,y:number}|null) => void,
-   *          onViewChange?: () => void}} hooks
+   *          onViewChange?: () => void,
+   *          onPoseDrag?: (pose: {x:number,y:number,theta:number}|null) => void,
+   *          onPoseDrawn?: (pose: {x:number,y:number,theta:number}) => void,
+   *          onPoseCancelled?: (why: 'short'|'escape'|'pointer') => void}} hooks
    */
   constructor(canvas, hooks = {}) {
     this.canvas = canvas;
@@ -68,6 +78,11 @@ export class MapView {
     this.lastPoseTime = -Infinity;
     this.robot = null;    // {x, y, theta}
     this.robotTruth = null;
+    this.localized = true;  // false while slamd relocalises: this.robot is the last known pose
+
+    this.tool = null;       // 'pose' while the set-pose tool is active
+    this.poseDrag = null;   // {id, from: {x, y}, to: {x, y}, fromPx: [px, py], toPx} (world, CSS px)
+    this.pendingPose = null;  // {x, y, theta}: sent to slamd, not yet answered
 
     this.centre = { x: 0, y: 0 };
     this.scale = 100;     // CSS px per metre
@@ -267,13 +282,96 @@ export class MapView {
       this.truth.push([pose.truth.x, pose.truth.y]);
       this.robotTruth = pose.truth;
     }
-    if (this.follow) this.centre = { x: pose.x, y: pose.y };
+    if (this.follow && !this.holdsView) this.centre = { x: pose.x, y: pose.y };
     this.requestRender();
     return true;
   }
 
   clearTrajectory() {
     this.setTrajectory([], []);
+  }
+
+  /** Whether slamd knows where the robot is; while not, the robot is drawn as stale. */
+  setLocalized(localized) {
+    if (this.localized === localized) return;
+    this.localized = localized;
+    this.requestRender();
+  }
+
+  // ---- set-pose tool ---------------------------------------------------------------------
+
+  /** Activates a tool ('pose') or none (null). While one is active the view holds still. */
+  setTool(tool) {
+    if (this.tool === tool) return;
+    if (this.tool === 'pose') this.cancelPoseDrag('pointer');
+    this.tool = tool;
+    this.canvas.classList.toggle('tool-pose', tool === 'pose');
+    if (!tool) {
+      // Back to what the view did before: fitting, or following the robot.
+      if (this.autoFit) this.fitNow();
+      else if (this.follow && this.robot) this.centre = { x: this.robot.x, y: this.robot.y };
+    }
+    this.requestRender();
+  }
+
+  /** True while a tool holds the view still (no auto-fit, no follow). */
+  get holdsView() {
+    return this.tool !== null;
+  }
+
+  /** Cancels a pose drag under way; returns whether there was one. */
+  cancelPoseDrag(why = 'escape') {
+    if (!this.poseDrag) return false;
+    const { id } = this.poseDrag;
+    this.poseDrag = null;
+    if (this.canvas.hasPointerCapture?.(id)) this.canvas.releasePointerCapture(id);
+    this.requestRender();
+    this.hooks.onPoseDrag?.(null);
+    this.hooks.onPoseCancelled?.(why);
+    return true;
+  }
+
+  /** Shows a pose sent to slamd and not yet answered (null: none), as a dashed arrow. */
+  showPendingPose(pose) {
+    this.pendingPose = pose;
+    this.requestRender();
+  }
+
+  /** The pose a drag means: at its start, facing the way it went (world frame). */
+  static poseOfDrag(drag) {
+    return {
+      x: drag.from.x,
+      y: drag.from.y,
+      theta: Math.atan2(drag.to.y - drag.from.y, drag.to.x - drag.from.x),
+    };
+  }
+
+  startPoseDrag(id, px, py) {
+    const from = this.toWorld(px, py);
+    this.poseDrag = { id, from, to: from, fromPx: [px, py], toPx: [px, py] };
+    this.hooks.onPoseDrag?.(MapView.poseOfDrag(this.poseDrag));
+    this.requestRender();
+  }
+
+  movePoseDrag(px, py) {
+    this.poseDrag.to = this.toWorld(px, py);
+    this.poseDrag.toPx = [px, py];
+    this.hooks.onPoseDrag?.(MapView.poseOfDrag(this.poseDrag));
+    this.requestRender();
+  }
+
+  endPoseDrag(px, py) {
+    this.movePoseDrag(px, py);
+    const drag = this.poseDrag;
+    this.poseDrag = null;
+    this.hooks.onPoseDrag?.(null);
+    this.requestRender();
+    const [dx, dy] = [drag.toPx[0] - drag.fromPx[0], drag.toPx[1] - drag.fromPx[1]];
+    if (Math.hypot(dx, dy) < kMinPoseDragPx) {
+      this.hooks.onPoseCancelled?.('short');
+      return;
+    }
+    this.hooks.onPoseDrawn?.(MapView.poseOfDrag(drag));
   }
 
   // ---- view ------------------------------------------------------------------------------
@@ -312,7 +410,7 @@ export class MapView {
   }
 
   boundsChanged() {
-    if (!this.autoFit) return;
+    if (!this.autoFit || this.holdsView) return;
     const b = this.bounds();
     const key = b ? `${b.minX},${b.minY},${b.maxX},${b.maxY}` : '';
     if (key !== this.lastBounds) this.fitNow();
@@ -343,6 +441,14 @@ export class MapView {
     };
   }
 
+  /** The inverse of toWorld(): CSS pixels relative to the canvas of a world point. */
+  toScreen(x, y) {
+    return {
+      px: this.canvas.clientWidth / 2 + (x - this.centre.x) * this.scale,
+      py: this.canvas.clientHeight / 2 - (y - this.centre.y) * this.scale,
+    };
+  }
+
   zoomAt(px, py, factor) {
     const anchor = this.toWorld(px, py);
     this.scale = clamp(this.scale * factor, kMinScale, kMaxScale);
@@ -370,12 +476,18 @@ export class MapView {
     canvas.addEventListener('pointerdown', (event) => {
       if (event.button !== 0) return;
       canvas.setPointerCapture(event.pointerId);
+      if (this.tool === 'pose') {
+        if (!this.poseDrag) this.startPoseDrag(event.pointerId, ...local(event));
+        return;
+      }
       drag = { id: event.pointerId, at: local(event) };
       canvas.classList.add('dragging');
     });
     canvas.addEventListener('pointermove', (event) => {
       const [px, py] = local(event);
-      if (drag && drag.id === event.pointerId) {
+      if (this.poseDrag && this.poseDrag.id === event.pointerId) {
+        this.movePoseDrag(px, py);
+      } else if (drag && drag.id === event.pointerId) {
         const [dx, dy] = [px - drag.at[0], py - drag.at[1]];
         if (dx !== 0 || dy !== 0) {
           this.centre = { x: this.centre.x - dx / this.scale, y: this.centre.y + dy / this.scale };
@@ -386,6 +498,10 @@ export class MapView {
       this.hooks.onCursor?.(this.toWorld(px, py));
     });
     const endDrag = (event) => {
+      if (this.poseDrag && this.poseDrag.id === event.pointerId) {
+        if (event.type === 'pointerup') this.endPoseDrag(...local(event));
+        else this.cancelPoseDrag('pointer');
+      }
       if (drag && drag.id === event.pointerId) {
         drag = null;
         canvas.classList.remove('dragging');
@@ -401,6 +517,7 @@ export class MapView {
       this.zoomAt(px, py, Math.exp(-event.deltaY * perLine * 0.002));
     }, { passive: false });
     canvas.addEventListener('dblclick', (event) => {
+      if (this.tool) return;  // two presses of a tool, not a zoom
       const [px, py] = local(event);
       this.zoomAt(px, py, event.shiftKey ? 0.5 : 2);
     });
@@ -434,7 +551,7 @@ export class MapView {
     if (canvas.width !== width || canvas.height !== height) {
       canvas.width = width;
       canvas.height = height;
-      if (this.autoFit) this.fitNow();
+      if (this.autoFit && !this.holdsView) this.fitNow();
     }
     const ctx = this.ctx;
     const s = this.scale * ratio;  // device px per metre
@@ -473,7 +590,16 @@ export class MapView {
     if (this.robotTruth) {
       this.drawRobot(this.robotTruth, sx, sy, s, ratio, kColours.truthRobot, false);
     }
-    if (this.robot) this.drawRobot(this.robot, sx, sy, s, ratio, kColours.robot, true);
+    if (this.robot && this.localized) {
+      this.drawRobot(this.robot, sx, sy, s, ratio, kColours.robot, true);
+    } else if (this.robot) {
+      this.drawStaleRobot(this.robot, sx, sy, s, ratio);
+    }
+    if (this.pendingPose) this.drawPoseArrow(this.pendingPose, null, sx, sy, s, ratio, true);
+    if (this.poseDrag) {
+      this.drawPoseArrow(MapView.poseOfDrag(this.poseDrag), this.poseDrag.to, sx, sy, s, ratio,
+                         false);
+    }
 
     this.drawScaleBar(ratio, height);
 
@@ -483,6 +609,7 @@ export class MapView {
     data.trajectoryPoints = String(this.slam.length);
     data.truthPoints = String(this.truth.length);
     data.mapScale = this.scale.toFixed(2);
+    data.localized = String(this.localized);
   }
 
   drawPath(points, sx, sy, colour, lineWidth) {
@@ -515,6 +642,65 @@ export class MapView {
     ctx.moveTo(x, y);
     ctx.lineTo(x + 1.7 * r * Math.cos(pose.theta), y - 1.7 * r * Math.sin(pose.theta));
     ctx.stroke();
+  }
+
+  /**
+   * The robot while slamd relocalises: its last known pose, grey, hollow and dashed, labelled
+   * (the pose is stale: slamd is searching the map for the robot).
+   */
+  drawStaleRobot(pose, sx, sy, s, ratio) {
+    const ctx = this.ctx;
+    ctx.save();
+    ctx.setLineDash([4 * ratio, 3 * ratio]);
+    this.drawRobot(pose, sx, sy, s, ratio, kColours.stale, false);
+    ctx.restore();
+    const r = Math.max(kRobotRadiusM * s, 6 * ratio);
+    const label = 'relocalising…';
+    ctx.font = `${12 * ratio}px system-ui, sans-serif`;
+    const width = ctx.measureText(label).width;
+    const x = sx(pose.x) + r + 4 * ratio;
+    const y = sy(pose.y) - r - 4 * ratio;
+    ctx.fillStyle = 'rgba(255, 255, 255, 0.85)';
+    ctx.fillRect(x - 3 * ratio, y - 13 * ratio, width + 6 * ratio, 17 * ratio);
+    ctx.fillStyle = '#424242';
+    ctx.fillText(label, x, y);
+  }
+
+  /**
+   * The pose tool's arrow: a robot-sized ring at the pose and an arrow along its heading, to
+   * `tip` (the pointer) when given, else of a fixed length; dashed for a pose awaiting slamd.
+   */
+  drawPoseArrow(pose, tip, sx, sy, s, ratio, dashed) {
+    const ctx = this.ctx;
+    const x = sx(pose.x);
+    const y = sy(pose.y);
+    const r = Math.max(kRobotRadiusM * s, 6 * ratio);
+    const dirX = Math.cos(pose.theta);
+    const dirY = -Math.sin(pose.theta);  // screen y grows downwards
+    const length = Math.max(tip ? Math.hypot(sx(tip.x) - x, sy(tip.y) - y) : 0, 2.2 * r,
+                            24 * ratio);
+    const [tipX, tipY] = [x + dirX * length, y + dirY * length];
+    const head = Math.min(12 * ratio, 0.45 * length);
+    ctx.save();
+    ctx.strokeStyle = kColours.pose;
+    ctx.fillStyle = kColours.pose;
+    ctx.lineWidth = 2.5 * ratio;
+    if (dashed) ctx.setLineDash([5 * ratio, 4 * ratio]);
+    ctx.beginPath();
+    ctx.arc(x, y, r, 0, 2 * Math.PI);
+    ctx.stroke();
+    ctx.beginPath();
+    ctx.moveTo(x, y);
+    ctx.lineTo(tipX - dirX * head * 0.8, tipY - dirY * head * 0.8);
+    ctx.stroke();
+    ctx.setLineDash([]);
+    ctx.beginPath();  // the head: a filled triangle at the tip
+    ctx.moveTo(tipX, tipY);
+    ctx.lineTo(tipX - dirX * head - dirY * head * 0.5, tipY - dirY * head + dirX * head * 0.5);
+    ctx.lineTo(tipX - dirX * head + dirY * head * 0.5, tipY - dirY * head - dirX * head * 0.5);
+    ctx.closePath();
+    ctx.fill();
+    ctx.restore();
   }
 
   drawScaleBar(ratio, height) {

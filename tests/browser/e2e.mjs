@@ -8,7 +8,17 @@
 // reaches slamd (GET /api/v1/budget, then /metrics slamd_ray_quota) and the status names the
 // shipped parameter set of the new budget; an out-of-range value shows
 // slamd's validation error next to the field; Save and tuning's Start are disabled (that slamd has
-// no --state-dir and no --experiments). Writes ARTIFACT_DIR/slamd-page.png.
+// no --state-dir and no --experiments). Then the map's Set pose tool, driven with the mouse: a
+// drag cancelled with Esc sends nothing; a drag from a point 0.3 m beside the robot towards the
+// robot's heading draws an arrow, and on release slamd takes that pose (status
+// slam.relocalization.poses_set up by exactly one) at the point the map view's own conversion
+// (MapView.toWorld) gives for the pixels pressed: two scans later the status pose is within
+// 6 cm and 8 degrees of that pose carried along by the robot's motion since (the simulator's
+// ground truth); then Relocalise makes slamd relocalise (the SLAM badge shows "relocalizing", or
+// the status says a search is active, or the count grew), and the status panel shows the one
+// taken or, when the search is still unsure 20 s on, the search under way and the robot stale.
+// Writes ARTIFACT_DIR/slamd-page.png (at the end), slamd-set-pose.png (mid-drag) and, when the
+// search lasts long enough to be seen, slamd-relocalizing.png.
 //
 // Then, with SLAMD_BIN and WEB_ROOT set, on slamds of its own: a page open while its slamd stops
 // shows the link and SLAM as unknown, not running; when another slamd starts on the same port
@@ -129,6 +139,54 @@ function canvasPixels() {
 
 const dataset = (page) => page.evaluate(() => ({ ...document.body.dataset }));
 
+/** Counts the map canvas's pixels of the set-pose tool's arrow colour (#8e24aa). */
+function toolPixels() {
+  const canvas = document.getElementById('map-canvas');
+  const copy = document.createElement('canvas');
+  copy.width = canvas.width;
+  copy.height = canvas.height;
+  const ctx = copy.getContext('2d', { willReadFrequently: true });
+  ctx.drawImage(canvas, 0, 0);
+  const { data } = ctx.getImageData(0, 0, copy.width, copy.height);
+  let count = 0;
+  for (let i = 0; i < data.length; i += 4) {
+    const d = Math.abs(data[i] - 0x8e) + Math.abs(data[i + 1] - 0x24) + Math.abs(data[i + 2] - 0xaa);
+    if (d < 60) count += 1;
+  }
+  return count;
+}
+
+// ---- poses in the plane: {x, y, theta} ------------------------------------------------------
+
+const wrapAngle = (a) => Math.atan2(Math.sin(a), Math.cos(a));
+const degrees = (a) => (a * 180) / Math.PI;
+
+/** a ⊕ d: the pose `d` (in a's frame) in the frame a is in. */
+function compose(a, d) {
+  const [c, s] = [Math.cos(a.theta), Math.sin(a.theta)];
+  return { x: a.x + c * d.x - s * d.y, y: a.y + s * d.x + c * d.y, theta: a.theta + d.theta };
+}
+
+/** ⊖a ⊕ b: where b is seen from a. */
+function between(a, b) {
+  const [c, s] = [Math.cos(a.theta), Math.sin(a.theta)];
+  const [dx, dy] = [b.x - a.x, b.y - a.y];
+  return { x: c * dx + s * dy, y: -s * dx + c * dy, theta: wrapAngle(b.theta - a.theta) };
+}
+
+/** The ground truth ([[t, x, y, theta], ...] at 10 Hz) at time t, interpolated; null outside. */
+function truthAt(truth, t) {
+  for (let i = 1; i < truth.length; ++i) {
+    if (truth[i][0] < t) continue;
+    const [t0, x0, y0, a0] = truth[i - 1];
+    const [t1, x1, y1, a1] = truth[i];
+    if (t < t0) return null;
+    const f = t1 > t0 ? (t - t0) / (t1 - t0) : 0;
+    return { x: x0 + f * (x1 - x0), y: y0 + f * (y1 - y0), theta: a0 + f * wrapAngle(a1 - a0) };
+  }
+  return null;
+}
+
 let page = null;  // kept for a screenshot when the test fails
 
 async function run(browser) {
@@ -137,6 +195,7 @@ async function run(browser) {
   page.setDefaultTimeout(10000);
   watch(page);
 
+  fs.mkdirSync(artifactDir, { recursive: true });
   log(`open ${baseUrl}`);
   await page.goto(baseUrl, { waitUntil: 'load', timeout: 15000 });
   await waitFor('the event stream connects (body[data-connected=true])', 10000,
@@ -230,9 +289,11 @@ async function run(browser) {
         'the disabled Save map does not say why');
   log('Save and tuning Start disabled, with the reason');
 
+  await checkSetPose(page);
+  await checkRelocalize(page);
+
   // Let the page run a little more (more tiles, poses, plots) before the picture.
   await page.waitForTimeout(1500);
-  fs.mkdirSync(artifactDir, { recursive: true });
   const screenshot = path.join(artifactDir, 'slamd-page.png');
   await page.screenshot({ path: screenshot, fullPage: true });
   log(`screenshot: ${screenshot}`);
@@ -240,6 +301,223 @@ async function run(browser) {
   checkNoProblems('during the test');
   await context.close();
   page = null;
+}
+
+// ---- the set-pose tool and relocalisation --------------------------------------------------
+
+const relocalizationCounts = async () => (await getJson('/api/v1/status')).slam.relocalization;
+
+/** The Set pose tool with the mouse: Esc cancels a drag; a drag sets the pose it draws. */
+async function checkSetPose(page) {
+  const posesSetBefore = (await relocalizationCounts()).poses_set;
+  check(typeof posesSetBefore === 'number',
+        'GET /api/v1/status has no slam.relocalization.poses_set');
+  await page.click('#pose-tool');
+  check((await page.getAttribute('#pose-tool', 'aria-pressed')) === 'true' &&
+        (await page.isVisible('#pose-form')) && (await dataset(page)).poseTool === 'on',
+        'Set pose does not turn the tool on (aria-pressed, its form shown)');
+  const box = await page.locator('#map-canvas').boundingBox();
+
+  // A drag cancelled with Esc sends nothing (poses_set is checked below: up by one, not two).
+  await page.mouse.move(box.x + box.width * 0.3, box.y + box.height * 0.5);
+  await page.mouse.down();
+  await page.mouse.move(box.x + box.width * 0.3 + 50, box.y + box.height * 0.5 - 20, { steps: 4 });
+  check((await dataset(page)).poseState === 'dragging', 'a drag with Set pose is not a pose drag');
+  await page.keyboard.press('Escape');
+  await page.mouse.up();
+  await waitFor('Esc cancels the drag (body[data-pose-state=cancelled])', 3000, async (seen) => {
+    seen.value = await dataset(page).then((d) => d.poseState);
+    return seen.value === 'cancelled';
+  });
+  check((await dataset(page)).poseTool === 'on', 'Esc during a drag also put the tool away');
+  log(`Esc cancels a pose drag: "${(await page.textContent('#pose-message')).trim()}"`);
+
+  // The target: 0.3 m beside the robot (the side nearer the middle of the view), facing as the
+  // robot does. Its pixels are rounded; the pose expected is what the map view's own conversion
+  // makes of those pixels.
+  const plan = await page.evaluate(({ offset, length }) => {
+    const map = window.slamdPage.map;
+    const robot = map.robot;
+    const [width, height] = [map.canvas.clientWidth, map.canvas.clientHeight];
+    const sides = [1, -1].map((side) => {
+      const at = map.toScreen(robot.x - side * offset * Math.sin(robot.theta),
+                              robot.y + side * offset * Math.cos(robot.theta));
+      return { at, off: Math.hypot(at.px - width / 2, at.py - height / 2) };
+    }).sort((a, b) => a.off - b.off);
+    const from = [Math.round(sides[0].at.px), Math.round(sides[0].at.py)];
+    const to = [Math.round(from[0] + length * Math.cos(robot.theta)),
+                Math.round(from[1] - length * Math.sin(robot.theta))];
+    const a = map.toWorld(...from);
+    const b = map.toWorld(...to);
+    return { from, to, width, height, robot,
+             expected: { x: a.x, y: a.y, theta: Math.atan2(b.y - a.y, b.x - a.x) } };
+  }, { offset: 0.3, length: 70 });
+  const inside = ([px, py]) => px > 5 && py > 5 && px < plan.width - 5 && py < plan.height - 5;
+  check(inside(plan.from) && inside(plan.to),
+        `the pose to set is outside the map view: ${JSON.stringify(plan)}`);
+  const expected = plan.expected;
+  const before = await getJson('/api/v1/status');  // the set applies after this scan at the earliest
+
+  await page.mouse.move(box.x + plan.from[0], box.y + plan.from[1]);
+  await page.mouse.down();
+  await page.mouse.move(box.x + plan.to[0], box.y + plan.to[1], { steps: 8 });
+  const drawing = await waitFor('the drag draws an arrow on the map', 3000, async (seen) => {
+    seen.value = { state: (await dataset(page)).poseState, pixels: await page.evaluate(toolPixels) };
+    return seen.value.state === 'dragging' && seen.value.pixels > 100 ? seen.value : null;
+  });
+  const dragShot = path.join(artifactDir, 'slamd-set-pose.png');
+  await page.screenshot({ path: dragShot });
+  await page.mouse.up();
+  await waitFor('the page reports the pose set (body[data-pose-state=sent])', 5000, async (seen) => {
+    seen.value = { state: (await dataset(page)).poseState,
+                   message: await page.textContent('#pose-message') };
+    return seen.value.state === 'sent';
+  });
+  check((await page.getAttribute('#pose-tool', 'aria-pressed')) === 'false' &&
+        !(await page.isVisible('#pose-form')), 'the Set pose tool stays on after a pose was set');
+  log(`pose drawn with the mouse (${drawing.pixels} arrow pixels; ${dragShot}): ` +
+      `x ${expected.x.toFixed(3)} m, y ${expected.y.toFixed(3)} m, ` +
+      `heading ${degrees(expected.theta).toFixed(1)}°, ` +
+      `"${(await page.textContent('#pose-message')).trim()}"`);
+
+  const taken = await waitFor('status slam.relocalization.poses_set goes up by one', 5000,
+    async (seen) => {
+      const status = await getJson('/api/v1/status');
+      seen.value = status.slam.relocalization.poses_set;
+      return seen.value > posesSetBefore ? status : null;
+    });
+  check(taken.slam.relocalization.poses_set === posesSetBefore + 1,
+        `poses_set went from ${posesSetBefore} to ${taken.slam.relocalization.poses_set}, ` +
+        'not up by one (did the cancelled drag send a pose?)');
+
+  // A few scans on, the SLAM has tracked on from the pose set: the status pose is that pose
+  // moved by what the robot did since (the ground truth's motion from the scan the pose
+  // replaced, one of those between the two status reads).
+  const scans = 2;
+  const later = await waitFor(`${scans} scans after the pose was taken`, 10000, async (seen) => {
+    const status = await getJson('/api/v1/status');
+    seen.value = status.slam.scans;
+    return status.slam.scans >= taken.slam.scans + scans ? status : null;
+  });
+  const pose = later.pose;
+  const trajectory = await getJson('/api/v1/trajectory');
+  check(trajectory.ground_truth?.length > 0, 'the trajectory has no ground truth (simulated)');
+  const candidates = trajectory.slam.map(([t]) => t)
+    .filter((t) => t >= before.pose.t - 1e-6 && t <= taken.pose.t + 1e-6);
+  let best = null;
+  for (const t of candidates) {
+    const [from, to] = [truthAt(trajectory.ground_truth, t), truthAt(trajectory.ground_truth, pose.t)];
+    if (!from || !to) continue;
+    const predicted = compose(expected, between(from, to));
+    const distance = Math.hypot(predicted.x - pose.x, predicted.y - pose.y);
+    const turn = Math.abs(wrapAngle(predicted.theta - pose.theta));
+    const score = distance + 0.1 * turn;
+    if (!best || score < best.score) best = { t, predicted, distance, turn, score };
+  }
+  check(best !== null, `no scan of the trajectory between t ${before.pose.t} and ${taken.pose.t}`);
+  const away = Math.hypot(pose.x - expected.x, pose.y - expected.y);
+  // Right after the set the SLAM matches against a map it is 0.3 m off from: a little looser
+  // than its usual agreement with the ground truth over a few scans (within 4 cm and 2°).
+  check(best.distance < 0.06 && degrees(best.turn) < 8,
+        `${scans} scans after the pose set (${JSON.stringify(expected)}), the SLAM pose ` +
+        `${JSON.stringify(pose)} is ${(100 * best.distance).toFixed(1)} cm and ` +
+        `${degrees(best.turn).toFixed(1)}° from it carried along by the robot's motion ` +
+        `(${JSON.stringify(best.predicted)})`);
+  log(`slamd took the pose (poses_set ${posesSetBefore} -> ${posesSetBefore + 1}); ` +
+      `${scans} scans on (${away.toFixed(2)} m driven from it) the status pose is ` +
+      `${(100 * best.distance).toFixed(1)} cm and ${degrees(best.turn).toFixed(1)}° from the ` +
+      'pose set moved as the robot moved since');
+}
+
+/** Relocalise: slamd searches the map for the robot, and the page shows it doing so. */
+async function checkRelocalize(page) {
+  const countsBefore = await relocalizationCounts();
+  await page.click('#map-relocalize');
+  const seenOnPage = { badge: false, warnLook: false };
+  const how = await waitFor('Relocalise starts a relocalisation (badge, status or count)', 15000,
+    async (seen) => {
+      const shown = await page.evaluate(() => ({
+        badge: document.getElementById('st-slam').textContent.trim(),
+        look: document.getElementById('st-slam').className,
+      }));
+      if (shown.badge === 'relocalizing') {
+        seenOnPage.badge = true;
+        if (shown.look.includes('badge-warn')) seenOnPage.warnLook = true;
+      }
+      const counts = await relocalizationCounts();
+      seen.value = { shown, active: counts.state.active, relocalizations: counts.relocalizations };
+      if (seenOnPage.badge) return 'the SLAM badge shows "relocalizing"';
+      if (counts.state.active) return 'status slam.relocalization.state.active is true';
+      if (counts.relocalizations > countsBefore.relocalizations) {
+        return `status relocalizations grew to ${counts.relocalizations}`;
+      }
+      return null;
+    });
+  log(`Relocalise: ${how}; "${(await page.textContent('#pose-message')).trim()}"`);
+  if (seenOnPage.badge) {
+    check(seenOnPage.warnLook, 'the "relocalizing" badge has not the badge-warn look');
+  }
+  // While slamd searches, the robot is drawn stale (grey, hollow, "relocalising…"); the search
+  // may also be over before the page draws it.
+  const staleBy = Date.now() + 3000;
+  let stale = false;
+  while (!stale && Date.now() < staleBy) {
+    stale = (await dataset(page)).localized === 'false';
+    if (!stale) await page.waitForTimeout(100);
+  }
+  if (stale) {
+    const shot = path.join(artifactDir, 'slamd-relocalizing.png');
+    await page.screenshot({ path: shot });
+    log(`the robot is drawn stale while relocalising: ${shot}`);
+  } else {
+    check(!(await relocalizationCounts()).state.active,
+          'slamd relocalises but the page does not draw the robot stale (body[data-localized])');
+    log('the search ended before the page drew the robot stale');
+  }
+
+  // The search ends with a relocalisation taken, which the status panel shows. It may stay
+  // unsure for a while (a room that looks alike from two places): then the page must show it
+  // still searching, the robot's pose stale.
+  const patience = Date.now() + 18000;
+  const done = await waitFor('the relocalisation ends, or is still searching 18 s on', 20000,
+    async (seen) => {
+      const counts = await relocalizationCounts();
+      seen.value = { active: counts.state.active, relocalizations: counts.relocalizations,
+                     unsure: counts.unsure_searches };
+      const ended = !counts.state.active &&
+                    counts.relocalizations > countsBefore.relocalizations;
+      return ended || (counts.state.active && Date.now() > patience) ? counts : null;
+    });
+  if (done.state.active) {
+    const shown = await waitFor('the page shows the search under way', 5000, async (seen) => {
+      seen.value = await page.evaluate(() => ({
+        badge: document.getElementById('st-slam').textContent.trim(),
+        look: document.getElementById('st-slam').className,
+        row: document.getElementById('st-reloc').textContent.trim(),
+        localized: document.body.dataset.localized,
+      }));
+      const v = seen.value;
+      return v.badge === 'relocalizing' && v.look.includes('badge-warn') &&
+             v.row.includes('searching now') && v.localized === 'false' ? v : null;
+    });
+    log(`the search is still unsure after 18 s (${done.unsure_searches} unsure searches): the ` +
+        `page shows it under way: badge "${shown.badge}", "${shown.row}", the robot stale`);
+    return;
+  }
+  const row = await waitFor('the status panel shows the relocalisation taken', 5000,
+    async (seen) => {
+      seen.value = (await page.textContent('#st-reloc')).trim();
+      return seen.value.startsWith(`${done.relocalizations} (last: score`) ? seen.value : null;
+    });
+  await waitFor('the SLAM badge shows running again, the robot localised', 5000, async (seen) => {
+    seen.value = { badge: (await page.textContent('#st-slam')).trim(),
+                   localized: (await dataset(page)).localized };
+    return seen.value.badge === 'running' && seen.value.localized === 'true';
+  });
+  const last = done.state.last;
+  log(`relocalised in ${last.search_s.toFixed(1)} s (${last.scans} scans, score ` +
+      `${last.score.toFixed(2)}); the status panel: "${row}"; the page says ` +
+      `"${(await page.textContent('#pose-message')).trim()}"`);
 }
 
 // ---- a slamd that stops, and another on its port ------------------------------------------
