@@ -53,6 +53,7 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
   }
   ScanPlan plan = scheduler_.Plan(summary, period, engine_.params());
   plan.refine = refine;
+  if (localize_only_) plan.update_rays = 0;
   result.report = engine_.ProcessScan(result.prepared, plan);
   result.cpu_s = CpuSeconds(clock_) - cpu_start;
   if (result.report.refused == ScanRefusal::kNone)

@@ -40,6 +40,10 @@ class BudgetedStep {
   /// quota as lookups (kLookupsPerRay), nothing matched and the map untouched; its answer
   /// moves the engine there (Slam::Relocate), and the engine maps again from the next scan.
   void SetRelocalizer(Relocalizer* relocalizer) { relocalizer_ = relocalizer; }
+  /// Localisation only (true): scans are matched as planned, but no update ray is cast, so the
+  /// map is never changed (a robot localising on a map it has, slamd --localize).
+  void SetLocalizeOnly(bool localize_only) { localize_only_ = localize_only; }
+  bool localize_only() const { return localize_only_; }
 
   struct Result {
     PreparedScan prepared;  // the scan as the engine measured it (refers to the scan)
@@ -66,6 +70,7 @@ class BudgetedStep {
   ParamsSet in_use_;
   CpuClock clock_;
   Relocalizer* relocalizer_ = nullptr;
+  bool localize_only_ = false;
   int64_t switches_ = 0;
 };
 

@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -141,6 +142,51 @@ TEST(BudgetedStep,
   EXPECT_LT((found.translation() - there.translation()).norm(), 0.05)
       << found.x << " " << found.y << " vs " << there.x << " " << there.y;
   EXPECT_LT(std::abs(NormalizeAngle(found.theta - there.theta)), DegToRad(3.0));
+}
+
+TEST(BudgetedStep, LocalisingOnlyTracksOnTheMapAndNeverChangesACell) {
+  const std::vector<Scan> scans = RoomScans(60.0);
+  BudgetSettings settings;
+  settings.rays_per_scan = 16250;
+  RayBudgetScheduler scheduler(settings);
+  const ParamsChoice choice;
+  const ParamsSet set = choice.For(16250);
+  SlamConfig config;
+  config.parallel = false;
+  Slam engine(ShippedRobot(), set.params, config);
+  BudgetedStep step(engine, scheduler, choice, set, CpuClock::kThread);
+  size_t k = 0;
+  for (; k < scans.size() && scans[k].t_end < 40.0; ++k) ASSERT_TRUE(step.Run(scans[k]).record);
+  Slam reference = engine;  // maps on, for comparison
+  RayBudgetScheduler reference_scheduler(settings);
+  BudgetedStep reference_step(reference, reference_scheduler, choice, set, CpuClock::kThread);
+  const OccupancyGrid before = engine.Best().map;
+  std::vector<std::array<LogOdds, kTileCells>> cells;  // copied: tiles are shared
+  for (const TileRef& t : before.Tiles()) cells.push_back(t.tile->cells);
+  step.SetLocalizeOnly(true);
+  int64_t matching = 0;
+  for (; k < scans.size(); ++k) {
+    reference_step.Run(scans[k]);
+    const BudgetedStep::Result r = step.Run(scans[k]);
+    ASSERT_TRUE(r.record) << k;
+    EXPECT_EQ(r.report.rays.update, 0) << k;
+    EXPECT_LE(r.record->used_rays, 16250) << k;
+    matching += r.report.rays.matching;
+  }
+  EXPECT_GT(matching, 0);
+  // Every particle's map holds exactly the cells it had.
+  for (const Particle& p : engine.particles()) {
+    ASSERT_EQ(p.map.TileCount(), before.TileCount());
+    size_t i = 0;
+    for (const TileRef& t : before.Tiles()) {
+      ASSERT_NE(p.map.FindTile(t.index), nullptr);
+      EXPECT_EQ(p.map.FindTile(t.index)->cells, cells[i++]);
+    }
+  }
+  // And it tracks as well as mapping on would (the robot drives where it mapped before).
+  const Pose2 there = reference.Best().pose, here = engine.Best().pose;
+  EXPECT_LT((here.translation() - there.translation()).norm(), 0.03);
+  EXPECT_LT(std::abs(NormalizeAngle(here.theta - there.theta)), DegToRad(2.0));
 }
 
 }  // namespace
