@@ -144,6 +144,11 @@ void HttpServer::Impl::HandleTile(const httplib::Request& req, httplib::Response
 }
 
 void HttpServer::Impl::HandleSave(httplib::Response& res) {
+  if (service.localize_only()) {
+    SendProblem(res, 409, "Conflict",
+                "slamd localises on its map (--localize) and never changes it: nothing to save");
+    return;
+  }
   if (!saves.enabled()) {
     SendProblem(res, 409, "Conflict", "slamd was started without --state-dir: nowhere to save");
     return;
@@ -159,6 +164,12 @@ void HttpServer::Impl::HandleSave(httplib::Response& res) {
 Result<SaveReport> HttpServer::SaveMap() { return impl_->saves.SaveNow(); }
 
 void HttpServer::Impl::HandleReset(httplib::Response& res) {
+  if (service.localize_only()) {
+    SendProblem(res, 409, "Conflict",
+                "slamd localises on its map (--localize) and keeps it: POST /api/v1/relocalize "
+                "searches it for the robot again");
+    return;
+  }
   const auto before = service.Snapshot();
   service.RequestReset();
   // The SLAM thread applies it before its next scan. One request waits for it (bounded) so that
@@ -222,7 +233,8 @@ json HttpServer::Impl::StatusJson() {
       {"params", {{"set", service.Params().name}, {"follows_budget", service.ParamsFollowQuota()}}},
       {"job", job ? *job : json(nullptr)},
       {"features",
-       {{"save", !options.state_dir.empty()},
+       {{"save", !options.state_dir.empty() && !service.localize_only()},
+        {"localize", service.localize_only()},
         {"tuning", jobs.configured()},
         {"experiments", jobs.Experiments()},
         {"ray_kernel", BestWindowKernelName()}}}};

@@ -211,6 +211,7 @@ void SlamService::BuildEngine() {
                                          CpuClock::kThread);
   engine_->set_interrupt(&stop_);  // a scan of a huge budget ends soon after Stop()
   step_->SetRelocalizer(&relocalizer_);
+  step_->SetLocalizeOnly(options_.localize_only);
   relocalizer_.Cancel();
   relocalizing_.reset();
   if (options_.resume) {

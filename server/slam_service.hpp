@@ -186,6 +186,9 @@ struct ServiceOptions {
   /// while slamd was off; the virtual marXbot starts over from its start pose).
   std::optional<Pose2> resume_pose;
   RelocalizerConfig relocalizer;
+  /// Localisation only (slamd --localize): tracks and relocalises on the resumed map, never
+  /// changes it (no update ray is cast; resets and saves are refused by the server).
+  bool localize_only = false;
   /// Keep each scan's readings for the snapshot (SlamSnapshot::scan_points, Foxglove's /scan);
   /// off, the SLAM thread does not compute them.
   bool scan_points = true;
@@ -287,6 +290,7 @@ class SlamService {
   /// The ground truth so far in the map frame (decimated to 10 Hz), empty if not simulated.
   std::vector<TimedPose> GroundTruth() const;
   bool simulated() const { return truth_source_ != nullptr; }
+  bool localize_only() const { return options_.localize_only; }
   /// Lifts the virtual marXbot and sets it down at `target` (by default where it was half its
   /// run ago): its odometry does not see it, the ground truth does. Thread-safe. The pose it
   /// lands on, or why not (a target that is not free, or no virtual marXbot).

@@ -80,6 +80,7 @@ struct SlamdConfig {
   uint64_t seed = 1;
   std::string odometry = "tracked";
   std::string pose;  // --pose: "X,Y,THETA_DEG" or "saved"; empty: relocalise on a resumed map
+  bool localize = false;
   int max_streams = 16;
   bool quiet = false;
 };
@@ -128,6 +129,9 @@ void AddOptions(CLI::App& app, SlamdConfig& c) {
                  "the robot's pose on the resumed map: X,Y,THETA_DEG (metres, degrees, map "
                  "frame) or \"saved\" (the last pose saved: the robot was not moved while slamd "
                  "was off); without it slamd relocalises on the resumed map before mapping");
+  app.add_flag("--localize", c.localize,
+               "localisation only: track and relocalise on the map of --state-dir, never change "
+               "it (no mapping, no saves, no resets)");
   app.add_option("--experiments", c.experiments_dir,
                  "recorded experiments with ground truth for tuning jobs");
   app.add_option("--token-file", c.token_file,
@@ -389,6 +393,14 @@ int main(int argc, char** argv) {
   // Held until slamd exits: a second slamd on the same directory would race its saves.
   std::optional<slam::server::StateDirLock> state_lock;
   if (const auto status = LockAndResume(state_dir, service_options, state_lock)) return *status;
+  if (config.localize) {
+    if (!service_options.resume) {
+      return Fail(config.state_dir.empty()
+                      ? "--localize needs a map to localise on: give --state-dir DIR"
+                      : "--localize: " + state_dir + " holds no saved map to localise on");
+    }
+    service_options.localize_only = true;
+  }
   if (const auto status = ResumePose(config.pose, service_options)) return *status;
 
   auto opened = OpenSource(config, robot.value());
@@ -435,8 +447,9 @@ int main(int argc, char** argv) {
   std::fflush(stdout);
   const bool quiet = config.quiet;
   if (service_options.resume && !quiet) {
-    std::fprintf(stderr, "slamd: resumed the map saved in %s (%zu tiles, version %llu)\n",
-                 state_dir.c_str(), service_options.resume->tiles.size(),
+    std::fprintf(stderr, "slamd: %s the map saved in %s (%zu tiles, version %llu)\n",
+                 config.localize ? "localising on" : "resumed", state_dir.c_str(),
+                 service_options.resume->tiles.size(),
                  static_cast<unsigned long long>(service_options.resume->version));
     if (!service_options.resume_pose) {
       std::fprintf(stderr,
@@ -449,8 +462,9 @@ int main(int argc, char** argv) {
   if (foxglove) foxglove->Stop();
   service.Stop();
   link.Stop();
-  // What was mapped since the last save is kept: a clean stop (systemd's SIGTERM) saves.
-  if (!state_dir.empty()) {
+  // What was mapped since the last save is kept: a clean stop (systemd's SIGTERM) saves. A
+  // localising slamd changed nothing.
+  if (!state_dir.empty() && !config.localize) {
     const slam::Result<slam::server::SaveReport> saved = server.SaveMap();
     if (!saved.ok()) {
       std::fprintf(stderr, "slamd: the map was not saved at exit: %s\n", saved.Message().c_str());

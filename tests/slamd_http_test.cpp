@@ -1596,6 +1596,60 @@ TEST(SlamdProcessTest, ABadPoseFlagExits2AndOneWithoutASavedMapIsIgnored) {
   EXPECT_NE(slamd.Stderr().find("--pose ignored"), std::string::npos) << slamd.Stderr();
 }
 
+TEST(SlamdStateDirTest, LocalisingOnASavedMapNeverChangesItOrTheStateDirectory) {
+  ScratchDir state("localize");
+  {
+    SlamdProcess mapper;
+    std::string error;
+    ASSERT_TRUE(mapper.Start({"--state-dir", state.path().string(), "--budget", "8000"}, &error))
+        << error;
+    Http http(mapper.host(), mapper.port());
+    WaitForTrajectory(http, 20);
+    ASSERT_EQ(mapper.Stop(), 0);  // saves at exit
+  }
+  std::map<std::string, std::string> files;
+  for (const auto& entry : fs::directory_iterator(state.path())) {
+    if (entry.path().filename() != "slamd.lock") {
+      files[entry.path().filename().string()] = ReadFile(entry.path());
+    }
+  }
+  ASSERT_TRUE(files.count("map.pgm"));
+  SlamdProcess slamd;
+  std::string error;
+  ASSERT_TRUE(slamd.Start(
+      {"--state-dir", state.path().string(), "--budget", "8000", "--localize", "--pose", "0,0,0"},
+      &error))
+      << error;
+  Http http(slamd.host(), slamd.port());
+  const int64_t version = MapVersion(http);
+  const json status = GetJson(http, "/api/v1/status");
+  EXPECT_TRUE(status["features"]["localize"].get<bool>());
+  EXPECT_FALSE(status["features"]["save"].get<bool>());
+  const size_t before = GetJson(http, "/api/v1/trajectory")["slam"].size();
+  WaitForTrajectory(http, before + 10);  // tracking
+  EXPECT_EQ(MapVersion(http), version);
+  const Reply pgm = http.Get("/api/v1/map.pgm");
+  ASSERT_EQ(pgm.status, 200);
+  EXPECT_EQ(pgm.body, files["map.pgm"]) << "the map served is the map saved, byte for byte";
+  ExpectProblem(http.PostJson("/api/v1/map/save", "{}"), 409);
+  ExpectProblem(http.PostJson("/api/v1/reset", "{}"), 409);
+  EXPECT_EQ(http.PostJson("/api/v1/relocalize", "{}").status, 202);
+  ASSERT_EQ(slamd.Stop(), 0);
+  for (const auto& [name, text] : files) {
+    EXPECT_EQ(ReadFile(state.path() / name), text) << name << " changed";
+  }
+  // Without a map there is nothing to localise on.
+  ScratchDir empty("localize-empty");
+  for (const std::vector<std::string>& args :
+       {std::vector<std::string>{"--localize"},
+        std::vector<std::string>{"--localize", "--state-dir", empty.path().string()}}) {
+    SlamdProcess refused;
+    ASSERT_TRUE(refused.Spawn(args, &error)) << error;
+    EXPECT_EQ(refused.WaitExit(10.0), 2) << refused.Stderr();
+    EXPECT_NE(refused.Stderr().find("--localize"), std::string::npos) << refused.Stderr();
+  }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Tuning jobs on two small generated experiments
 
