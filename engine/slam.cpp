@@ -154,6 +154,13 @@ bool Slam::Relocate(const Pose2& pose) {
   return true;
 }
 
+void Slam::ReplaceMap(const OccupancyGrid& map) {
+  for (Particle& p : particles_) {
+    p.map = map;
+    p.map.RefreshSummaries();
+  }
+}
+
 std::vector<Measurement> Slam::CollectMeasurements(const Scan& scan) const {
   std::vector<Measurement> measurements;
   const double radius = robot_.scanner.mount_radius_m;

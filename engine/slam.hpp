@@ -184,6 +184,11 @@ class Slam {
   /// refuses.
   bool Relocate(const Pose2& pose);
 
+  /// Every particle's map becomes `map` (tiles shared, not copied); poses, weights and histories
+  /// are kept: what a tracker that was lost mapped since `map` is taken back. Precondition: same
+  /// resolution as the config.
+  void ReplaceMap(const OccupancyGrid& map);
+
   /// Whether the engine takes `pose` as a particle's: finite, its position inside the map's
   /// bound (GridGeometry::InMapBound at the config's resolution).
   bool AcceptsPose(const Pose2& pose) const;

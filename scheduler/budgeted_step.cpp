@@ -14,6 +14,12 @@ BudgetedStep::BudgetedStep(Slam& engine, RayBudgetScheduler& scheduler, ParamsCh
       in_use_(std::move(in_use)),
       clock_(clock) {}
 
+void BudgetedStep::SetLossDetector(LossDetector* detector) {
+  detector_ = detector;
+  maps_before_.clear();
+  if (detector_ != nullptr) detector_->Reset();
+}
+
 double CpuSeconds(CpuClock clock) {
   timespec now{};
   ::clock_gettime(clock == CpuClock::kProcess ? CLOCK_PROCESS_CPUTIME_ID : CLOCK_THREAD_CPUTIME_ID,
@@ -35,12 +41,36 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
     ++switches_;
   }
   result.prepared = engine_.Prepare(scan);
+  int64_t reserved = 0;
+  if (detector_ != nullptr && relocalizer_ != nullptr && !relocalizer_->active() && refine) {
+    reserved = (detector_->MaxLookups() + kLookupsPerRay - 1) / kLookupsPerRay;
+    const Pose2 predicted = Compose(engine_.Best().pose, Between(scan.odom_begin, scan.odom_end));
+    result.loss_check =
+        detector_->Check(engine_.Best().map, predicted, engine_.ReadingPoints(result.prepared));
+    maps_before_.push_back(engine_.Best().map);
+    while (maps_before_.size() > static_cast<size_t>(detector_->window_scans()) + 1) {
+      maps_before_.pop_front();
+    }
+    if (result.loss_check->lost) {
+      engine_.ReplaceMap(maps_before_.front());
+      relocalizer_->Start(maps_before_.front());
+      maps_before_.clear();
+      detector_->Reset();
+      result.lost = true;
+    }
+  }
   if (relocalizer_ != nullptr && relocalizer_->active()) {
+    // The detector's check of a scan found lost came out of the same quota.
+    const int64_t checked = result.loss_check ? result.loss_check->lookups : 0;
     RelocalizerStep step = relocalizer_->Add(engine_.ReadingPoints(result.prepared), scan.odom_end,
-                                             scan.t_end, quota * kLookupsPerRay);
+                                             scan.t_end, quota * kLookupsPerRay - checked);
     if (step.found) {
       result.relocated = engine_.Relocate(step.found->pose);
       if (!result.relocated) relocalizer_->Start(engine_.Best().map);
+    }
+    if (result.relocated && detector_ != nullptr) {  // a new start: the window begins again
+      detector_->Reset();
+      maps_before_.clear();
     }
     result.relocalization = std::move(step);
     result.cpu_s = CpuSeconds(clock_) - cpu_start;
@@ -51,7 +81,7 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
     summary.matching_measurements = 0;
     summary.matching_available = 0;
   }
-  ScanPlan plan = scheduler_.Plan(summary, period, engine_.params());
+  ScanPlan plan = scheduler_.Plan(summary, period, engine_.params(), reserved);
   plan.refine = refine;
   if (localize_only_) plan.update_rays = 0;
   result.report = engine_.ProcessScan(result.prepared, plan);

@@ -5,8 +5,10 @@
 // scheduler (what the rays cost, what the filter's belief looks like).
 
 #include <cstdint>
+#include <deque>
 #include <optional>
 
+#include "engine/loss_detector.hpp"
 #include "engine/relocalizer.hpp"
 #include "engine/scan.hpp"
 #include "engine/slam.hpp"
@@ -43,6 +45,12 @@ class BudgetedStep {
   /// Localisation only (true): scans are matched as planned, but no update ray is cast, so the
   /// map is never changed (a robot localising on a map it has, slamd --localize).
   void SetLocalizeOnly(bool localize_only) { localize_only_ = localize_only; }
+  /// The loss detector (may be null; must outlive its use here): each scan the engine tracks is
+  /// first checked against the map (its cost reserved from the quota); when the detector says
+  /// the tracker is lost, the map goes back to what it was before the detector's window (what
+  /// the lost tracker mapped is taken back), that scan and the next go to the relocaliser
+  /// (Relocalizer::Start on that map), and Result::lost says so. Needs a relocaliser.
+  void SetLossDetector(LossDetector* detector);
   bool localize_only() const { return localize_only_; }
 
   struct Result {
@@ -59,6 +67,10 @@ class BudgetedStep {
     /// The engine took the relocaliser's answer (false: it refused the pose, see
     /// Slam::AcceptsPose, and the relocaliser searches again).
     bool relocated = false;
+    /// The loss detector's check of the scan, when it ran.
+    std::optional<LossCheck> loss_check;
+    /// The detector found the tracker lost at this scan: the relocaliser started.
+    bool lost = false;
   };
   /// Runs one scan; `refine` false maps on the odometry alone (phase B off, nothing matched).
   Result Run(const Scan& scan, bool refine = true);
@@ -71,6 +83,10 @@ class BudgetedStep {
   CpuClock clock_;
   Relocalizer* relocalizer_ = nullptr;
   bool localize_only_ = false;
+  LossDetector* detector_ = nullptr;
+  /// The best particle's map before each of the detector's window of scans (tiles shared): the
+  /// oldest is the map before a loss the window reveals.
+  std::deque<OccupancyGrid> maps_before_;
   int64_t switches_ = 0;
 };
 

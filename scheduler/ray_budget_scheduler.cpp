@@ -107,9 +107,10 @@ int64_t RayBudgetScheduler::Quota(double scan_period_s) const {
 }
 
 ScanPlan RayBudgetScheduler::Plan(const ScanSummary& summary, double scan_period_s,
-                                  const SlamParams& params) {
+                                  const SlamParams& params, int64_t reserved_rays) {
   const BudgetSettings settings = this->settings();
-  const int64_t quota = QuotaFor(settings, scan_period_s);
+  const int64_t quota =
+      std::max<int64_t>(1, QuotaFor(settings, scan_period_s) - std::max<int64_t>(0, reserved_rays));
 
   int particles = params.particles;
   if (settings.policy == BudgetPolicy::kAdaptive) {

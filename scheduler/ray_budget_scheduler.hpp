@@ -133,7 +133,10 @@ class RayBudgetScheduler {
 
   /// The plan for the next scan (SLAM thread): its summary, the robot time it covers, and the
   /// engine's current parameters. The settings are read once here.
-  ScanPlan Plan(const ScanSummary& summary, double scan_period_s, const SlamParams& params);
+  /// `reserved_rays` of the quota are kept for other work of the scan (the loss detector's
+  /// check), the rest planned.
+  ScanPlan Plan(const ScanSummary& summary, double scan_period_s, const SlamParams& params,
+                int64_t reserved_rays = 0);
   /// Records what the engine did with the planned scan and the CPU time it took (SLAM thread);
   /// updates the cost per ray and the adaptive policy's state. Returns the record.
   PlanRecord Record(const ScanReport& report, double cpu_s);

@@ -212,7 +212,8 @@ json HttpServer::Impl::StatusJson() {
                  {"unsure_searches", c.relocalization_searches_unsure},
                  {"scans", c.relocalizing_scans},
                  {"lookups", c.relocalization_lookups},
-                 {"poses_set", c.poses_set}}},
+                 {"poses_set", c.poses_set},
+                 {"losses", c.losses}}},
                {"particles", snapshot->last ? snapshot->last->particles : 0},
                {"map_version", snapshot->map_version},
                {"tiles", snapshot->tiles.size()},
@@ -275,6 +276,9 @@ std::string HttpServer::Impl::MetricsText() {
          c.relocalization_lookups);
   metric("poses_set_total", "counter", "Poses given for the robot and taken as they were.",
          c.poses_set);
+  metric("losses_total", "counter",
+         "Times the loss detector found the tracker lost (readings landing where the map is free).",
+         c.losses);
   metric("rays_planned_total", "counter", "Rays planned by the scheduler.", c.rays_planned);
   metric("rays_used_total", "counter", "Rays cast by the engine.", c.rays_used);
   const ScanMetrics last = snapshot->last.value_or(ScanMetrics{});

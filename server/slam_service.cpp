@@ -91,6 +91,8 @@ const char* ToString(RelocalizationCause cause) {
       return "request";
     case RelocalizationCause::kHint:
       return "hint";
+    case RelocalizationCause::kLost:
+      return "lost";
   }
   return "unknown";
 }
@@ -157,6 +159,7 @@ SlamService::SlamService(hw::Link& link, sim::VirtualMarxbotSource* truth_source
       scheduler_(options.budget, options.scheduler),
       assembler_(options.robot, options.assembler),
       relocalizer_(options.relocalizer),
+      loss_detector_(options.loss_detector),
       params_(options.params.ForRobot(options.robot)) {
   options_.config.parallel = false;
   // slamd serves, saves and evaluates scan ends only (ScanEndTrajectory).
@@ -212,6 +215,7 @@ void SlamService::BuildEngine() {
   engine_->set_interrupt(&stop_);  // a scan of a huge budget ends soon after Stop()
   step_->SetRelocalizer(&relocalizer_);
   step_->SetLocalizeOnly(options_.localize_only);
+  if (options_.detect_loss) step_->SetLossDetector(&loss_detector_);
   relocalizer_.Cancel();
   relocalizing_.reset();
   if (options_.resume) {
@@ -537,6 +541,20 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
   FollowPeriod(period);
   const BudgetedStep::Result step = step_->Run(scan);
   last_odom_ = scan.odom_end;
+  if (step.lost) {
+    relocalizing_ = RelocalizationCause::kLost;
+    relocalizing_since_t_ = -1.0;
+    relocalizing_scans_ = 0;
+    {
+      MutexLock lock(mutex_);
+      ++counters_.losses;
+    }
+    std::fprintf(stderr,
+                 "slamd: the tracker is lost (%.0f %% of the readings checked over the last scans "
+                 "land where the map is free): what it mapped meanwhile is taken back, and it "
+                 "relocalises\n",
+                 100.0 * step.loss_check->window_share);
+  }
   if (step.relocalization) {
     ProcessRelocalizingScan(step, scan, period, wall_start, receive_ns);
     return;
@@ -577,6 +595,7 @@ ScanMetrics SlamService::MetricsOf(const BudgetedStep::Result& step, double peri
   m.cpu_share = period > 0.0 ? step.cpu_s / period : 0.0;
   m.realtime_ratio = m.busy_s > 0.0 ? period / m.busy_s : 0.0;
   m.late = period > 0.0 && m.latency_s > period;
+  m.lookups = step.loss_check ? step.loss_check->lookups : 0;  // the loss detector's check
   return m;
 }
 

@@ -52,9 +52,10 @@ struct ScanMetrics {
   double cpu_share = 0.0;       // cpu_s / scan_period_s
   double realtime_ratio = 0.0;  // scan_period_s / busy_s: how many times faster than real time
   bool late = false;            // latency above the scan period: the next scan was already due
-  /// The scan went to the relocaliser (nothing matched or mapped; rays 0): the point lookups
-  /// its global search spent, within quota x kLookupsPerRay.
+  /// The scan went to the relocaliser (nothing matched or mapped; rays 0).
   bool relocalizing = false;
+  /// Point lookups of the scan besides its rays: the relocaliser's search, or the loss
+  /// detector's check (kLookupsPerRay of them are paid as one quota ray).
   int64_t lookups = 0;
   // Against the ground truth (simulated sources), both trajectories aligned by the rigid
   // transform that fits this run so far best, as the ATE is: the latest pose's distance, and
@@ -64,9 +65,10 @@ struct ScanMetrics {
 };
 
 /// Why the SLAM relocalises: a map resumed without the robot's pose, a request (POST
-/// /api/v1/relocalize), or a pose given as a hint with its uncertainty (POST /api/v1/pose).
-enum class RelocalizationCause { kResume, kRequest, kHint };
-/// "resume", "request", "hint".
+/// /api/v1/relocalize), a pose given as a hint with its uncertainty (POST /api/v1/pose), or the
+/// loss detector (the tracker's readings contradict the map: the robot was carried, or slipped).
+enum class RelocalizationCause { kResume, kRequest, kHint, kLost };
+/// "resume", "request", "hint", "lost".
 const char* ToString(RelocalizationCause cause);
 
 /// One relocalisation the engine took.
@@ -159,6 +161,7 @@ struct ServiceCounters {
   int64_t relocalizations_refused = 0;
   int64_t relocalization_searches_unsure = 0;
   int64_t poses_set = 0;
+  int64_t losses = 0;  // the loss detector found the tracker lost
   double busy_s = 0.0;
   double cpu_s = 0.0;
   double robot_s = 0.0;
@@ -186,6 +189,10 @@ struct ServiceOptions {
   /// while slamd was off; the virtual marXbot starts over from its start pose).
   std::optional<Pose2> resume_pose;
   RelocalizerConfig relocalizer;
+  /// The loss detector (loss_detector.hpp): on, a tracker whose readings contradict the map
+  /// stops mapping and relocalises.
+  bool detect_loss = true;
+  LossDetectorConfig loss_detector;
   /// Localisation only (slamd --localize): tracks and relocalises on the resumed map, never
   /// changes it (no update ray is cast; resets and saves are refused by the server).
   bool localize_only = false;
@@ -350,6 +357,7 @@ class SlamService {
   std::vector<TimedPose> truth_world_;           // since the last reset, world frame, 10 Hz
   std::optional<RigidTransform2> world_to_map_;  // set at the first scan after (re)start
   Relocalizer relocalizer_;
+  LossDetector loss_detector_;
   std::optional<RelocalizationCause> relocalizing_;  // while relocalizer_ is active
   double relocalizing_since_t_ = -1.0;               // robot time of its first scan (-1: none yet)
   int relocalizing_scans_ = 0;

@@ -8,7 +8,10 @@
 #include <cmath>
 #include <limits>
 
+#include "engine/loss_detector.hpp"
+#include "engine/quality.hpp"
 #include "engine/relocalizer.hpp"
+#include "sim/map_quality.hpp"
 #include "sim/scenario.hpp"
 #include "sim/world.hpp"
 #include "test_support.hpp"
@@ -187,6 +190,90 @@ TEST(BudgetedStep, LocalisingOnlyTracksOnTheMapAndNeverChangesACell) {
   const Pose2 there = reference.Best().pose, here = engine.Best().pose;
   EXPECT_LT((here.translation() - there.translation()).norm(), 0.03);
   EXPECT_LT(std::abs(NormalizeAngle(here.theta - there.theta)), DegToRad(2.0));
+}
+
+/// A run of the rooms world with a tracked robot's odometry, kidnapped at `kidnap_s` (0: not)
+/// to where it was at half that time, through the budget with the loss detector and the
+/// relocaliser: what happened, against the ground truth.
+struct KidnapRun {
+  int losses = 0;
+  double lost_t = -1.0, relocated_t = -1.0, reacquired_t = -1.0;  // -1: never
+  int64_t over_quota_scans = 0;
+  bool mapped_while_lost = false;
+  double precision = 0.0;  // of the map at the end
+};
+
+KidnapRun RunKidnapped(double kidnap_s, uint64_t seed) {
+  sim::ScenarioConfig config =
+      sim::WithOdometryProfile(sim::ScenarioConfig{}, sim::OdometryProfile::kTracked);
+  config.duration_s = 160.0;
+  config.seed = seed;
+  if (kidnap_s > 0.0) config.kidnap_t_s = kidnap_s;
+  const sim::World world = *sim::BuiltinWorld("rooms");
+  const sim::ScenarioOutput out = sim::RunScenario(world, ShippedRobot(), config);
+  const std::vector<Scan> scans = sim::BuildScans(ShippedRobot(), out.odometry, out.scanner);
+  constexpr int64_t kBudget = 16250;
+  BudgetSettings settings;
+  settings.rays_per_scan = kBudget;
+  RayBudgetScheduler scheduler(settings);
+  const ParamsChoice choice;
+  SlamConfig slam_config;
+  slam_config.parallel = false;
+  slam_config.history_samples = false;
+  Slam engine(ShippedRobot(), choice.For(kBudget).params, slam_config);
+  BudgetedStep step(engine, scheduler, choice, choice.For(kBudget), CpuClock::kThread);
+  Relocalizer relocalizer;
+  LossDetector detector;
+  step.SetRelocalizer(&relocalizer);
+  step.SetLossDetector(&detector);
+  const Pose2 origin = *PoseAt(out.ground_truth, scans.front().t_begin);
+  const RigidTransform2 map_to_world{origin.theta, origin.translation()};
+  KidnapRun run;
+  uint64_t version = 0;
+  for (const Scan& scan : scans) {
+    const BudgetedStep::Result r = step.Run(scan);
+    const int64_t rays = r.record ? r.record->used_rays : 0;
+    const int64_t lookups = (r.loss_check ? r.loss_check->lookups : 0) +
+                            (r.relocalization ? r.relocalization->lookups : 0);
+    // A search's last node may run past its share by one expansion (GlobalSearch::Continue).
+    if (rays * kLookupsPerRay + lookups > (kBudget + 64) * kLookupsPerRay) ++run.over_quota_scans;
+    if (r.lost) {
+      ++run.losses;
+      if (run.lost_t < 0) run.lost_t = scan.t_end;
+      version = engine.Best().map.Version();
+    }
+    if (r.relocalization && !r.relocated && engine.Best().map.Version() != version) {
+      run.mapped_while_lost = true;
+    }
+    if (r.relocated && run.relocated_t < 0) run.relocated_t = scan.t_end;
+    const std::optional<Pose2> truth = PoseAt(out.ground_truth, scan.t_end);
+    if (kidnap_s > 0 && scan.t_end > kidnap_s && run.reacquired_t < 0 && r.record && truth) {
+      const Pose2 p = engine.Best().pose;
+      const double error_m = (map_to_world.Apply(p.translation()) - truth->translation()).norm();
+      const double error_deg =
+          std::abs(RadToDeg(NormalizeAngle(p.theta + map_to_world.rotation_rad - truth->theta)));
+      if (error_m < 0.05 && error_deg < 3.0) run.reacquired_t = scan.t_end;
+    }
+  }
+  run.precision =
+      sim::EvaluateMap(engine.Best().map, map_to_world, world, out.ground_truth).precision;
+  return run;
+}
+
+TEST(BudgetedStep, AKidnappedTrackerIsFoundLostStopsMappingAndIsReacquiredOnItsMap) {
+  const KidnapRun calm = RunKidnapped(0.0, 2);
+  EXPECT_EQ(calm.losses, 0) << "no loss where nothing happened";
+  const KidnapRun run = RunKidnapped(100.0, 2);
+  EXPECT_EQ(run.over_quota_scans, 0);
+  EXPECT_EQ(run.losses, 1);
+  EXPECT_GT(run.lost_t, 100.0);
+  EXPECT_LT(run.lost_t, 110.0) << "found lost within seconds";
+  EXPECT_FALSE(run.mapped_while_lost);
+  EXPECT_GT(run.relocated_t, run.lost_t);
+  EXPECT_GT(run.reacquired_t, 100.0) << "within 5 cm and 3 degrees of the truth";
+  EXPECT_LT(run.reacquired_t, 120.0) << "within 20 s of driving";
+  EXPECT_GT(run.precision, 0.8) << "one map";
+  EXPECT_GT(run.precision, calm.precision - 0.05);
 }
 
 }  // namespace

@@ -1,0 +1,70 @@
+#pragma once
+// Is the tracker lost? After a robot is lifted and set down elsewhere (or a track breaks), the
+// odometry carries the pose on from where it was, and the readings, placed there, land where
+// the map knows there is nothing: in free space it has seen through many times. While tracking,
+// readings land on or next to the walls they see, or in unknown space (a room not yet mapped
+// says nothing either way). The detector places each scan's readings by the tracker's
+// prediction, before the scan changes the map, and counts those that land in known free space
+// against those next to an occupied cell; over a window of scans, a share of contradictions
+// above `lost_share` is a loss (docs/design.md, relocalisation).
+
+#include <cstdint>
+#include <deque>
+#include <vector>
+
+#include "engine/config_error.hpp"
+#include "engine/occupancy_grid.hpp"
+#include "engine/pose.hpp"
+
+namespace slam {
+
+struct LossDetectorConfig {
+  int max_points = 100;  // readings checked per scan, evenly spaced (the check's cost)
+  /// A reading agrees with the map when an occupied cell lies within this radius of its end
+  /// (the tracker's own error and the sensor's noise: a few centimetres).
+  double agree_radius_m = 0.03;
+  /// It contradicts the map when every cell within agree_radius_m is known free, below this
+  /// (natural log-odds): seen free several times.
+  double free_below_logodds = -2.0;
+  double occupied_above_logodds = 0.0;  // as the matching rays' obstacles
+  int window_scans = 6;     // the scans a verdict is drawn over (about 4 s at 1.5 scans/s)
+  int min_known = 60;       // readings on known cells over the window for a verdict
+  double lost_share = 0.5;  // contradicting share of those that is a loss
+
+  /// Out-of-range values as JSON pointers; empty when valid.
+  ConfigErrors Validate() const;
+};
+
+/// One scan's check.
+struct LossCheck {
+  int agree = 0;              // readings next to an occupied cell
+  int contradict = 0;         // readings in known free space
+  int unknown = 0;            // neither
+  int64_t lookups = 0;        // cells read (the check's cost)
+  double window_share = 0.0;  // contradicting share over the window (0 without a verdict)
+  bool lost = false;          // the window's verdict after this scan
+};
+
+class LossDetector {
+ public:
+  explicit LossDetector(const LossDetectorConfig& config = {});
+
+  /// Checks one scan's readings (robot frame at its end, Slam::ReadingPoints) placed at `pose`
+  /// (the tracker's prediction of the scan's end) against `map`, and draws the verdict over the
+  /// window. Readings that are not finite are skipped.
+  LossCheck Check(const OccupancyGrid& map, const Pose2& pose, const std::vector<Vec2>& points);
+  /// Forgets the window (after a relocalisation, a reset).
+  void Reset() { window_.clear(); }
+  /// Upper bound of one Check's lookups: what a plan reserves for it.
+  int64_t MaxLookups() const;
+  int window_scans() const { return config_.window_scans; }
+
+ private:
+  struct Counts {
+    int agree = 0, contradict = 0;
+  };
+  LossDetectorConfig config_;
+  std::deque<Counts> window_;
+};
+
+}  // namespace slam
