@@ -582,7 +582,7 @@ ScanMetrics SlamService::MetricsOf(const BudgetedStep::Result& step, double peri
   const int64_t now = SteadyNs();
   ScanMetrics m;
   m.scan = engine_->scans_processed();
-  m.quota = record.quota;
+  m.quota = step.quota;  // the whole quota (the plan's share of it is record.quota)
   m.rays_planned = record.planned_rays;
   m.rays_used = record.used_rays;
   m.particles = report.particles;
