@@ -93,9 +93,16 @@ TEST(Relocalizer, ReadingsAndOdometryThatAreNotFiniteAreSkipped) {
   EXPECT_EQ(bad.lookups, clean.lookups);
 }
 
-TEST(Relocalizer, AnAmbiguousSearchIsNotTakenAndAnInactiveOneDoesNothing) {
-  // Two identical rooms side by side: a view inside one fits both.
-  OccupancyGrid map(GridGeometry(0.01), EncodeLogOdds(5.0));
+// Two identical rooms side by side (2 x 1.5 m, at x = 0 and x = 3, a short wall inside each),
+// and what a robot at (1, 0.7, 0) in the first, or at (4, 0.7, 0) in the second, sees.
+struct TwinRooms {
+  OccupancyGrid map{GridGeometry(0.01), EncodeLogOdds(5.0)};
+  std::vector<Vec2> seen;
+};
+
+TwinRooms DrawTwinRooms() {
+  TwinRooms twins;
+  OccupancyGrid& map = twins.map;
   map.BeginWrite();
   for (const double x0 : {0.0, 3.0}) {
     for (int i = 0; i <= 200; ++i) {
@@ -108,12 +115,18 @@ TEST(Relocalizer, AnAmbiguousSearchIsNotTakenAndAnInactiveOneDoesNothing) {
       map.Add(map.geometry().CellOf({x0 + 0.5 + i * 0.01, 0.4}), EncodeLogOdds(3.0));
   }
   map.RefreshSummaries();
-  std::vector<Vec2> seen;
   for (int i = 0; i <= 200; i += 2) {
-    seen.push_back(Vec2{-1.0 + i * 0.01, -0.7});
-    seen.push_back(Vec2{-1.0, -0.7 + i * 0.0075});
+    twins.seen.push_back(Vec2{-1.0 + i * 0.01, -0.7});
+    twins.seen.push_back(Vec2{-1.0, -0.7 + i * 0.0075});
   }
-  for (int i = 0; i < 20; i += 2) seen.push_back(Vec2{-0.5 + i * 0.01, -0.3});
+  for (int i = 0; i < 20; i += 2) twins.seen.push_back(Vec2{-0.5 + i * 0.01, -0.3});
+  return twins;
+}
+
+TEST(Relocalizer, AnAmbiguousSearchIsNotTakenAndAnInactiveOneDoesNothing) {
+  const TwinRooms twins = DrawTwinRooms();
+  const OccupancyGrid& map = twins.map;
+  const std::vector<Vec2>& seen = twins.seen;
   Relocalizer relocalizer;
   EXPECT_FALSE(relocalizer.Add(seen, Pose2{}, 0.0, 1'000'000'000).searching);
   relocalizer.Start(map);
@@ -123,6 +136,37 @@ TEST(Relocalizer, AnAmbiguousSearchIsNotTakenAndAnInactiveOneDoesNothing) {
   EXPECT_GT(step.rejected_best->score, 0.8);
   EXPECT_GT(step.rejected_runner_up, 0.95 * step.rejected_best->score);
   EXPECT_TRUE(relocalizer.active());
+}
+
+TEST(Relocalizer, AHintGivenEarlierIsCarriedByTheOdometryAndSettlesAnAmbiguity) {
+  // The robot stands in the second room at (4, 0.7, 0). Someone said "about (3.5, 0.7)" when the
+  // robot was half a metre behind where it is now: carried by the odometry, the hint's region
+  // (20 cm) holds the robot, and only the second room's place.
+  const TwinRooms twins = DrawTwinRooms();
+  const Pose2 odom_now{10.0, 10.0, 0.0};
+  const Pose2 odom_then = Compose(odom_now, Pose2{-0.5, 0.0, 0.0});
+  GlobalRegion hint;
+  hint.whole_map = false;
+  hint.center = Vec2{3.5, 0.7};
+  hint.half_width_m = 0.2;
+  hint.heading = 0.0;
+  hint.half_angle_rad = DegToRad(10.0);
+  const auto search = [&](const std::optional<Pose2>& given_at) {
+    Relocalizer relocalizer;
+    relocalizer.Start(twins.map, hint, given_at);
+    std::optional<Relocalization> found;
+    for (int k = 0; k < 30 && !found; ++k) {
+      found = relocalizer.Add(twins.seen, odom_now, 0.6 * k, 1'000'000).found;
+    }
+    return found;
+  };
+  const std::optional<Relocalization> carried = search(odom_then);
+  ASSERT_TRUE(carried);
+  EXPECT_LT((carried->pose.translation() - Vec2{4.0, 0.7}).norm(), 0.03)
+      << carried->pose.x << " " << carried->pose.y;
+  EXPECT_LT(std::abs(carried->pose.theta), DegToRad(2.0));
+  // Taken where the robot is now instead, the region misses it: nothing is found there.
+  EXPECT_FALSE(search(odom_now));
 }
 
 }  // namespace
