@@ -285,7 +285,9 @@ std::string HttpServer::Impl::MetricsText() {
   metric("rays_per_scan_planned", "gauge", "Rays planned for the latest scan.", last.rays_planned);
   metric("rays_per_scan_used", "gauge", "Rays cast on the latest scan.", last.rays_used);
   metric("ray_quota", "gauge", "The scheduler's quota for the latest scan, rays.", last.quota);
-  metric("lookups_per_scan", "gauge", "The relocaliser's point lookups on the latest scan.",
+  metric("lookups_per_scan", "gauge",
+         "Point lookups of the latest scan besides its rays (the relocaliser's search or the loss "
+         "detector's check; 32 are paid as one quota ray).",
          last.lookups);
   o << "# HELP slamd_scan_latency_seconds From a scan's last event to its published result.\n"
        "# TYPE slamd_scan_latency_seconds histogram\n";
