@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <limits>
+#include <optional>
 
 #include "scheduler/budgeted_step.hpp"
 
@@ -11,7 +12,117 @@ namespace {
 
 constexpr double kNoStop = std::numeric_limits<double>::infinity();
 
+bool Dropped(const std::vector<TimeInterval>& drop, double t_s) {
+  return std::any_of(drop.begin(), drop.end(),
+                     [&](const TimeInterval& d) { return d.Contains(t_s); });
+}
+
+/// The replay's account of each relocalisation and of where the engine had no pose of its own.
+class LocalizationLog {
+ public:
+  explicit LocalizationLog(double t_origin) : t_origin_(t_origin) {}
+
+  /// A relocalisation starts (the relocaliser was just started) before the scan beginning at t.
+  void Start(RelocalizationStart cause, double t) {
+    relocalizing_ = true;
+    losses_ += cause == RelocalizationStart::kLost ? 1 : 0;
+    cause_ = cause;
+    since_t_ = t;
+    scans_ = 0;
+  }
+  /// A scan was left out.
+  void Dropped() { untracked_since_ = tracked_; }
+  /// What the step did with `scan`.
+  void Step(const Scan& scan, const BudgetedStep::Result& step) {
+    last_given_end_ = scan.t_end;
+    if (!step.relocalization) {
+      if (step.report.refused != ScanRefusal::kNone) return;  // the pose held
+      if (untracked_since_ && tracked_) {
+        result_untracked_.push_back({tracked_until_ - t_origin_, scan.t_begin - t_origin_});
+      }
+      untracked_since_ = false;
+      tracked_ = true;
+      tracked_until_ = scan.t_end;
+      return;
+    }
+    const RelocalizerStep& r = *step.relocalization;
+    untracked_since_ = tracked_;
+    ++scans_;
+    ++scans_total_;
+    lookups_ += r.lookups;
+    if (r.rejected_best) {
+      ++unsure_;
+      if (!best_unsure_ || r.rejected_best->score > best_unsure_->score) {
+        best_unsure_ = r.rejected_best;
+        best_unsure_runner_up_ = r.rejected_runner_up;
+        best_unsure_t_ = scan.t_end;
+      }
+    }
+    if (!r.found || !relocalizing_) return;
+    ReplayRelocalization answer;
+    answer.cause = cause_;
+    answer.started_t = since_t_;
+    answer.t = scan.t_end;
+    answer.found = *r.found;
+    answer.scans = scans_;
+    answer.taken = step.relocated;
+    answers_.push_back(answer);
+    if (step.relocated) {
+      relocalizing_ = false;
+    } else {  // the step started the search over
+      since_t_ = scan.t_end;
+      scans_ = 0;
+    }
+  }
+  /// Into `result`; `still_searching`: the relocaliser is active at the end.
+  void Finish(bool still_searching, ReplayResult& result) {
+    if (still_searching && tracked_) {  // lost to the end
+      result_untracked_.push_back({tracked_until_ - t_origin_, last_given_end_ - t_origin_});
+    }
+    result.untracked = std::move(result_untracked_);
+    result.relocalizations = std::move(answers_);
+    result.lookups_total = lookups_;
+    result.losses = losses_;
+    result.searches_unsure = unsure_;
+    result.best_unsure = best_unsure_;
+    result.best_unsure_runner_up = best_unsure_runner_up_;
+    result.best_unsure_t = best_unsure_t_;
+    result.relocalizing_scans = scans_total_;
+    result.relocalizing_at_end = still_searching;
+    result.relocalizing_since_t = still_searching ? since_t_ : 0.0;
+  }
+
+ private:
+  double t_origin_;
+  bool relocalizing_ = false;
+  RelocalizationStart cause_ = RelocalizationStart::kStart;
+  double since_t_ = 0.0;
+  int64_t scans_ = 0, scans_total_ = 0, lookups_ = 0, unsure_ = 0, losses_ = 0;
+  std::optional<GlobalMatch> best_unsure_;
+  double best_unsure_runner_up_ = 0.0, best_unsure_t_ = 0.0;
+  std::vector<ReplayRelocalization> answers_;
+  // Whether the engine processed a scan, the end of the last one, whether scans went elsewhere
+  // since, and the end of the last scan given to the step.
+  bool tracked_ = false;
+  double tracked_until_ = 0.0;
+  bool untracked_since_ = false;
+  double last_given_end_ = 0.0;
+  std::vector<TimeInterval> result_untracked_;
+};
+
 }  // namespace
+
+const char* ToString(RelocalizationStart start) {
+  switch (start) {
+    case RelocalizationStart::kStart:
+      return "start";
+    case RelocalizationStart::kDrop:
+      return "drop";
+    case RelocalizationStart::kLost:
+      return "lost";
+  }
+  return "?";
+}
 
 std::vector<TimedPose> DeadReckoning(const std::vector<Scan>& scans) {
   std::vector<TimedPose> trajectory;
@@ -53,6 +164,26 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   // that replays running side by side each measure their own).
   const CpuClock clock = options.config.parallel ? CpuClock::kProcess : CpuClock::kThread;
   BudgetedStep stepper(engine, scheduler, params, first, clock);
+  stepper.SetLocalizeOnly(options.localize_only);
+  Relocalizer relocalizer(options.relocalizer);
+  stepper.SetRelocalizer(&relocalizer);
+  std::optional<LossDetector> detector;
+  if (options.loss_detector) {
+    detector.emplace(*options.loss_detector);
+    stepper.SetLossDetector(&*detector);
+  }
+  const double t_origin = scans.empty() ? 0.0 : scans.front().t_begin;
+  LocalizationLog log(t_origin);
+  bool relocalize_first = false;  // on `map`, from the first scan replayed
+  if (options.map) {
+    const bool placed = options.start_pose && engine.Restore(*options.map, *options.start_pose);
+    if (!placed) {
+      engine.Restore(*options.map, Pose2{});
+      relocalize_first = options.map->HasTiles();  // else nothing to find the robot in
+    }
+  }
+  bool replayed_any = false, left_out = false;
+  int64_t dropped = 0;
   int64_t rays_total = 0, rays_max = 0, resamplings = 0;
   std::vector<PlanRecord> plans;
   plans.reserve(scans.size());
@@ -69,7 +200,26 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
       cancelled = true;
       break;
     }
-    const BudgetedStep::Result step = stepper.Run(scans[k], options.refine);
+    const Scan& scan = scans[k];
+    if (Dropped(options.drop, scan.t_begin - t_origin)) {
+      ++dropped;
+      left_out = true;
+      log.Dropped();
+      done = k + 1;
+      if (options.progress) options.progress(k + 1, scans.size());
+      continue;
+    }
+    const bool kidnapped =
+        replayed_any && left_out && options.relocalize_after_drop && engine.Best().map.HasTiles();
+    if ((!replayed_any && relocalize_first) || kidnapped) {
+      relocalizer.Start(engine.Best().map);
+      log.Start(kidnapped ? RelocalizationStart::kDrop : RelocalizationStart::kStart, scan.t_begin);
+    }
+    replayed_any = true;
+    left_out = false;
+    const BudgetedStep::Result step = stepper.Run(scan, options.refine);
+    if (step.lost) log.Start(RelocalizationStart::kLost, scan.t_begin);  // this scan went to it
+    log.Step(scan, step);
     if (step.record) plans.push_back(*step.record);
     rays_total += step.report.rays.total();
     rays_max = std::max(rays_max, step.report.rays.total());
@@ -95,8 +245,16 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
 
   ReplayResult result(engine.Best().map);
   result.trajectory = engine.Trajectory();
-  if (!ground_truth.empty()) result.quality = EvaluateTrajectory(result.trajectory, ground_truth);
-  result.scans = static_cast<int64_t>(done);
+  log.Finish(relocalizer.active(), result);
+  if (!ground_truth.empty()) {
+    std::vector<TimedPose> scored;
+    for (const TimedPose& p : ground_truth) {
+      if (!Dropped(result.untracked, p.t - t_origin)) scored.push_back(p);
+    }
+    result.quality = EvaluateTrajectory(result.trajectory, scored);
+  }
+  result.scans = static_cast<int64_t>(done) - dropped;
+  result.scans_dropped = dropped;
   result.cancelled = cancelled;
   result.stopped_early = stopped_early;
   result.e_lower_bound = e_lower_bound;

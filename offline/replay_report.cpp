@@ -1,6 +1,8 @@
 #include "offline/replay_report.hpp"
 
+#include <cmath>
 #include <cstdio>
+#include <optional>
 
 #include "engine/io/atomic_file.hpp"
 #include "engine/io/map_image.hpp"
@@ -76,6 +78,76 @@ std::string Centimetres(double metres) {
   return text;
 }
 
+Json PoseJson(const Pose2& p) { return {{"x", p.x}, {"y", p.y}, {"theta_deg", RadToDeg(p.theta)}}; }
+
+/// Where the replay started and what it left out, and each relocalisation (against the ground
+/// truth, aligned, when there is one).
+void LocalizationSummary(const offline::Experiment& experiment, const ReplayResult& run,
+                         const ReplayOptions& options, Json& j) {
+  // Times relative to the first scan's start, as ReplayOptions::drop's.
+  const double t_origin = experiment.scans.empty() ? 0.0 : experiment.scans.front().t_begin;
+  j["localize"] = options.map.has_value();
+  j["localize_only"] = options.localize_only;
+  j["start_pose"] = options.map && options.start_pose ? PoseJson(*options.start_pose) : Json();
+  Json drop = Json::array();
+  // A cut of the recording's start or end has an open end: null.
+  const auto end = [](double t) { return std::isfinite(t) ? Json(t) : Json(); };
+  for (const TimeInterval& d : options.drop) {
+    drop.push_back({{"from_s", end(d.t0_s)}, {"to_s", end(d.t1_s)}});
+  }
+  j["drop"] = drop;
+  j["scans_dropped"] = run.scans_dropped;
+  j["relocalize_after_drop"] = options.relocalize_after_drop;
+  j["detect_loss"] = options.loss_detector.has_value();
+  j["losses"] = run.losses;
+  Json answers = Json::array();
+  for (const ReplayRelocalization& r : run.relocalizations) {
+    Json a = {{"cause", ToString(r.cause)},
+              {"started_t", r.started_t},
+              {"started_s", r.started_t - t_origin},
+              {"t", r.t},
+              {"t_s", r.t - t_origin},
+              {"took_s", r.t - r.started_t},
+              {"scans", r.scans},
+              {"pose", PoseJson(r.found.pose)},
+              {"score", r.found.score},
+              {"runner_up", r.found.runner_up_score},
+              {"points", r.found.points},
+              {"lookups", r.found.lookups},
+              {"searches", r.found.searches},
+              {"taken", r.taken}};
+    if (run.quality) {
+      if (const std::optional<Pose2> truth = PoseAt(experiment.ground_truth, r.t)) {
+        const Pose2 seen =
+            TransformTrajectory(run.quality->alignment.Inverse(), {{r.t, *truth}}).front().pose;
+        a["error_m"] = (seen.translation() - r.found.pose.translation()).norm();
+        a["heading_error_deg"] =
+            std::abs(RadToDeg(NormalizeAngle(seen.theta - r.found.pose.theta)));
+      }
+    }
+    answers.push_back(a);
+  }
+  j["relocalizations"] = answers;
+  Json untracked = Json::array();
+  for (const TimeInterval& u : run.untracked) {
+    untracked.push_back({{"from_s", u.t0_s}, {"to_s", u.t1_s}});
+  }
+  j["untracked"] = untracked;
+  j["lookups_total"] = run.lookups_total;
+  j["searches_unsure"] = run.searches_unsure;
+  if (run.best_unsure) {
+    j["best_unsure"] = {{"t_s", run.best_unsure_t - t_origin},
+                        {"pose", PoseJson(run.best_unsure->pose)},
+                        {"score", run.best_unsure->score},
+                        {"runner_up", run.best_unsure_runner_up}};
+  } else {
+    j["best_unsure"] = nullptr;
+  }
+  j["relocalizing_scans"] = run.relocalizing_scans;
+  j["relocalizing_at_end"] = run.relocalizing_at_end;
+  if (run.relocalizing_at_end) j["relocalizing_since_s"] = run.relocalizing_since_t - t_origin;
+}
+
 }  // namespace
 
 nlohmann::json ReplaySummary(const offline::Experiment& experiment, const ReplayResult& run,
@@ -140,6 +212,7 @@ nlohmann::json ReplaySummary(const offline::Experiment& experiment, const Replay
   }
   j["params"] = io::ParamsToJson(run.params_set.params);
   j["counters"] = CountersJson(experiment.counters);
+  LocalizationSummary(experiment, run, options, j);
   return j;
 }
 

@@ -15,7 +15,10 @@ namespace slam::offline {
 /// The JSON summary of a replay: q, e, ate_rmse_m (null without ground truth), scans,
 /// rays_total, rays_per_scan_max, budget, wall_s, realtime_factor, frames, frames_rejected, and
 /// the odometry-only ATE, map quality against world.json (when present), the parameters and
-/// every decoding counter.
+/// every decoding counter; how it started and what it left out (localize, localize_only,
+/// start_pose, drop, scans_dropped) and each relocalisation (relocalizations, with times as
+/// `t` in the scans' clock and `t_s` after the first scan's start, and the pose's error against
+/// the ground truth when there is one), lookups_total, relocalizing_scans, relocalizing_at_end.
 nlohmann::json ReplaySummary(const offline::Experiment& experiment, const ReplayResult& run,
                              const ReplayOptions& options);
 

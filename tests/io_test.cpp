@@ -1,5 +1,7 @@
 // The JSON adapters of engine/io: every shipped config file loads, round trips are exact, and
-// every kind of bad input is reported with the JSON pointer of the culprit.
+// every kind of bad input is reported with the JSON pointer of the culprit. map_server maps
+// (map_yaml.hpp): the project's own export reads back cell for cell, resampled and rotated maps
+// land where they should, and every bad map.yaml or image is an error naming file and line.
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -13,7 +15,10 @@
 #include <string>
 #include <vector>
 
+#include "engine/cell_encoding.hpp"
 #include "engine/config_error.hpp"
+#include "engine/io/map_image.hpp"
+#include "engine/io/map_yaml.hpp"
 #include "engine/io/params_json.hpp"
 #include "engine/io/robot_json.hpp"
 #include "engine/params.hpp"
@@ -650,6 +655,330 @@ TEST(ConfigErrors, FormatOneLinePerError) {
   EXPECT_EQ(FormatErrors({}), "");
   EXPECT_EQ(FormatErrors({{"/particles", "0 is outside [1, 1000]"}, {"", "file.json: bad"}}),
             "/particles: 0 is outside [1, 1000]\nfile.json: bad");
+}
+
+// ---------------------------------------------------------------------------------------------
+// map_server maps.
+
+constexpr int kLimit = 5000;  // the engine's clamp (5 in natural log odds)
+
+/// A map over four tiles around the origin (negative cells too): walls, free space, cells of
+/// every log odds the export classifies, and unknown holes.
+OccupancyGrid DrawnMap(double resolution) {
+  OccupancyGrid grid(GridGeometry(resolution), kLimit);
+  grid.BeginWrite();
+  for (int j = -40; j < 50; ++j) {
+    for (int i = -70; i < 30; ++i) {
+      if ((i * 7 + j * 3) % 11 == 0) continue;  // unknown holes
+      const bool wall = i == -70 || j == -40 || i == 29 || j == 49 || (i == 0 && j > 10);
+      const int value = wall                ? kLimit
+                        : (i + j) % 13 == 0 ? 400
+                        : (i - j) % 17 == 0 ? -900
+                                            : -kLimit;
+      grid.Add({i, j}, value);
+    }
+  }
+  grid.RefreshSummaries();
+  return grid;
+}
+
+/// -1 free, 1 occupied, 0 unknown: the export's classification of a cell (MakeGridImage).
+int Classify(LogOdds v) {
+  const double p = OccupancyProbability(v);
+  return p >= kOccupiedThreshold ? 1 : p <= kFreeThreshold ? -1 : 0;
+}
+
+/// The same of a cell read back: it must be exactly the clamp, its negative or 0.
+int ClassifyLoaded(LogOdds v) {
+  EXPECT_TRUE(v == kLimit || v == -kLimit || v == 0) << v;
+  return v == kLimit ? 1 : v == -kLimit ? -1 : 0;
+}
+
+void WriteBytes(const std::string& path, const std::string& text) {
+  std::ofstream(path, std::ios::binary | std::ios::trunc) << text;
+}
+
+/// map.yaml text as map_server's keys, with `image` and overrides of single lines.
+std::string YamlText(const std::string& image, const std::string& extra = "") {
+  return "image: " + image +
+         "\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\nnegate: 0\noccupied_thresh: 0.65\n"
+         "free_thresh: 0.196\n" +
+         extra;
+}
+
+TEST(MapYaml, TheProjectsExportReadsBackCellForCellAsPgmAndAsPng) {
+  const testing::TempDir dir("map_yaml_round_trip");
+  const OccupancyGrid grid = DrawnMap(0.01);
+  const GridImage image = MakeGridImage(grid);
+  ASSERT_EQ(image.cells_per_pixel, 1);
+  ASSERT_TRUE(WritePgm(dir.File("map.pgm"), image).ok());
+  ASSERT_TRUE(WriteMapYaml(dir.File("map.yaml"), "map.pgm", image).ok());
+  const Result<PngBytes> png = EncodeGrayPng(image.width, image.height, image.gray);
+  ASSERT_TRUE(png.ok());
+  WriteBytes(dir.File("map.png"), std::string(png.value().begin(), png.value().end()));
+  WriteBytes(dir.File("png.yaml"), MapYaml("map.png", image));
+  for (const char* yaml : {"map.yaml", "png.yaml"}) {
+    const Result<OccupancyGrid> loaded = LoadMapYaml(dir.File(yaml), GridGeometry(0.01), kLimit);
+    ASSERT_TRUE(loaded.ok()) << loaded.Message();
+    int known = 0;
+    for (int j = -80; j < 100; ++j) {
+      for (int i = -100; i < 80; ++i) {
+        const int expected = Classify(grid.At({i, j}));
+        ASSERT_EQ(ClassifyLoaded(loaded.value().At({i, j})), expected)
+            << yaml << " " << i << "," << j;
+        known += expected != 0 ? 1 : 0;
+      }
+    }
+    EXPECT_GT(known, 6000);
+    EXPECT_EQ(loaded.value().limit(), kLimit);
+  }
+}
+
+TEST(MapYaml, AnotherResolutionTakesThePixelUnderEachCellsCentre) {
+  const testing::TempDir dir("map_yaml_resample");
+  const OccupancyGrid grid = DrawnMap(0.01);
+  const GridImage image = MakeGridImage(grid);
+  ASSERT_TRUE(WritePgm(dir.File("map.pgm"), image).ok());
+  ASSERT_TRUE(WriteMapYaml(dir.File("map.yaml"), "map.pgm", image).ok());
+  for (const double resolution : {0.03, 0.005, 0.013}) {
+    const GridGeometry geometry(resolution);
+    const Result<OccupancyGrid> loaded = LoadMapYaml(dir.File("map.yaml"), geometry, kLimit);
+    ASSERT_TRUE(loaded.ok()) << loaded.Message();
+    const int n = static_cast<int>(1.0 / resolution);
+    for (int j = -n; j < n; ++j) {
+      for (int i = -n; i < n; ++i) {
+        const CellIndex under = grid.geometry().CellOf(geometry.CellCenter({i, j}));
+        ASSERT_EQ(ClassifyLoaded(loaded.value().At({i, j})), Classify(grid.At(under)))
+            << resolution << ": " << i << "," << j;
+      }
+    }
+  }
+}
+
+TEST(MapYaml, AnExportCoarserThanTheMapGivesEachCellItsPixel) {
+  const testing::TempDir dir("map_yaml_coarse");
+  const OccupancyGrid grid = DrawnMap(0.01);
+  const GridImage image = MakeGridImage(grid, 4000);  // 3 cells a pixel side
+  ASSERT_EQ(image.cells_per_pixel, 3);
+  ASSERT_TRUE(WritePgm(dir.File("map.pgm"), image).ok());
+  ASSERT_TRUE(WriteMapYaml(dir.File("map.yaml"), "map.pgm", image).ok());
+  const Result<OccupancyGrid> loaded =
+      LoadMapYaml(dir.File("map.yaml"), GridGeometry(0.01), kLimit);
+  ASSERT_TRUE(loaded.ok()) << loaded.Message();
+  for (int j = -40; j < 50; ++j) {
+    for (int i = -70; i < 30; ++i) {
+      // The pixel's cells: occupied if any is, else free if any is (MakeGridImage).
+      const int x0 = -128 + ((i + 128) / 3) * 3, y0 = -64 + ((j + 64) / 3) * 3;
+      int expected = 0;
+      for (int y = y0; y < y0 + 3; ++y) {
+        for (int x = x0; x < x0 + 3; ++x) {
+          const int c = Classify(grid.At({x, y}));
+          expected = c == 1 || expected == 1 ? 1 : std::min(expected, c);
+        }
+      }
+      ASSERT_EQ(ClassifyLoaded(loaded.value().At({i, j})), expected) << i << "," << j;
+    }
+  }
+}
+
+TEST(MapYaml, NegateScaleModeAndARotatedOrigin) {
+  const testing::TempDir dir("map_yaml_modes");
+  // 3 x 2 pixels, top row first: occupied, free, unknown / free, grey 128, occupied.
+  const std::string pixels = {'\0', '\xfe', '\xcd', '\xfe', '\x80', '\0'};
+  WriteBytes(dir.File("m.pgm"), "P5\n# a comment\n3 2\n255\n" + pixels);
+  std::string negated;
+  for (const char c : pixels) negated.push_back(static_cast<char>(255 - static_cast<uint8_t>(c)));
+  WriteBytes(dir.File("n.pgm"), "P5 3 2 255\n" + negated);
+  const auto load = [&](const std::string& yaml, double resolution = 1.0) {
+    WriteBytes(dir.File("m.yaml"), yaml);
+    return LoadMapYaml(dir.File("m.yaml"), GridGeometry(resolution), kLimit);
+  };
+  const std::string base =
+      "resolution: 1.0\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n";
+  const auto plain = load("image: m.pgm\norigin: [0, 0, 0]\n" + base);
+  ASSERT_TRUE(plain.ok()) << plain.Message();
+  const auto expect_cells = [](const OccupancyGrid& g, const std::vector<CellIndex>& cells,
+                               const std::vector<int>& classes) {
+    for (size_t k = 0; k < cells.size(); ++k) {
+      EXPECT_EQ(ClassifyLoaded(g.At(cells[k])), classes[k]) << cells[k].x << "," << cells[k].y;
+    }
+  };
+  // Row 0 of the image is the top: y = 1.
+  const std::vector<CellIndex> cells{{0, 1}, {1, 1}, {2, 1}, {0, 0}, {1, 0}, {2, 0}};
+  expect_cells(plain.value(), cells, {1, -1, 0, -1, 0, 1});
+  EXPECT_EQ(plain.value().At({1, 0}), 0);  // grey 128: p = 0.498, unknown in trinary mode
+  // negate: 1 on the inverted image reads the same.
+  const std::string negate_base =
+      "resolution: 1.0\nnegate: 1\noccupied_thresh: 0.65\nfree_thresh: 0.196\n";
+  const auto negate = load("image: n.pgm\norigin: [0, 0, 0]\n" + negate_base);
+  ASSERT_TRUE(negate.ok()) << negate.Message();
+  expect_cells(negate.value(), cells, {1, -1, 0, -1, 0, 1});
+  // Scale: the grey pixel holds the log odds of its occupancy, 127 / 255.
+  const auto scale = load("image: m.pgm\norigin: [0, 0, 0]\nmode: scale\n" + base);
+  ASSERT_TRUE(scale.ok()) << scale.Message();
+  EXPECT_EQ(scale.value().At({1, 0}), EncodeLogOdds(std::log(127.0 / 128.0)));
+  // Raw: the values are percentages; 0 free, the rest above 100 unknown.
+  const auto raw = load("image: m.pgm\norigin: [0, 0, 0]\nmode: raw\n" + base);
+  ASSERT_TRUE(raw.ok()) << raw.Message();
+  expect_cells(raw.value(), cells, {-1, 0, 0, 0, 0, -1});
+  // The origin at (10, 5) turned by 90 degrees: image x runs along world y, image y along -x.
+  const auto turned = load("image: m.pgm\norigin: [10.0, 5.0, 1.5707963267948966]\n" + base);
+  ASSERT_TRUE(turned.ok()) << turned.Message();
+  // Pixel (column u, row v from the bottom) covers world x in [10 - v - 1, 10 - v], y in
+  // [5 + u, 5 + u + 1].
+  expect_cells(turned.value(), {{8, 5}, {8, 6}, {8, 7}, {9, 5}, {9, 6}, {9, 7}},
+               {1, -1, 0, -1, 0, 1});
+  EXPECT_EQ(turned.value().At({10, 5}), 0);
+  EXPECT_EQ(turned.value().At({7, 5}), 0);
+}
+
+TEST(MapYaml, EveryBadKeyIsAnErrorWithItsFileAndLine) {
+  const std::string path = "dir/map.yaml";
+  struct Case {
+    std::string yaml;
+    std::string message;  // a part of the error's text
+  };
+  const std::vector<Case> cases = {
+      {"resolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
+       "dir/map.yaml: missing key 'image'"},
+      {YamlText("m.pgm").substr(0, YamlText("m.pgm").find("free_thresh")),
+       "dir/map.yaml: missing key 'free_thresh'"},
+      {"image: m.pgm\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
+       "missing key 'resolution'"},
+      {"image: m.pgm\nresolution: 0.05\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n",
+       "missing key 'origin'"},
+      {"image: m.pgm\nresolution: 0.05\norigin: [0, 0, 0]\noccupied_thresh: 0.65\n"
+       "free_thresh: 0.2\n",
+       "missing key 'negate'"},
+      {"image: m.pgm\nresolution: fine\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\n"
+       "free_thresh: 0.2\n",
+       "dir/map.yaml:2: resolution: 'fine' is not a finite number"},
+      {"image: m.pgm\nresolution: nan\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\n"
+       "free_thresh: 0.2\n",
+       "dir/map.yaml:2: resolution: 'nan' is not a finite number"},
+      {"image: m.pgm\nresolution: .inf\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\n"
+       "free_thresh: 0.2\n",
+       "dir/map.yaml:2: resolution: '.inf' is not a finite number"},
+      {"image: m.pgm\nresolution: 1e999\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\n"
+       "free_thresh: 0.2\n",
+       "dir/map.yaml:2: resolution"},
+      {"image: m.pgm\nresolution: \"0.05\"\norigin: [0, 0, 0]\nnegate: 0\n"
+       "occupied_thresh: 0.65\nfree_thresh: 0.2\n",
+       "dir/map.yaml:2: resolution: '0.05' is not a finite number"},
+      {"image: m.pgm\nresolution: -0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\n"
+       "free_thresh: 0.2\n",
+       "dir/map.yaml:2: resolution: must be above 0"},
+      {"image: m.pgm\nresolution: 0\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\n"
+       "free_thresh: 0.2\n",
+       "dir/map.yaml:2: resolution: must be above 0"},
+      {YamlText("m.pgm").replace(YamlText("m.pgm").find("[0.0, 0.0, 0.0]"), 15, "[1, 2]"),
+       "dir/map.yaml:3: origin: '[1, 2]' is not [x, y, yaw]"},
+      {YamlText("m.pgm").replace(YamlText("m.pgm").find("[0.0, 0.0, 0.0]"), 15, "[1, 2, 3, 4]"),
+       "dir/map.yaml:3: origin"},
+      {YamlText("m.pgm").replace(YamlText("m.pgm").find("[0.0, 0.0, 0.0]"), 15, "[1, nan, 0]"),
+       "dir/map.yaml:3: origin"},
+      {YamlText("m.pgm").replace(YamlText("m.pgm").find("[0.0, 0.0, 0.0]"), 15, "5"),
+       "dir/map.yaml:3: origin"},
+      {YamlText("m.pgm").replace(YamlText("m.pgm").find("[0.0, 0.0, 0.0]"), 15, "[1, 2,"),
+       "dir/map.yaml:3: origin"},
+      {YamlText("m.pgm").replace(YamlText("m.pgm").find("negate: 0"), 9, "negate: 2"),
+       "dir/map.yaml:4: negate: '2' is not 0 or 1"},
+      {YamlText("m.pgm").replace(YamlText("m.pgm").find("0.65"), 4, "1.5"),
+       "dir/map.yaml:5: occupied_thresh: must be within 0 to 1"},
+      {YamlText("m.pgm").replace(YamlText("m.pgm").find("0.65"), 4, "high"),
+       "dir/map.yaml:5: occupied_thresh: 'high' is not a finite number"},
+      {YamlText("m.pgm").replace(YamlText("m.pgm").find("0.196"), 5, "0.7"),
+       "dir/map.yaml:6: free_thresh: must be below occupied_thresh"},
+      {YamlText("m.pgm", "mode: fancy\n"), "dir/map.yaml:7: mode: 'fancy' is not trinary"},
+      {YamlText("m.pgm", "resolution: 0.1\n"),
+       "dir/map.yaml:7: resolution: given twice (first on line 2)"},
+      {YamlText("m.pgm", "  nested: 1\n"), "dir/map.yaml:7: an indented line"},
+      {YamlText("m.pgm", "just words\n"), "dir/map.yaml:7: expected \"key: value\""},
+      {YamlText("m.pgm", "extra:\n"), "dir/map.yaml:7: extra: no value"},
+      {YamlText("\"m.pgm"), "dir/map.yaml:1: image: a quoted value that does not end"},
+      {"", "missing key 'image'"},
+  };
+  for (const Case& c : cases) {
+    const Result<MapYamlKeys> parsed = ParseMapYaml(c.yaml, path);
+    ASSERT_FALSE(parsed.ok()) << c.yaml;
+    EXPECT_NE(parsed.Message().find(c.message), std::string::npos)
+        << "wanted \"" << c.message << "\" in:\n"
+        << parsed.Message();
+  }
+  // What map_server accepts: comments, quotes, a document marker, unknown keys, true/false.
+  const Result<MapYamlKeys> good = ParseMapYaml(
+      "---\n# a map\nimage: \"my map #1.pgm\"  # the image\nresolution: 0.05\n"
+      "origin: [-1.5, 2, 0.25]\nnegate: false\noccupied_thresh: 0.65\n"
+      "free_thresh: 0.196\nmode: trinary\nunknown_key: 3\n",
+      path);
+  ASSERT_TRUE(good.ok()) << good.Message();
+  EXPECT_EQ(good.value().image, "my map #1.pgm");
+  EXPECT_EQ(good.value().origin.x, -1.5);
+  EXPECT_EQ(good.value().origin.y, 2.0);
+  EXPECT_EQ(good.value().origin.theta, 0.25);
+  EXPECT_FALSE(good.value().negate);
+}
+
+TEST(MapYaml, BadImagesAndFilesAreErrorsNamingTheFile) {
+  const testing::TempDir dir("map_yaml_bad_images");
+  const auto load = [&](const std::string& image_bytes, const std::string& extra = "",
+                        double resolution = 0.05) {
+    WriteBytes(dir.File("m.img"), image_bytes);
+    WriteBytes(dir.File("m.yaml"), YamlText("m.img", extra));
+    return LoadMapYaml(dir.File("m.yaml"), GridGeometry(resolution), kLimit);
+  };
+  const auto expect_error = [&](const Result<OccupancyGrid>& r, const std::string& part) {
+    ASSERT_FALSE(r.ok());
+    EXPECT_NE(r.Message().find(part), std::string::npos) << "wanted \"" << part << "\" in:\n"
+                                                         << r.Message();
+  };
+  const std::string img = dir.File("m.img");
+  EXPECT_TRUE(load("P5 2 2 255\n" + std::string(4, '\xfe')).ok());
+  expect_error(load(""), img + ": neither a binary PGM (P5) nor a PNG");
+  expect_error(load("hello"), img + ": neither a binary PGM (P5) nor a PNG");
+  expect_error(load("P2 2 2 255\n1 2 3 4\n"), img + ": a Netpbm image of type P2");
+  expect_error(load("P5 2 2 255\n" + std::string(3, '\0')), img + ": truncated: 3 of 4 pixel");
+  expect_error(load("P5 2 2"), img + ": a PGM header that does not parse");
+  expect_error(load("P5 2 x 255\n"), img + ": a PGM header that does not parse");
+  expect_error(load("P5 2 2 65535\n" + std::string(8, '\0')), img + ": PGM maxval 65535");
+  expect_error(load("P5 0 2 255\n"), img + ": an image of 0 x 2 pixels");
+  expect_error(load("P5 100000 100000 255\n"), "an image of 100000 x 100000 pixels");
+  expect_error(load("P5 99999999999 2 255\n"), img + ": a PGM header that does not parse");
+  // A PNG cut short, and one damaged.
+  const Result<PngBytes> png = EncodeGrayPng(40, 30, std::vector<uint8_t>(1200, 254));
+  ASSERT_TRUE(png.ok());
+  const std::string png_bytes(png.value().begin(), png.value().end());
+  EXPECT_TRUE(load(png_bytes).ok());
+  expect_error(load(png_bytes.substr(0, png_bytes.size() / 2)), img + ": not a readable PNG");
+  expect_error(load(png_bytes.substr(0, 20)), img + ": not a readable PNG");
+  std::string damaged = png_bytes;
+  for (size_t i = 40; i < damaged.size() - 20; i += 7) damaged[i] = static_cast<char>(~damaged[i]);
+  expect_error(load(damaged), img + ": not a readable PNG");
+  // An image reaching beyond the map's bound: 4 x 4 pixels of 300 m at 5 cm cells (+-409.6 m).
+  WriteBytes(dir.File("far.yaml"),
+             "image: m.img\nresolution: 300\norigin: [0, 0, 0]\nnegate: 0\n"
+             "occupied_thresh: 0.65\nfree_thresh: 0.196\n");
+  WriteBytes(img, "P5 4 4 255\n" + std::string(16, '\0'));
+  expect_error(LoadMapYaml(dir.File("far.yaml"), GridGeometry(0.05), kLimit),
+               "reaches beyond the map's bound");
+  WriteBytes(dir.File("far.yaml"),
+             "image: m.img\nresolution: 0.05\norigin: [1e6, 0, 0]\n"
+             "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n");
+  expect_error(LoadMapYaml(dir.File("far.yaml"), GridGeometry(0.05), kLimit),
+               "reaches beyond the map's bound");
+  // Files that are not there or not files.
+  expect_error(LoadMapYaml(dir.File("none.yaml"), GridGeometry(0.05), kLimit),
+               dir.File("none.yaml") + ": the map's yaml not found");
+  expect_error(LoadMapYaml(dir.path().string(), GridGeometry(0.05), kLimit),
+               "is not a regular file");
+  WriteBytes(dir.File("lost.yaml"), YamlText("lost.pgm"));
+  expect_error(
+      LoadMapYaml(dir.File("lost.yaml"), GridGeometry(0.05), kLimit),
+      dir.File("lost.pgm") + ": the map's image (" + dir.File("lost.yaml") + ": image) not found");
+  WriteBytes(dir.File("bad.yaml"), YamlText("m.img", "mode: fancy\n"));
+  expect_error(LoadMapYaml(dir.File("bad.yaml"), GridGeometry(0.05), kLimit),
+               dir.File("bad.yaml") + ":7: mode:");
+  expect_error(LoadMapYaml(dir.File("m.yaml"), GridGeometry(0.05), 0), "cell clamp");
 }
 
 }  // namespace

@@ -1,29 +1,36 @@
 // slam-replay: runs the SLAM on a recorded experiment (docs/design.md sections 5-6) through the
 // same decoding as live data, prints a JSON summary on stdout and writes trajectory.tum, map.pgm +
 // map.yaml (ROS map_server), map.png (the map with the trajectories, like the paper's Fig. 9) and
-// robot.json (the robot replayed).
+// robot.json (the robot replayed). With --localize it localises on a map it is given (slamd's
+// saved state or a map.yaml) instead of mapping; --drop leaves stretches out (a kidnap).
 
 #include <tbb/global_control.h>
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "engine/cell_encoding.hpp"
 #include "engine/io/atomic_file.hpp"
+#include "engine/io/map_yaml.hpp"
 #include "engine/io/params_json.hpp"
 #include "offline/experiment_reader.hpp"
 #include "offline/relations.hpp"
 #include "offline/replay.hpp"
 #include "offline/replay_report.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
+#include "server/state_store.hpp"
 #include "tools/command_line.hpp"
 
 namespace {
@@ -70,6 +77,12 @@ int Fail(const std::string& message) {
   return 1;
 }
 
+/// A bad option value: said on stderr, exit status 2.
+int Usage(const std::string& message) {
+  std::cerr << "slam-replay: " << message << "\n";
+  return 2;
+}
+
 /// slam-replay's command line, as parsed.
 struct ReplayConfig {
   std::string experiment_dir, params_path, out_dir, relations_path;
@@ -84,7 +97,17 @@ struct ReplayConfig {
   double resolution = 0.0;  // the robot's
   double range_sigma_min_cells = slam::SlamConfig{}.range_sigma_min_cells;
   double heading_sweep_turn_deg = slam::SlamConfig{}.heading_sweep_turn_deg;
+  // Localisation and stretches left out, as typed (checked by LocalizationOptions).
+  std::string localize_path, pose_text;
+  std::vector<std::string> drop_texts;
+  double from_s = 0.0, until_s = 0.0;
+  bool no_relocalize = false;
+  bool detect_loss = false;
 };
+
+constexpr char kTimeBase[] =
+    "seconds after the first scan of the recording began (the JSON's *_s times count from there "
+    "too; trajectory.tum and the JSON's \"t\" keep the recording's own clock)";
 
 void AddOptions(CLI::App& app, ReplayConfig& c) {
   app.add_option("EXP_DIR", c.experiment_dir, "recorded experiment directory, or a CARMEN log")
@@ -132,6 +155,36 @@ void AddOptions(CLI::App& app, ReplayConfig& c) {
                  "a \"relations\" object to the summary with the trajectory's relation errors, and "
                  "odometry's beside them; writes each relation's errors to relations.tsv in the "
                  "output directory");
+  app.add_option("--localize", c.localize_path,
+                 "localise on this map instead of mapping: a slamd state directory (--state-dir: "
+                 "its saved log odds, at its own cell size unless --resolution), a ROS map_server "
+                 "map.yaml (its PGM or PNG image, resampled to the replay's cells), or a folder "
+                 "holding a map.yaml (slam-replay's --out). The map is never changed: map.pgm, "
+                 "map.yaml and map.png written are the map localised on. Without --pose the "
+                 "replay first relocalises on the whole map (nothing is tracked until it answers)");
+  app.add_option("--pose", c.pose_text,
+                 "with --localize: the robot's pose on that map at the start of the first scan "
+                 "replayed, X,Y,THETA_DEG (metres, degrees, the map's frame)");
+  app.add_option("--drop", c.drop_texts,
+                 std::string("T0:T1, repeatable: leave out the scans that begin in [T0, T1), ") +
+                     kTimeBase +
+                     ". The robot moves on while the SLAM's pose does not (an artificial kidnap); "
+                     "after the stretch the replay relocalises on the map (--localize's, or the "
+                     "one mapped so far) unless --no-relocalize")
+      ->allow_extra_args(false);  // one stretch per --drop: EXP_DIR may follow it
+  app.add_flag("--no-relocalize", c.no_relocalize,
+               "after a --drop stretch, track on from where the SLAM was instead of relocalising "
+               "(the kidnap unannounced: found only by --detect-loss)");
+  app.add_flag("--detect-loss", c.detect_loss,
+               "check each scan tracked against the map (engine/loss_detector.hpp, as slamd "
+               "does): a loss takes back what the lost tracker mapped and relocalises");
+  app.add_option(
+         "--from", c.from_s,
+         std::string("replay only the scans that begin at or after this time, ") + kTimeBase)
+      ->check(CLI::Range(0.0, 1e9));
+  app.add_option("--until", c.until_s,
+                 std::string("replay only the scans that begin before this time, ") + kTimeBase)
+      ->check(CLI::Range(0.0, 1e9));
   app.add_flag("--quiet", c.quiet, "no progress line on stderr");
   app.set_version_flag("--version", std::string("slam-replay ") + SLAM_VERSION);
 }
@@ -175,6 +228,136 @@ slam::offline::ReplayOptions ReplayOptionsOf(const ReplayConfig& c,
   }
   options.refine = !c.no_refine;
   return options;
+}
+
+/// `text` as a whole finite number, nullopt otherwise.
+std::optional<double> FiniteNumber(const std::string& text) {
+  if (text.empty()) return std::nullopt;
+  char* end = nullptr;
+  const double value = std::strtod(text.c_str(), &end);
+  if (end != text.c_str() + text.size() || !std::isfinite(value)) return std::nullopt;
+  return value;
+}
+
+/// The finite numbers of `text` separated by `separator`; nullopt unless there are `count`.
+std::optional<std::vector<double>> Numbers(const std::string& text, char separator, size_t count) {
+  std::vector<double> values;
+  for (size_t from = 0; from <= text.size();) {
+    const size_t end = std::min(text.find(separator, from), text.size());
+    const std::optional<double> value = FiniteNumber(text.substr(from, end - from));
+    if (!value) return std::nullopt;
+    values.push_back(*value);
+    from = end + 1;
+  }
+  if (values.size() != count) return std::nullopt;
+  return values;
+}
+
+/// --pose, --drop, --from and --until into `options`; an exit status when one is bad.
+std::optional<int> StretchOptions(const ReplayConfig& c, const CLI::App& app,
+                                  slam::offline::ReplayOptions& options) {
+  if (!c.pose_text.empty()) {
+    if (c.localize_path.empty()) return Usage("--pose needs --localize MAP");
+    const auto v = Numbers(c.pose_text, ',', 3);
+    if (!v) {
+      return Usage("--pose " + c.pose_text +
+                   ": expected X,Y,THETA_DEG (three finite numbers: metres, metres, degrees)");
+    }
+    options.start_pose =
+        slam::Pose2{(*v)[0], (*v)[1], slam::NormalizeAngle(slam::DegToRad((*v)[2]))};
+  }
+  const bool from = app.count("--from") > 0, until = app.count("--until") > 0;
+  if (from && until && !(c.from_s < c.until_s)) {
+    return Usage("--from " + std::to_string(c.from_s) + " is not before --until " +
+                 std::to_string(c.until_s));
+  }
+  constexpr double kForever = std::numeric_limits<double>::infinity();
+  if (from) options.drop.push_back({-kForever, c.from_s});
+  if (until) options.drop.push_back({c.until_s, kForever});
+  for (const std::string& text : c.drop_texts) {
+    const auto v = Numbers(text, ':', 2);
+    if (!v || !((*v)[0] >= 0.0 && (*v)[0] < (*v)[1])) {
+      return Usage("--drop " + text + ": expected T0:T1 with 0 <= T0 < T1 (" + kTimeBase + ")");
+    }
+    options.drop.push_back({(*v)[0], (*v)[1]});
+  }
+  options.relocalize_after_drop = !c.no_relocalize;
+  if (c.detect_loss) options.loss_detector = slam::LossDetectorConfig{};
+  return std::nullopt;
+}
+
+/// The map of --localize, and what it was.
+struct LocalizeMap {
+  slam::OccupancyGrid grid;
+  std::string kind;  // "slamd-state" or "map.yaml"
+};
+
+/// slamd's saved state in `dir` as a grid, cells within the clamp `limit`; `resolution_m` (0:
+/// the state's own) must be the state's.
+slam::Result<LocalizeMap> LoadStateMap(const std::string& dir, double resolution_m, int limit) {
+  const auto loaded = slam::server::LoadState(dir);
+  if (!loaded.ok()) return slam::Error(dir + ": " + loaded.Message());
+  if (!loaded.value()) return slam::Error(dir + ": no saved state (state.json) in it");
+  const slam::server::SavedState& saved = *loaded.value();
+  if (resolution_m > 0.0 && std::abs(resolution_m - saved.resolution_m) > 1e-12) {
+    return slam::Error(dir + ": the saved map's cells are " + std::to_string(saved.resolution_m) +
+                       " m, not --resolution's " + std::to_string(resolution_m) + " m");
+  }
+  slam::OccupancyGrid grid(slam::GridGeometry(saved.resolution_m), limit);
+  grid.BeginWrite();
+  for (const slam::server::SavedTile& tile : saved.tiles) {
+    slam::Tile& cells = grid.MutableTile(tile.index);
+    for (size_t i = 0; i < cells.cells.size() && i < tile.cells.size(); ++i) {
+      cells.cells[i] = static_cast<slam::LogOdds>(std::clamp<int>(tile.cells[i], -limit, limit));
+    }
+  }
+  grid.RefreshSummaries();
+  return LocalizeMap{std::move(grid), "slamd-state"};
+}
+
+/// The map of --localize (a state directory, a map.yaml, or a folder holding one) for a replay
+/// at `resolution_m` (0: a state's own, a map.yaml's `default_resolution_m`).
+slam::Result<LocalizeMap> LoadLocalizeMap(const std::string& path, double resolution_m,
+                                          double default_resolution_m, int limit) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  std::string yaml = path;
+  if (fs::is_directory(path, ec)) {
+    if (fs::exists(fs::path(path) / "state.json", ec)) {
+      return LoadStateMap(path, resolution_m, limit);
+    }
+    yaml = (fs::path(path) / "map.yaml").string();
+    if (!fs::exists(yaml, ec)) {
+      return slam::Error(path +
+                         ": neither a slamd state directory (state.json) nor a folder holding a "
+                         "map.yaml");
+    }
+  }
+  const double resolution = resolution_m > 0.0 ? resolution_m : default_resolution_m;
+  auto grid = slam::io::LoadMapYaml(yaml, slam::GridGeometry(resolution), limit);
+  if (!grid.ok()) return {grid.errors(), grid.error_context()};
+  return LocalizeMap{std::move(grid).value(), "map.yaml"};
+}
+
+/// What the relocaliser found, on stderr.
+void ReportRelocalizations(const slam::offline::ReplayResult& run, double t_origin) {
+  for (const slam::offline::ReplayRelocalization& r : run.relocalizations) {
+    std::fprintf(stderr,
+                 "relocalised (%s) at %.1f s after %.1f s and %lld scans: (%.3f, %.3f, %.1f deg), "
+                 "score %.3f, runner-up %.3f, %lld lookups%s\n",
+                 slam::offline::ToString(r.cause), r.t - t_origin, r.t - r.started_t,
+                 static_cast<long long>(r.scans), r.found.pose.x, r.found.pose.y,
+                 slam::RadToDeg(r.found.pose.theta), r.found.score, r.found.runner_up_score,
+                 static_cast<long long>(r.found.lookups),
+                 r.taken ? "" : " (refused by the SLAM: searching again)");
+  }
+  if (run.relocalizing_at_end) {
+    std::fprintf(stderr,
+                 "note: still relocalising at the end (since %.1f s, %lld scans in all given to "
+                 "the relocaliser): the robot was not found\n",
+                 run.relocalizing_since_t - t_origin,
+                 static_cast<long long>(run.relocalizing_scans));
+  }
 }
 
 /// The trajectory's relation errors and dead reckoning's, for the summary; each relation's
@@ -230,6 +413,8 @@ int main(int argc, char** argv) {
     thread_limit = std::make_unique<tbb::global_control>(
         tbb::global_control::max_allowed_parallelism, static_cast<size_t>(config.threads));
   }
+  slam::offline::ReplayOptions options = ReplayOptionsOf(config, params);
+  if (const std::optional<int> exit_code = StretchOptions(config, app, options)) return *exit_code;
   if (config.out_dir.empty()) config.out_dir = DefaultOutDir(config.experiment_dir);
   const std::string& out_dir = config.out_dir;
 
@@ -242,12 +427,44 @@ int main(int argc, char** argv) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - load_start).count();
   if (!config.quiet) ReportLoad(experiment, load_s);
 
+  const double t_origin = experiment.scans.empty() ? 0.0 : experiment.scans.front().t_begin;
+  if (std::none_of(experiment.scans.begin(), experiment.scans.end(), [&](const slam::Scan& scan) {
+        return std::none_of(options.drop.begin(), options.drop.end(),
+                            [&](const slam::offline::TimeInterval& d) {
+                              return d.Contains(scan.t_begin - t_origin);
+                            });
+      })) {
+    char span[96];
+    std::snprintf(span, sizeof(span), "(its scans begin from 0 to %.1f s)",
+                  experiment.scans.back().t_begin - t_origin);
+    return Usage("--from, --until and --drop leave no scan of " + config.experiment_dir +
+                 " to replay " + span);
+  }
+  std::optional<LocalizeMap> localize;
+  if (!config.localize_path.empty()) {
+    auto loaded = LoadLocalizeMap(config.localize_path, config.resolution,
+                                  slam::DefaultResolution(experiment.robot),
+                                  slam::EncodeLogOdds(options.config.logodds_limit));
+    if (!loaded.ok()) return Usage("--localize: " + loaded.Message());
+    localize.emplace(std::move(loaded).value());
+    const slam::GridGeometry& geometry = localize->grid.geometry();
+    if (!localize->grid.HasTiles()) {
+      return Usage("--localize " + config.localize_path + ": the map is empty (nothing known)");
+    }
+    if (options.start_pose && !geometry.InMapBound(options.start_pose->translation())) {
+      return Usage("--pose " + config.pose_text + ": outside the map's bound");
+    }
+    options.config.resolution_m = geometry.resolution();
+    options.map = localize->grid;
+    options.localize_only = true;
+  }
+
   std::error_code ec;
   std::filesystem::create_directories(out_dir, ec);
   if (ec) return Fail("cannot create " + out_dir + ": " + ec.message());
 
-  slam::offline::ReplayOptions options = ReplayOptionsOf(config, params);
-  ProgressLine progress(experiment.meta.name + (config.no_refine ? " (odometry only)" : ""));
+  ProgressLine progress(experiment.meta.name + (config.no_refine ? " (odometry only)" : "") +
+                        (localize ? " (localising)" : ""));
   if (!config.quiet)
     options.progress = [&](size_t done, size_t total) { progress.Update(done, total); };
   const slam::offline::ReplayResult run =
@@ -259,10 +476,18 @@ int main(int argc, char** argv) {
                  "robot drives, or beyond the map's bound): the pose held across them\n",
                  static_cast<long long>(run.scans_refused));
   }
+  if (!config.quiet) ReportRelocalizations(run, t_origin);
   slam::offline::ReplayOutputs outputs =
       slam::offline::WriteReplayOutputs(out_dir, experiment, run, config.no_refine, options.budget);
   Json summary = slam::offline::ReplaySummary(experiment, run, options);
   summary["out"] = out_dir;
+  summary["from_s"] = app.count("--from") > 0 ? Json(config.from_s) : Json();
+  summary["until_s"] = app.count("--until") > 0 ? Json(config.until_s) : Json();
+  if (localize) {
+    summary["localize_map"] = {{"path", config.localize_path},
+                               {"kind", localize->kind},
+                               {"tiles", localize->grid.TileCount()}};
+  }
   if (!config.relations_path.empty()) {
     summary["relations"] = ScoreRelations(config, relations, experiment, run, outputs.errors);
   }
