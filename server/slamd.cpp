@@ -22,6 +22,8 @@
 #include <thread>
 #include <vector>
 
+#include "engine/cell_encoding.hpp"
+#include "engine/io/map_yaml.hpp"
 #include "engine/io/params_json.hpp"
 #include "engine/io/robot_json.hpp"
 #include "engine/io/shipped_path.hpp"
@@ -81,6 +83,7 @@ struct SlamdConfig {
   std::string odometry = "tracked";
   std::string pose;  // --pose: "X,Y,THETA_DEG" or "saved"; empty: relocalise on a resumed map
   bool localize = false;
+  std::string map_path;  // --map: a ROS map.yaml to localise on
   int max_streams = 16;
   bool quiet = false;
 };
@@ -132,6 +135,9 @@ void AddOptions(CLI::App& app, SlamdConfig& c) {
   app.add_flag("--localize", c.localize,
                "localisation only: track and relocalise on the map of --state-dir, never change "
                "it (no mapping, no saves, no resets)");
+  app.add_option("--map", c.map_path,
+                 "with --localize: a ROS map_server map (map.yaml and its PGM or PNG image) to "
+                 "localise on, instead of --state-dir's");
   app.add_option("--experiments", c.experiments_dir,
                  "recorded experiments with ground truth for tuning jobs");
   app.add_option("--token-file", c.token_file,
@@ -393,6 +399,22 @@ int main(int argc, char** argv) {
   // Held until slamd exits: a second slamd on the same directory would race its saves.
   std::optional<slam::server::StateDirLock> state_lock;
   if (const auto status = LockAndResume(state_dir, service_options, state_lock)) return *status;
+  if (!config.map_path.empty()) {
+    if (!config.localize) return Fail("--map is a map to localise on: give --localize too");
+    if (!state_dir.empty()) return Fail("--map and --state-dir: give one map to localise on");
+    const slam::Result<slam::OccupancyGrid> grid = slam::io::LoadMapYaml(
+        config.map_path, slam::GridGeometry(service_options.config.resolution_m),
+        slam::EncodeLogOdds(service_options.config.logodds_limit));
+    if (!grid.ok()) return Fail(grid.Message());
+    slam::server::SavedState map;
+    map.version = 1;
+    map.resolution_m = service_options.config.resolution_m;
+    for (const slam::TileRef& t : grid.value().Tiles()) {
+      map.tiles.push_back({t.index, 1, {t.tile->cells.begin(), t.tile->cells.end()}});
+    }
+    if (map.tiles.empty()) return Fail(config.map_path + ": the map has no known cell");
+    service_options.resume = std::move(map);
+  }
   if (config.localize) {
     if (!service_options.resume) {
       return Fail(config.state_dir.empty()
@@ -448,7 +470,8 @@ int main(int argc, char** argv) {
   const bool quiet = config.quiet;
   if (service_options.resume && !quiet) {
     std::fprintf(stderr, "slamd: %s the map saved in %s (%zu tiles, version %llu)\n",
-                 config.localize ? "localising on" : "resumed", state_dir.c_str(),
+                 config.localize ? "localising on" : "resumed",
+                 config.map_path.empty() ? state_dir.c_str() : config.map_path.c_str(),
                  service_options.resume->tiles.size(),
                  static_cast<unsigned long long>(service_options.resume->version));
     if (!service_options.resume_pose) {

@@ -1638,6 +1638,31 @@ TEST(SlamdStateDirTest, LocalisingOnASavedMapNeverChangesItOrTheStateDirectory) 
   for (const auto& [name, text] : files) {
     EXPECT_EQ(ReadFile(state.path() / name), text) << name << " changed";
   }
+  // The same map as a ROS map.yaml: localised on the same way.
+  {
+    SlamdProcess on_yaml;
+    ASSERT_TRUE(on_yaml.Start({"--localize", "--map", (state.path() / "map.yaml").string(),
+                               "--pose", "0,0,0", "--budget", "8000"},
+                              &error))
+        << error;
+    Http yaml_http(on_yaml.host(), on_yaml.port());
+    EXPECT_GT(GetJson(yaml_http, "/api/v1/map")["tiles"].size(), 0u);
+    const int64_t yaml_version = MapVersion(yaml_http);
+    const size_t first = GetJson(yaml_http, "/api/v1/trajectory")["slam"].size();
+    WaitForTrajectory(yaml_http, first + 5);
+    EXPECT_EQ(MapVersion(yaml_http), yaml_version);
+    EXPECT_EQ(on_yaml.Stop(), 0);
+  }
+  WriteFile(state.path() / "bad.yaml", "image: missing.pgm\nresolution: 0.05\n");
+  for (const std::vector<std::string>& args :
+       {std::vector<std::string>{"--map", (state.path() / "map.yaml").string()},
+        std::vector<std::string>{"--localize", "--map", (state.path() / "bad.yaml").string()},
+        std::vector<std::string>{"--localize", "--map", (state.path() / "map.yaml").string(),
+                                 "--state-dir", state.path().string()}}) {
+    SlamdProcess refused;
+    ASSERT_TRUE(refused.Spawn(args, &error)) << error;
+    EXPECT_EQ(refused.WaitExit(10.0), 2) << refused.Stderr();
+  }
   // Without a map there is nothing to localise on.
   ScratchDir empty("localize-empty");
   for (const std::vector<std::string>& args :
