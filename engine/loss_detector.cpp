@@ -21,6 +21,9 @@ ConfigErrors LossDetectorConfig::Validate() const {
   if (!(lost_share > 0.0 && lost_share <= 1.0)) {
     errors.push_back({"/lost_share", "must be in (0, 1]"});
   }
+  if (history_scans < window_scans) {
+    errors.push_back({"/history_scans", "must be at least window_scans"});
+  }
   return errors;
 }
 

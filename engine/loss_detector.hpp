@@ -30,6 +30,10 @@ struct LossDetectorConfig {
   int window_scans = 6;     // the scans a verdict is drawn over (about 4 s at 1.5 scans/s)
   int min_known = 60;       // readings on known cells over the window for a verdict
   double lost_share = 0.5;  // contradicting share of those that is a loss
+  /// The map the readings are checked against is the one before this many scans (window
+  /// and one: about 5 s): a lost tracker maps what it sees where it wrongly is, and its next
+  /// scans would agree with that. A loss takes back what was mapped since then.
+  int history_scans = 7;
 
   /// Out-of-range values as JSON pointers; empty when valid.
   ConfigErrors Validate() const;
@@ -58,6 +62,7 @@ class LossDetector {
   /// Upper bound of one Check's lookups: what a plan reserves for it.
   int64_t MaxLookups() const;
   int window_scans() const { return config_.window_scans; }
+  const LossDetectorConfig& config() const { return config_; }
 
  private:
   struct Counts {

@@ -25,7 +25,10 @@ class LocalizationLog {
   /// A relocalisation starts (the relocaliser was just started) before the scan beginning at t.
   void Start(RelocalizationStart cause, double t) {
     relocalizing_ = true;
-    losses_ += cause == RelocalizationStart::kLost ? 1 : 0;
+    if (cause == RelocalizationStart::kLost) {
+      ++losses_;
+      loss_times_.push_back(t - t_origin_);
+    }
     cause_ = cause;
     since_t_ = t;
     scans_ = 0;
@@ -35,6 +38,10 @@ class LocalizationLog {
   /// What the step did with `scan`.
   void Step(const Scan& scan, const BudgetedStep::Result& step) {
     last_given_end_ = scan.t_end;
+    if (step.loss_check && step.loss_check->window_share > share_max_) {
+      share_max_ = step.loss_check->window_share;
+      share_max_t_ = scan.t_end;
+    }
     if (!step.relocalization) {
       if (step.report.refused != ScanRefusal::kNone) return;  // the pose held
       if (untracked_since_ && tracked_) {
@@ -83,6 +90,9 @@ class LocalizationLog {
     result.relocalizations = std::move(answers_);
     result.lookups_total = lookups_;
     result.losses = losses_;
+    result.loss_times_s = std::move(loss_times_);
+    result.loss_share_max = share_max_;
+    result.loss_share_max_t = share_max_t_;
     result.searches_unsure = unsure_;
     result.best_unsure = best_unsure_;
     result.best_unsure_runner_up = best_unsure_runner_up_;
@@ -100,6 +110,8 @@ class LocalizationLog {
   int64_t scans_ = 0, scans_total_ = 0, lookups_ = 0, unsure_ = 0, losses_ = 0;
   std::optional<GlobalMatch> best_unsure_;
   double best_unsure_runner_up_ = 0.0, best_unsure_t_ = 0.0;
+  double share_max_ = 0.0, share_max_t_ = 0.0;
+  std::vector<double> loss_times_;
   std::vector<ReplayRelocalization> answers_;
   // Whether the engine processed a scan, the end of the last one, whether scans went elsewhere
   // since, and the end of the last scan given to the step.

@@ -141,6 +141,11 @@ struct ReplayResult {
   int64_t lookups_total = 0;
   /// Scans at which the loss detector found the tracker lost (each started a relocalisation).
   int64_t losses = 0;
+  std::vector<double> loss_times_s;  // their scans' starts, seconds after the first scan's
+  /// The loss detector's largest contradicting share over its window, and the end of the scan
+  /// it was drawn at (the scans' clock): how near the run came to a loss (0 without a detector).
+  double loss_share_max = 0.0;
+  double loss_share_max_t = 0.0;
   /// Relocaliser searches that ended unsure (no unique answer scoring accept_score: the robot
   /// gathers readings and searches again), and the best of them (its fine check, or the coarse
   /// best), its distinct runner-up's score and the end time of its scan: what was seen when the

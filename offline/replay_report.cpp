@@ -100,6 +100,11 @@ void LocalizationSummary(const offline::Experiment& experiment, const ReplayResu
   j["relocalize_after_drop"] = options.relocalize_after_drop;
   j["detect_loss"] = options.loss_detector.has_value();
   j["losses"] = run.losses;
+  j["losses_s"] = run.loss_times_s;
+  // How near the run came to a loss: the detector's largest window share, and when.
+  j["loss_share_max"] = options.loss_detector ? Json{{"share", run.loss_share_max},
+                                                     {"t_s", run.loss_share_max_t - t_origin}}
+                                              : Json();
   Json answers = Json::array();
   for (const ReplayRelocalization& r : run.relocalizations) {
     Json a = {{"cause", ToString(r.cause)},

@@ -16,7 +16,7 @@ BudgetedStep::BudgetedStep(Slam& engine, RayBudgetScheduler& scheduler, ParamsCh
 
 void BudgetedStep::SetLossDetector(LossDetector* detector) {
   detector_ = detector;
-  maps_before_.clear();
+  history_.clear();
   if (detector_ != nullptr) detector_->Reset();
 }
 
@@ -45,16 +45,20 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
   if (detector_ != nullptr && relocalizer_ != nullptr && !relocalizer_->active() && refine) {
     reserved = (detector_->MaxLookups() + kLookupsPerRay - 1) / kLookupsPerRay;
     const Pose2 predicted = Compose(engine_.Best().pose, Between(scan.odom_begin, scan.odom_end));
+    // Checked against the map as it was some scans ago: a lost tracker maps what it sees where
+    // it wrongly thinks it is, and its next scans would agree with that.
+    const OccupancyGrid& reference = history_.empty() ? engine_.Best().map : history_.front();
     result.loss_check =
-        detector_->Check(engine_.Best().map, predicted, engine_.ReadingPoints(result.prepared));
-    maps_before_.push_back(engine_.Best().map);
-    while (maps_before_.size() > static_cast<size_t>(detector_->window_scans()) + 1) {
-      maps_before_.pop_front();
+        detector_->Check(reference, predicted, engine_.ReadingPoints(result.prepared));
+    history_.push_back(engine_.Best().map);
+    while (history_.size() > static_cast<size_t>(detector_->config().history_scans)) {
+      history_.pop_front();
     }
     if (result.loss_check->lost) {
-      engine_.ReplaceMap(maps_before_.front());
-      relocalizer_->Start(maps_before_.front());
-      maps_before_.clear();
+      const OccupancyGrid before = history_.front();
+      engine_.ReplaceMap(before);
+      relocalizer_->Start(before);
+      history_.clear();
       detector_->Reset();
       result.lost = true;
     }
@@ -70,7 +74,7 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
     }
     if (result.relocated && detector_ != nullptr) {  // a new start: the window begins again
       detector_->Reset();
-      maps_before_.clear();
+      history_.clear();
     }
     result.relocalization = std::move(step);
     result.cpu_s = CpuSeconds(clock_) - cpu_start;

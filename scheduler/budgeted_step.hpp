@@ -46,10 +46,11 @@ class BudgetedStep {
   /// map is never changed (a robot localising on a map it has, slamd --localize).
   void SetLocalizeOnly(bool localize_only) { localize_only_ = localize_only; }
   /// The loss detector (may be null; must outlive its use here): each scan the engine tracks is
-  /// first checked against the map (its cost reserved from the quota); when the detector says
-  /// the tracker is lost, the map goes back to what it was before the detector's window (what
-  /// the lost tracker mapped is taken back), that scan and the next go to the relocaliser
-  /// (Relocalizer::Start on that map), and Result::lost says so. Needs a relocaliser.
+  /// first checked against the map of some scans ago (LossDetectorConfig::history_scans; its
+  /// cost reserved from the quota); when the detector says the tracker is lost, the map goes
+  /// back to that one (what the lost tracker mapped is taken back), that scan and the next go to
+  /// the relocaliser (Relocalizer::Start on that map), and Result::lost says so. Needs a
+  /// relocaliser.
   void SetLossDetector(LossDetector* detector);
   bool localize_only() const { return localize_only_; }
 
@@ -84,9 +85,9 @@ class BudgetedStep {
   Relocalizer* relocalizer_ = nullptr;
   bool localize_only_ = false;
   LossDetector* detector_ = nullptr;
-  /// The best particle's map before each of the detector's window of scans (tiles shared): the
-  /// oldest is the map before a loss the window reveals.
-  std::deque<OccupancyGrid> maps_before_;
+  /// The best particle's map before each of the detector's latest history_scans scans (tiles
+  /// shared): the oldest is what scans are checked against, and what a loss goes back to.
+  std::deque<OccupancyGrid> history_;
   int64_t switches_ = 0;
 };
 

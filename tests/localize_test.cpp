@@ -278,6 +278,8 @@ TEST_F(LocalizeTest, SlamReplayLocalisesOnAMapYamlAndOnSlamdsState) {
   EXPECT_LT(r["error_m"].get<double>(), 0.1);
   EXPECT_FALSE(j["detect_loss"].get<bool>());
   EXPECT_EQ(j["losses"], 0);
+  EXPECT_TRUE(j["losses_s"].empty());
+  EXPECT_TRUE(j["loss_share_max"].is_null());
   const CommandResult detected =
       RunCommand(tool + " --localize " + (root_ / "map" / "map.yaml").string() +
                      " --pose 0,0,0 --drop 20:28 --no-relocalize --detect-loss --out " +
@@ -290,6 +292,12 @@ TEST_F(LocalizeTest, SlamReplayLocalisesOnAMapYamlAndOnSlamdsState) {
   EXPECT_EQ(lost["losses"], 1);
   ASSERT_EQ(lost["relocalizations"].size(), 1u);
   EXPECT_EQ(lost["relocalizations"][0]["cause"], "lost");
+  // When it was found lost, and the window share that said so.
+  ASSERT_EQ(lost["losses_s"].size(), 1u);
+  EXPECT_DOUBLE_EQ(lost["losses_s"][0].get<double>(),
+                   lost["relocalizations"][0]["started_s"].get<double>());
+  EXPECT_GE(lost["loss_share_max"]["share"].get<double>(), LossDetectorConfig{}.lost_share);
+  EXPECT_LE(lost["loss_share_max"]["t_s"].get<double>(), lost["losses_s"][0].get<double>() + 2.0);
   // The map written is the map localised on.
   EXPECT_EQ(testing::ReadFile((scratch / "yaml" / "map.pgm").string()),
             testing::ReadFile((root_ / "map" / "map.pgm").string()));

@@ -91,7 +91,7 @@ struct SecondRun {
 };
 
 SecondRun ResumeOn(const sim::World& world, uint64_t seed, const FirstRun& first,
-                   std::optional<Pose2> resume_pose) {
+                   std::optional<Pose2> resume_pose, bool detect_loss = true) {
   const RobotDescription robot = ShippedRobot();
   sim::VirtualMarxbotOptions unpaced;
   unpaced.paced = false;
@@ -107,6 +107,7 @@ SecondRun ResumeOn(const sim::World& world, uint64_t seed, const FirstRun& first
   options.budget.rays_per_scan = kBudget;
   options.resume = first.state;
   options.resume_pose = resume_pose;
+  options.detect_loss = detect_loss;
   SlamService service(link, truth_source, options);
   link.Start();
   service.Start();
@@ -181,13 +182,29 @@ TEST_F(ResumeTest, AResumedMapIsSearchedForTheRobotAndStaysOneMap) {
   EXPECT_LT(run.heading_error_deg, 3.0);
 }
 
-TEST_F(ResumeTest, AResumedMapTakenFromAWrongPoseGetsASecondCopy) {
+TEST_F(ResumeTest, AResumedMapTakenFromAWrongPoseGetsASecondCopyWithoutTheLossDetector) {
   // What slamd did before it relocalised: the virtual marXbot restarted at the map's origin,
   // which is where the robot was at the Reset, not where it starts. The measure above tells.
-  const SecondRun run = ResumeOn(*sim::BuiltinWorld("rooms"), kSeed, *first_, Pose2{});
+  const SecondRun run =
+      ResumeOn(*sim::BuiltinWorld("rooms"), kSeed, *first_, Pose2{}, /*detect_loss=*/false);
   EXPECT_EQ(run.counters.relocalizations, 0);
   EXPECT_LT(run.precision, first_->precision - 0.15);
   EXPECT_GT(run.pose_error_m, 0.2);
+}
+
+TEST_F(ResumeTest, AResumedMapTakenFromAWrongPoseIsFoundLostAndStaysOneMap) {
+  // The same wrong pose, with the loss detector as slamd runs it: the readings land in the
+  // map's free space, what was mapped from the wrong pose is taken back, and the relocaliser
+  // finds the robot. The detector checks against the map of some scans ago; against the map
+  // of the moment, the wrong pose's own walls agreed with the next scans and it never fired.
+  const SecondRun run = ResumeOn(*sim::BuiltinWorld("rooms"), kSeed, *first_, Pose2{});
+  EXPECT_EQ(run.counters.losses, 1);
+  EXPECT_EQ(run.counters.relocalizations, 1);
+  ASSERT_TRUE(run.last->last_relocalization);
+  EXPECT_EQ(run.last->last_relocalization->cause, RelocalizationCause::kLost);
+  EXPECT_GT(run.precision, first_->precision - 0.05);
+  EXPECT_LT(run.pose_error_m, 0.05);
+  EXPECT_LT(run.heading_error_deg, 3.0);
 }
 
 }  // namespace
