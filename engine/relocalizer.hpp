@@ -60,7 +60,7 @@ struct RelocalizerConfig {
   /// then: a place that only looked right from where the robot was is seldom right from
   /// where it drove on to.
   int confirmations = 2;
-  double confirm_spacing_s = 2.0;
+  double confirm_spacing_s = 4.0;
 };
 
 /// One answer of the relocaliser.
