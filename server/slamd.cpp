@@ -273,16 +273,15 @@ std::optional<int> ResumePose(const std::string& text,
   if (text.empty()) return std::nullopt;
   std::optional<slam::Pose2> pose;  // none: "saved"
   if (text != "saved") {
-    double x = 0, y = 0, theta_deg = 0;
-    char tail = 0;
-    if (std::sscanf(text.c_str(), "%lf,%lf,%lf%c", &x, &y, &theta_deg, &tail) != 3) {
-      return Fail("--pose must be X,Y,THETA_DEG (metres, degrees) or \"saved\", not \"" + text +
-                  "\"");
+    const std::optional<slam::Pose2> typed = slam::cli::PoseArgument(text);
+    if (!typed) {
+      return Fail(
+          "--pose must be X,Y,THETA_DEG (three finite numbers: metres, metres, degrees) "
+          "or \"saved\", not \"" +
+          text + "\"");
     }
     slam::server::PoseRequest request;
-    request.pose = slam::Pose2{
-        x, y,
-        std::isfinite(theta_deg) ? slam::NormalizeAngle(slam::DegToRad(theta_deg)) : theta_deg};
+    request.pose = *typed;
     const slam::ConfigErrors errors =
         slam::server::ValidatePoseRequest(request, service_options.config.resolution_m);
     if (!errors.empty()) return Fail("--pose " + text + ": " + slam::FormatErrors(errors));

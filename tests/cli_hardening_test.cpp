@@ -120,6 +120,28 @@ struct Typo {
   const char* expected;  // the line on stderr, after "<tool>: "
 };
 
+TEST(CommandLineTest, NumbersAndPosesAreTakenWholeAndFiniteOrNotAtAll) {
+  using slam::cli::FiniteNumber;
+  using slam::cli::FiniteNumbers;
+  using slam::cli::PoseArgument;
+  EXPECT_EQ(FiniteNumber("0.5"), 0.5);
+  EXPECT_EQ(FiniteNumber("-1e-3"), -1e-3);
+  for (const char* bad : {"", " ", "1x", "x1", "nan", "inf", "-inf", "1e999", "1,"})
+    EXPECT_FALSE(FiniteNumber(bad)) << bad;
+
+  EXPECT_EQ(FiniteNumbers("1:2", ':', 2), (std::vector<double>{1.0, 2.0}));
+  for (const char* bad : {"1", "1:2:3", "1:", ":2", "1::2", "1:nan", "1,2"})
+    EXPECT_FALSE(FiniteNumbers(bad, ':', 2)) << bad;
+
+  const std::optional<slam::Pose2> pose = PoseArgument("1.5,-2,270");
+  ASSERT_TRUE(pose);
+  EXPECT_DOUBLE_EQ(pose->x, 1.5);
+  EXPECT_DOUBLE_EQ(pose->y, -2.0);
+  EXPECT_NEAR(pose->theta, -slam::kPi / 2.0, 1e-12);  // normalised
+  for (const char* bad : {"1,2", "1,2,3,4", "a,b,c", "0,nan,0", "0,0,inf", "1,2,3,", ",1,2"})
+    EXPECT_FALSE(PoseArgument(bad)) << bad;
+}
+
 TEST(CommandLineTest, EveryToolAnswersAMistypedOptionWithTheNearestOfItsOwn) {
   const fs::path dir = Scratch("typos");
   const std::vector<Typo> typos = {

@@ -11,13 +11,17 @@
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 #include <cstddef>
+#include <cstdlib>
 #include <filesystem>
 #include <iostream>
 #include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
+
+#include "engine/pose.hpp"
 
 namespace slam::cli {
 
@@ -158,6 +162,40 @@ inline std::optional<int> Parse(CLI::App& app, int argc, const char* const* argv
     return ReportParseError(app, error);
   }
   return std::nullopt;
+}
+
+/// `text` as a whole finite number ("0.5", "-1e-3"), nullopt otherwise ("", "1x", "nan", "inf").
+inline std::optional<double> FiniteNumber(std::string_view text) {
+  if (text.empty()) return std::nullopt;
+  const std::string copy(text);  // strtod wants a terminated string
+  char* end = nullptr;
+  const double value = std::strtod(copy.c_str(), &end);
+  if (end != copy.c_str() + copy.size() || !std::isfinite(value)) return std::nullopt;
+  return value;
+}
+
+/// The `count` finite numbers of `text` separated by `separator` ("1,2,3"); nullopt when there
+/// are more or fewer, or one is not a finite number (an empty field included).
+inline std::optional<std::vector<double>> FiniteNumbers(std::string_view text, char separator,
+                                                        size_t count) {
+  std::vector<double> values;
+  for (size_t from = 0; from <= text.size();) {
+    const size_t end = std::min(text.find(separator, from), text.size());
+    const std::optional<double> value = FiniteNumber(text.substr(from, end - from));
+    if (!value || values.size() == count) return std::nullopt;
+    values.push_back(*value);
+    from = end + 1;
+  }
+  if (values.size() != count) return std::nullopt;
+  return values;
+}
+
+/// A pose typed as "X,Y,THETA_DEG" (metres, metres, degrees), the heading normalised to
+/// (-pi, pi]; nullopt unless it is three finite numbers.
+inline std::optional<Pose2> PoseArgument(std::string_view text) {
+  const std::optional<std::vector<double>> v = FiniteNumbers(text, ',', 3);
+  if (!v) return std::nullopt;
+  return Pose2{(*v)[0], (*v)[1], NormalizeAngle(DegToRad((*v)[2]))};
 }
 
 }  // namespace slam::cli

@@ -230,41 +230,16 @@ slam::offline::ReplayOptions ReplayOptionsOf(const ReplayConfig& c,
   return options;
 }
 
-/// `text` as a whole finite number, nullopt otherwise.
-std::optional<double> FiniteNumber(const std::string& text) {
-  if (text.empty()) return std::nullopt;
-  char* end = nullptr;
-  const double value = std::strtod(text.c_str(), &end);
-  if (end != text.c_str() + text.size() || !std::isfinite(value)) return std::nullopt;
-  return value;
-}
-
-/// The finite numbers of `text` separated by `separator`; nullopt unless there are `count`.
-std::optional<std::vector<double>> Numbers(const std::string& text, char separator, size_t count) {
-  std::vector<double> values;
-  for (size_t from = 0; from <= text.size();) {
-    const size_t end = std::min(text.find(separator, from), text.size());
-    const std::optional<double> value = FiniteNumber(text.substr(from, end - from));
-    if (!value) return std::nullopt;
-    values.push_back(*value);
-    from = end + 1;
-  }
-  if (values.size() != count) return std::nullopt;
-  return values;
-}
-
 /// --pose, --drop, --from and --until into `options`; an exit status when one is bad.
 std::optional<int> StretchOptions(const ReplayConfig& c, const CLI::App& app,
                                   slam::offline::ReplayOptions& options) {
   if (!c.pose_text.empty()) {
     if (c.localize_path.empty()) return Usage("--pose needs --localize MAP");
-    const auto v = Numbers(c.pose_text, ',', 3);
-    if (!v) {
+    options.start_pose = slam::cli::PoseArgument(c.pose_text);
+    if (!options.start_pose) {
       return Usage("--pose " + c.pose_text +
                    ": expected X,Y,THETA_DEG (three finite numbers: metres, metres, degrees)");
     }
-    options.start_pose =
-        slam::Pose2{(*v)[0], (*v)[1], slam::NormalizeAngle(slam::DegToRad((*v)[2]))};
   }
   const bool from = app.count("--from") > 0, until = app.count("--until") > 0;
   if (from && until && !(c.from_s < c.until_s)) {
@@ -275,7 +250,7 @@ std::optional<int> StretchOptions(const ReplayConfig& c, const CLI::App& app,
   if (from) options.drop.push_back({-kForever, c.from_s});
   if (until) options.drop.push_back({c.until_s, kForever});
   for (const std::string& text : c.drop_texts) {
-    const auto v = Numbers(text, ':', 2);
+    const auto v = slam::cli::FiniteNumbers(text, ':', 2);
     if (!v || !((*v)[0] >= 0.0 && (*v)[0] < (*v)[1])) {
       return Usage("--drop " + text + ": expected T0:T1 with 0 <= T0 < T1 (" + kTimeBase + ")");
     }

@@ -133,15 +133,6 @@ CLI::App* AddOptions(CLI::App& app, SimConfig& c) {
   return dataset;
 }
 
-/// `text` as a whole finite number, nullopt otherwise.
-std::optional<double> FiniteNumber(const std::string& text) {
-  if (text.empty()) return std::nullopt;
-  char* end = nullptr;
-  const double value = std::strtod(text.c_str(), &end);
-  if (end != text.c_str() + text.size() || !std::isfinite(value)) return std::nullopt;
-  return value;
-}
-
 /// --kidnap and --kidnap-to into `config` for a run in `world` (called `world_name`); false when
 /// they are bad (said on stderr).
 bool KidnapOptions(const SimConfig& c, const slam::sim::World& world, const std::string& world_name,
@@ -151,7 +142,7 @@ bool KidnapOptions(const SimConfig& c, const slam::sim::World& world, const std:
     return false;
   }
   if (!c.kidnap_given) return true;
-  const std::optional<double> t = FiniteNumber(c.kidnap);
+  const std::optional<double> t = slam::cli::FiniteNumber(c.kidnap);
   if (!t || !(*t > 0.0 && *t < config.duration_s)) {
     std::cerr << "slam-sim: --kidnap " << c.kidnap
               << ": expected a time in seconds within the run, 0 < T < " << config.duration_s
@@ -160,28 +151,20 @@ bool KidnapOptions(const SimConfig& c, const slam::sim::World& world, const std:
   }
   config.kidnap_t_s = *t;
   if (!c.kidnap_to_given) return true;
-  std::vector<double> values;
-  for (size_t from = 0; from <= c.kidnap_to.size();) {
-    const size_t comma = std::min(c.kidnap_to.find(',', from), c.kidnap_to.size());
-    const std::optional<double> value = FiniteNumber(c.kidnap_to.substr(from, comma - from));
-    if (!value) break;
-    values.push_back(*value);
-    from = comma + 1;
-  }
-  if (values.size() != 3 || std::count(c.kidnap_to.begin(), c.kidnap_to.end(), ',') != 2) {
+  const std::optional<slam::Pose2> target = slam::cli::PoseArgument(c.kidnap_to);
+  if (!target) {
     std::cerr << "slam-sim: --kidnap-to " << c.kidnap_to
               << ": expected X,Y,THETA_DEG (three finite numbers: metres, metres, degrees)\n";
     return false;
   }
-  const slam::Pose2 target{values[0], values[1], slam::NormalizeAngle(slam::DegToRad(values[2]))};
   if (const slam::Result<void> free =
-          slam::sim::CheckFreePose(world, config.robot_radius_m, target);
+          slam::sim::CheckFreePose(world, config.robot_radius_m, *target);
       !free.ok()) {
     std::cerr << "slam-sim: --kidnap-to " << c.kidnap_to << ": " << free.Message() << " ("
               << world_name << ", a robot of radius " << config.robot_radius_m << " m)\n";
     return false;
   }
-  config.kidnap_to = target;
+  config.kidnap_to = *target;
   return true;
 }
 
