@@ -11,9 +11,7 @@
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cctype>
-#include <cmath>
 #include <cstddef>
-#include <cstdlib>
 #include <filesystem>
 #include <iostream>
 #include <optional>
@@ -21,6 +19,7 @@
 #include <string_view>
 #include <vector>
 
+#include "engine/io/text_fields.hpp"
 #include "engine/pose.hpp"
 
 namespace slam::cli {
@@ -164,13 +163,11 @@ inline std::optional<int> Parse(CLI::App& app, int argc, const char* const* argv
   return std::nullopt;
 }
 
-/// `text` as a whole finite number ("0.5", "-1e-3"), nullopt otherwise ("", "1x", "nan", "inf").
+/// `text` as a whole finite number ("0.5", "-1e-3"), nullopt otherwise ("", "1x", "nan", "inf"):
+/// io::ParseFiniteDouble, as the logs' fields are read.
 inline std::optional<double> FiniteNumber(std::string_view text) {
-  if (text.empty()) return std::nullopt;
-  const std::string copy(text);  // strtod wants a terminated string
-  char* end = nullptr;
-  const double value = std::strtod(copy.c_str(), &end);
-  if (end != copy.c_str() + copy.size() || !std::isfinite(value)) return std::nullopt;
+  double value = 0.0;
+  if (!io::ParseFiniteDouble(text, value)) return std::nullopt;
   return value;
 }
 
