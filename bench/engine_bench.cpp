@@ -590,6 +590,28 @@ void BM_GlobalSearch(benchmark::State& state) {
 }
 BENCHMARK(BM_GlobalSearch)->ArgName("cell_mm")->Arg(30)->Arg(100)->Unit(benchmark::kMillisecond);
 
+// The relocaliser's other cost: building the warmed-up engine's map's field of range(0) mm
+// cells (as Relocalizer::Start's builds, six levels on the coarse field, four on the fine
+// one). Items are the lookups it is charged (MatchFieldBuild::lookups): their time against a
+// search's lookup (BM_GlobalSearch) says whether kCellOpsPerLookup errs high.
+void BM_MatchFieldBuild(benchmark::State& state) {
+  const Slam& warm = WarmEngine(1);
+  MatchFieldConfig config;
+  config.resolution_m = static_cast<double>(state.range(0)) / 1000.0;
+  config.sigma_m = config.resolution_m;
+  config.levels = state.range(0) >= 100 ? 6 : 4;
+  int64_t lookups = 0;
+  for (auto _ : state) {
+    MatchFieldBuild build(warm.Best().map, config);
+    build.Finish();
+    lookups += build.lookups();
+    benchmark::DoNotOptimize(build.field());
+  }
+  Items(state, lookups, "lookups");
+  state.counters["tiles"] = static_cast<double>(warm.Best().map.TileCount());
+}
+BENCHMARK(BM_MatchFieldBuild)->ArgName("cell_mm")->Arg(30)->Arg(100)->Unit(benchmark::kMillisecond);
+
 // A whole replay (Replay(): scheduler + engine, as slam-replay) of the rooms run of range(0)
 // seconds at 65000 rays/scan on range(1) threads, once. Counter realtime_factor = run
 // duration / wall time. Items are scans.

@@ -10,11 +10,12 @@ namespace slam {
 
 namespace {
 
-/// In place, each cell the larger of itself and the cell `half` further along one axis: from a
-/// view of windows `half` wide along that axis, the view of windows twice as wide.
+/// In place over rows [v_begin, v_end), each cell the larger of itself and the cell `half`
+/// further along one axis: from a view of windows `half` wide along that axis, the view of
+/// windows twice as wide. Rows in increasing order read only cells not yet changed.
 void WindowMax(std::vector<uint8_t>& view, int64_t width, int64_t height, int64_t half,
-               bool along_x) {
-  for (int64_t v = 0; v < height; ++v) {
+               bool along_x, int64_t v_begin, int64_t v_end) {
+  for (int64_t v = v_begin; v < v_end; ++v) {
     for (int64_t u = 0; u < width; ++u) {
       const int64_t u2 = along_x ? u + half : u, v2 = along_x ? v : v + half;
       if (u2 >= width || v2 >= height) continue;
@@ -27,58 +28,155 @@ void WindowMax(std::vector<uint8_t>& view, int64_t width, int64_t height, int64_
 }  // namespace
 
 MatchField MatchField::FromGrid(const OccupancyGrid& grid, const MatchFieldConfig& config) {
+  MatchFieldBuild build(grid, config);
+  build.Finish();
+  return *build.field();
+}
+
+MatchFieldBuild::MatchFieldBuild(const OccupancyGrid& grid, const MatchFieldConfig& config)
+    : config_(config),
+      map_cells_(grid.geometry()),
+      field_cells_(config.resolution_m),
+      tiles_(grid.Tiles()) {
   assert(config.resolution_m > 0 && config.sigma_m > 0);
-  const double res = config.resolution_m;
-  const GridGeometry field_cells(res);
-  // The field cells holding an occupied map cell (its centre inside them).
-  std::vector<CellIndex> occupied;
-  for (const TileRef& ref : grid.Tiles()) {
-    const CellIndex first = GridGeometry::TileOrigin(ref.index);
-    for (int j = 0; j < kTileSize; ++j) {
-      for (int i = 0; i < kTileSize; ++i) {
-        if (ref.tile->cells[static_cast<size_t>(j * kTileSize + i)] <= config.occupied_above) {
-          continue;
-        }
-        occupied.push_back(
-            field_cells.CellOf(grid.geometry().CellCenter({first.x + i, first.y + j})));
+  assert(config.levels >= 0 && config.levels <= 12);
+}
+
+void MatchFieldBuild::Finish() {
+  while (!done()) ops_ += Step();
+}
+
+bool MatchFieldBuild::Continue(int64_t max_lookups) {
+  const int64_t until = ops_ + std::max<int64_t>(max_lookups, 1) * kCellOpsPerLookup;
+  do {
+    if (done()) break;
+    ops_ += Step();
+  } while (ops_ < until);
+  return done();
+}
+
+int64_t MatchFieldBuild::Step() {
+  switch (stage_) {
+    case Stage::kMark:
+      return next_tile_ < tiles_.size() ? MarkTile() : StartStamping();
+    case Stage::kStamp:
+      return StampCells();
+    case Stage::kViews:
+      return ViewRow();
+    case Stage::kDone:
+      break;
+  }
+  return 0;
+}
+
+int64_t MatchFieldBuild::MarkTile() {
+  // The field cells holding an occupied map cell (its centre inside them), once per tile.
+  const TileRef& ref = tiles_[next_tile_++];
+  const CellIndex first = GridGeometry::TileOrigin(ref.index);
+  tile_cells_.clear();
+  for (int j = 0; j < kTileSize; ++j) {
+    for (int i = 0; i < kTileSize; ++i) {
+      if (ref.tile->cells[static_cast<size_t>(j * kTileSize + i)] <= config_.occupied_above) {
+        continue;
       }
+      tile_cells_.push_back(field_cells_.CellOf(map_cells_.CellCenter({first.x + i, first.y + j})));
     }
   }
-  std::sort(occupied.begin(), occupied.end(), [](const CellIndex& a, const CellIndex& b) {
+  std::sort(tile_cells_.begin(), tile_cells_.end(), [](const CellIndex& a, const CellIndex& b) {
     return a.y != b.y ? a.y < b.y : a.x < b.x;
   });
-  occupied.erase(std::unique(occupied.begin(), occupied.end()), occupied.end());
-  if (occupied.empty()) return FromScores(res, {0, 0}, 0, 0, {}, config.levels);
+  tile_cells_.erase(std::unique(tile_cells_.begin(), tile_cells_.end()), tile_cells_.end());
+  for (const CellIndex& c : tile_cells_) {
+    if (occupied_.empty()) lo_ = hi_ = c;
+    lo_ = {std::min(lo_.x, c.x), std::min(lo_.y, c.y)};
+    hi_ = {std::max(hi_.x, c.x), std::max(hi_.y, c.y)};
+    occupied_.push_back(c);
+  }
+  // A read and a compare per cell; a sort's few comparisons per occupied one.
+  return int64_t{kTileCells} + 8 * static_cast<int64_t>(tile_cells_.size());
+}
 
+int64_t MatchFieldBuild::StartStamping() {
+  const double res = config_.resolution_m;
+  if (occupied_.empty()) {  // an empty field: every score 0
+    result_ = std::make_shared<const MatchField>(
+        MatchField::FromScores(res, {0, 0}, 0, 0, {}, config_.levels));
+    stage_ = Stage::kDone;
+    return 1;
+  }
   // Each occupied cell stamps a Gaussian of the distance between cell centres; a cell keeps
   // the largest stamp (the nearest occupied cell's).
-  const int reach = static_cast<int>(std::ceil(3.0 * config.sigma_m / res));
-  std::vector<uint8_t> kernel(static_cast<size_t>((2 * reach + 1) * (2 * reach + 1)));
-  for (int dy = -reach; dy <= reach; ++dy) {
-    for (int dx = -reach; dx <= reach; ++dx) {
+  reach_ = static_cast<int>(std::ceil(3.0 * config_.sigma_m / res));
+  const int side = 2 * reach_ + 1;
+  kernel_.assign(static_cast<size_t>(side * side), 0);
+  for (int dy = -reach_; dy <= reach_; ++dy) {
+    for (int dx = -reach_; dx <= reach_; ++dx) {
       const double d2 = (dx * dx + dy * dy) * res * res;
-      kernel[static_cast<size_t>((dy + reach) * (2 * reach + 1) + dx + reach)] =
-          static_cast<uint8_t>(
-              std::lround(255.0 * std::exp(-d2 / (2 * config.sigma_m * config.sigma_m))));
+      kernel_[static_cast<size_t>((dy + reach_) * side + dx + reach_)] = static_cast<uint8_t>(
+          std::lround(255.0 * std::exp(-d2 / (2 * config_.sigma_m * config_.sigma_m))));
     }
   }
-  CellIndex lo = occupied.front(), hi = occupied.front();
-  for (const CellIndex& c : occupied) {
-    lo = {std::min(lo.x, c.x), std::min(lo.y, c.y)};
-    hi = {std::max(hi.x, c.x), std::max(hi.y, c.y)};
-  }
-  lo = {lo.x - reach, lo.y - reach};
-  const int width = hi.x + reach + 1 - lo.x, height = hi.y + reach + 1 - lo.y;
-  std::vector<uint8_t> scores(static_cast<size_t>(width) * static_cast<size_t>(height), 0);
-  for (const CellIndex& c : occupied) {
-    for (int dy = -reach; dy <= reach; ++dy) {
-      uint8_t* row = &scores[static_cast<size_t>(c.y + dy - lo.y) * static_cast<size_t>(width) +
-                             static_cast<size_t>(c.x - reach - lo.x)];
-      const uint8_t* k = &kernel[static_cast<size_t>((dy + reach) * (2 * reach + 1))];
-      for (int i = 0; i <= 2 * reach; ++i) row[i] = std::max(row[i], k[i]);
+  // The scored cells span the occupied ones and the kernel's reach; the views reach
+  // 2^levels - 1 cells below them (a window starting there still covers a scored cell).
+  MatchField& f = field_;
+  f.resolution_ = res;
+  f.empty_ = false;  // the kernel's centre scores 255
+  f.pad_ = (int32_t{1} << config_.levels) - 1;
+  f.origin_ = {lo_.x - reach_ - f.pad_, lo_.y - reach_ - f.pad_};
+  f.width_ = int64_t{hi_.x} + reach_ + 1 - (lo_.x - reach_) + f.pad_;
+  f.height_ = int64_t{hi_.y} + reach_ + 1 - (lo_.y - reach_) + f.pad_;
+  f.views_.assign(1, std::vector<uint8_t>(static_cast<size_t>(f.width_ * f.height_), 0));
+  stage_ = Stage::kStamp;
+  return f.width_ * f.height_ + static_cast<int64_t>(kernel_.size());
+}
+
+int64_t MatchFieldBuild::StampCells() {
+  MatchField& f = field_;
+  const int side = 2 * reach_ + 1;
+  std::vector<uint8_t>& base = f.views_[0];
+  constexpr size_t kCellsPerStep = 16;
+  const size_t end = std::min(occupied_.size(), next_occupied_ + kCellsPerStep);
+  for (; next_occupied_ < end; ++next_occupied_) {
+    const CellIndex& c = occupied_[next_occupied_];
+    for (int dy = -reach_; dy <= reach_; ++dy) {
+      uint8_t* row = &base[static_cast<size_t>((int64_t{c.y} + dy - f.origin_.y) * f.width_ +
+                                               (int64_t{c.x} - reach_ - f.origin_.x))];
+      const uint8_t* k = &kernel_[static_cast<size_t>((dy + reach_) * side)];
+      for (int i = 0; i < side; ++i) row[i] = std::max(row[i], k[i]);
     }
   }
-  return FromScores(res, lo, width, height, std::move(scores), config.levels);
+  const int64_t ops = static_cast<int64_t>(kCellsPerStep) * side * side;
+  if (next_occupied_ == occupied_.size()) {
+    occupied_ = {};
+    level_ = 1;
+    along_y_ = false;
+    row_ = 0;
+    stage_ = config_.levels > 0 ? Stage::kViews : Stage::kDone;
+    if (stage_ == Stage::kDone) result_ = std::make_shared<const MatchField>(std::move(field_));
+  }
+  return ops;
+}
+
+int64_t MatchFieldBuild::ViewRow() {
+  MatchField& f = field_;
+  int64_t ops = f.width_;
+  if (!along_y_ && row_ == 0) {  // a new view, from a copy of the one below
+    f.views_.push_back(f.views_.back());
+    ops += f.width_ * f.height_;
+  }
+  const int64_t half = int64_t{1} << (level_ - 1);
+  WindowMax(f.views_.back(), f.width_, f.height_, half, /*along_x=*/!along_y_, row_, row_ + 1);
+  if (++row_ < f.height_) return ops;
+  row_ = 0;
+  if (!along_y_) {
+    along_y_ = true;
+  } else if (++level_ <= config_.levels) {
+    along_y_ = false;
+  } else {
+    result_ = std::make_shared<const MatchField>(std::move(field_));
+    stage_ = Stage::kDone;
+  }
+  return ops;
 }
 
 MatchField MatchField::FromScores(double resolution_m, CellIndex origin, int width, int height,
@@ -108,8 +206,8 @@ void MatchField::BuildViews(int levels) {
   for (int k = 1; k <= levels; ++k) {
     std::vector<uint8_t> view = views_.back();
     const int64_t half = int64_t{1} << (k - 1);
-    WindowMax(view, width_, height_, half, /*along_x=*/true);
-    WindowMax(view, width_, height_, half, /*along_x=*/false);
+    WindowMax(view, width_, height_, half, /*along_x=*/true, 0, height_);
+    WindowMax(view, width_, height_, half, /*along_x=*/false, 0, height_);
     views_.push_back(std::move(view));
   }
 }

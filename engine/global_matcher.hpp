@@ -31,6 +31,7 @@
 #include <optional>
 #include <vector>
 
+#include "engine/grid_geometry.hpp"
 #include "engine/occupancy_grid.hpp"
 #include "engine/pose.hpp"
 
@@ -74,6 +75,7 @@ class MatchField {
   bool empty() const { return empty_; }
 
  private:
+  friend class MatchFieldBuild;
   void BuildViews(int levels);
 
   double resolution_ = 0.04;
@@ -82,6 +84,64 @@ class MatchField {
   int32_t pad_ = 0;  // the views start this many cells below the scored cells
   bool empty_ = true;
   std::vector<std::vector<uint8_t>> views_;  // level 0 .. levels
+};
+
+/// Builds a grid's MatchField a share at a time, as a search runs (the relocaliser pays both
+/// from the scans' quotas): Continue(lookups) works until it has spent about that many lookups'
+/// worth or the field is done, and the next call goes on where it stopped. The field equals
+/// MatchField::FromGrid's (which is this run to the end). The grid's tiles are held as they
+/// were at construction (shared, immutable): later writes to the grid do not reach the build.
+///
+/// The work is counted in cell operations (a map cell read, a field cell stamped, copied or
+/// compared), kCellOpsPerLookup of them to a lookup: a build's charged lookup costs about half
+/// a search's (bench: BM_MatchFieldBuild against BM_GlobalSearch, docs/performance.md), so the
+/// rate errs high and a build never costs more than the lookups it is charged.
+class MatchFieldBuild {
+ public:
+  static constexpr int64_t kCellOpsPerLookup = 1;
+
+  /// Precondition: as FromGrid's.
+  MatchFieldBuild(const OccupancyGrid& grid, const MatchFieldConfig& config);
+
+  /// Builds until `max_lookups` were spent (at least one step is always taken: a tile read, a
+  /// row stamped or passed over, so every call progresses) or the field is done. Returns
+  /// whether it is done.
+  bool Continue(int64_t max_lookups);
+  /// Runs to the end.
+  void Finish();
+  bool done() const { return stage_ == Stage::kDone; }
+  /// The work so far, in lookups (cell operations / kCellOpsPerLookup, rounded up).
+  int64_t lookups() const { return (ops_ + kCellOpsPerLookup - 1) / kCellOpsPerLookup; }
+  /// The field once done() (null before).
+  std::shared_ptr<const MatchField> field() const { return result_; }
+
+ private:
+  enum class Stage { kMark, kStamp, kViews, kDone };
+  /// One step of the stage; returns the cell operations it took.
+  int64_t Step();
+  int64_t MarkTile();
+  int64_t StartStamping();
+  int64_t StampCells();
+  int64_t ViewRow();
+
+  MatchFieldConfig config_;
+  GridGeometry map_cells_, field_cells_;
+  std::vector<TileRef> tiles_;
+  Stage stage_ = Stage::kMark;
+  size_t next_tile_ = 0;
+  std::vector<CellIndex> occupied_;    // field cells holding an occupied map cell (a cell on the
+                                       // edge of two tiles may be there twice: stamped twice)
+  std::vector<CellIndex> tile_cells_;  // scratch of MarkTile
+  CellIndex lo_{0, 0}, hi_{-1, -1};    // of occupied_
+  int reach_ = 0;
+  std::vector<uint8_t> kernel_;
+  size_t next_occupied_ = 0;
+  MatchField field_;
+  int level_ = 0;         // the view being built (kViews)
+  bool along_y_ = false;  // its pass: the window along x (on a copy of the view below), then y
+  int64_t row_ = 0;
+  int64_t ops_ = 0;
+  std::shared_ptr<const MatchField> result_;
 };
 
 /// Where a search looks: translations within `half_width_m` of `center` on both axes (the whole

@@ -14,10 +14,13 @@ void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region,
   const auto build = [&](MatchFieldConfig field) {
     field.resolution_m = std::max(field.resolution_m, map.geometry().resolution());
     field.sigma_m = std::max(field.sigma_m, map.geometry().resolution());
-    return std::make_shared<const MatchField>(MatchField::FromGrid(map, field));
+    return std::make_unique<MatchFieldBuild>(map, field);
   };
-  field_ = build(config_.field);
-  fine_field_ = build(config_.fine_field);
+  active_ = true;
+  build_ = build(config_.field);
+  fine_build_ = build(config_.fine_field);
+  field_.reset();
+  fine_field_.reset();
   region_ = region;
   region_odom_ = region.whole_map ? std::nullopt : region_odom;
   entries_.clear();
@@ -29,7 +32,10 @@ void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region,
 }
 
 void Relocalizer::Cancel() {
+  active_ = false;
   pending_.reset();
+  build_.reset();
+  fine_build_.reset();
   field_.reset();
   fine_field_.reset();
   entries_.clear();
@@ -166,6 +172,27 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
   search_.reset();
 }
 
+void Relocalizer::Spend(int64_t lookups, RelocalizerStep& step) {
+  step.lookups += lookups;
+  search_lookups_ += lookups;
+  total_lookups_ += lookups;
+}
+
+bool Relocalizer::Build(int64_t max_lookups, RelocalizerStep& step) {
+  // The coarse field first (the first search's), then the fine one.
+  for (auto* build : {&build_, &fine_build_}) {
+    if (!*build) continue;
+    if (step.lookups >= max_lookups) return false;
+    const int64_t before = (*build)->lookups();
+    const bool done = (*build)->Continue(max_lookups - step.lookups);
+    Spend((*build)->lookups() - before, step);
+    if (!done) return false;
+    (build == &build_ ? field_ : fine_field_) = (*build)->field();
+    build->reset();
+  }
+  return true;
+}
+
 RelocalizerStep Relocalizer::Add(const std::vector<Vec2>& points, const Pose2& odom_end,
                                  double t_end, int64_t max_lookups) {
   RelocalizerStep step;
@@ -188,6 +215,7 @@ RelocalizerStep Relocalizer::Add(const std::vector<Vec2>& points, const Pose2& o
   const double window_s =
       std::min(config_.window_s * (1.0 + 0.5 * rejected_), config_.max_window_s);
   while (entries_.size() > 1 && entries_.front().t < t_end - window_s) entries_.pop_front();
+  if (!Build(max_lookups, step)) return step;  // readings gathered meanwhile
   if (!search_ && pending_) {
     if (t_end < pending_due_t_) return step;
     const Pose2 carried = Compose(*pending_, Between(pending_odom_, odom_end));
@@ -212,10 +240,7 @@ RelocalizerStep Relocalizer::Add(const std::vector<Vec2>& points, const Pose2& o
   while (search_ && step.lookups < max_lookups) {
     const int64_t before = search_->lookups();
     search_->Continue(max_lookups - step.lookups);
-    const int64_t spent = search_->lookups() - before;
-    step.lookups += spent;
-    search_lookups_ += spent;
-    total_lookups_ += spent;
+    Spend(search_->lookups() - before, step);
     if (!search_->done()) break;
     EndSearch(odom_end, t_end, step);
     if (step.found || !search_) break;

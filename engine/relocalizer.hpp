@@ -69,13 +69,13 @@ struct Relocalization {
   double score = 0.0;
   double runner_up_score = 0.0;  // 0 when no distinct candidate scored above the floor
   int points = 0;                // in the multiscan
-  int64_t lookups = 0;           // the search's cost
+  int64_t lookups = 0;           // the cost since Start: the fields' builds and the searches
   int searches = 0;              // searches it took (an ambiguous one searches again)
 };
 
 /// What the last Add did.
 struct RelocalizerStep {
-  int64_t lookups = 0;  // spent in this step
+  int64_t lookups = 0;  // spent in this step (fields' builds and searches)
   bool searching = false;
   std::optional<Relocalization> found;
   /// A search ended without an answer taken: the best candidate's fine check (the coarse
@@ -88,15 +88,17 @@ class Relocalizer {
  public:
   explicit Relocalizer(const RelocalizerConfig& config = {});
 
-  /// Starts relocalising on `map` (its field built now), over `region` (the whole map by
-  /// default); forgets any earlier multiscan and search. A region given where the odometry read
+  /// Starts relocalising on `map`, over `region` (the whole map by default); forgets any
+  /// earlier multiscan and search. The map's fields (MatchFieldBuild) are built by the next
+  /// Adds, paid from their shares like the searches, before the first search starts; the map is
+  /// held as it is now. A region given where the odometry read
   /// `region_odom` (a hint: "the robot is about here") moves with the robot: each search looks
   /// around the region carried by the odometry from there to its newest scan.
   void Start(const OccupancyGrid& map, const GlobalRegion& region = {},
              const std::optional<Pose2>& region_odom = std::nullopt);
   /// Stops relocalising.
   void Cancel();
-  bool active() const { return field_ != nullptr; }
+  bool active() const { return active_; }
 
   /// Readings farther than this from the robot are dropped (no range sensor it takes reaches
   /// that far; a reading there is bad input).
@@ -104,12 +106,14 @@ class Relocalizer {
 
   /// One scan: its readings in the robot's frame at its end (Slam::ReadingPoints), the
   /// odometry's pose at its end and its end time; spends at most about `max_lookups` on the
-  /// search (GlobalSearch::Continue). Once an answer is taken (`found`), the relocaliser is no
-  /// longer active. Nothing is done while not active, nor with a scan whose time or odometry
-  /// is not finite; readings that are not finite or beyond kMaxReadingRangeM are dropped.
+  /// fields' builds and the search (MatchFieldBuild::Continue, GlobalSearch::Continue). Once an
+  /// answer is taken (`found`), the relocaliser is no longer active. Nothing is done while not
+  /// active, nor with a scan whose time or odometry is not finite; readings that are not finite or
+  /// beyond kMaxReadingRangeM are dropped.
   RelocalizerStep Add(const std::vector<Vec2>& points, const Pose2& odom_end, double t_end,
                       int64_t max_lookups);
 
+  /// What every Add spent, the fields' builds included.
   int64_t lookups() const { return total_lookups_; }
   int searches() const { return searches_; }
 
@@ -130,7 +134,13 @@ class Relocalizer {
   /// The checks ended: the unique fine answer, if any.
   std::optional<GlobalMatch> Decide() const;
 
+  /// Spends on the fields' builds; returns whether both are done.
+  bool Build(int64_t max_lookups, RelocalizerStep& step);
+  void Spend(int64_t lookups, RelocalizerStep& step);
+
   RelocalizerConfig config_;
+  bool active_ = false;
+  std::unique_ptr<MatchFieldBuild> build_, fine_build_;  // until their fields are done
   std::shared_ptr<const MatchField> field_, fine_field_;
   GlobalRegion region_;
   std::optional<Pose2> region_odom_;  // where the odometry read when region_ was given
@@ -147,7 +157,7 @@ class Relocalizer {
   Pose2 pending_odom_;
   double pending_due_t_ = 0.0;
   int query_points_ = 0;
-  int64_t search_lookups_ = 0;  // of the searches since Start
+  int64_t search_lookups_ = 0;  // of the builds and searches since Start
   int64_t total_lookups_ = 0;
   int searches_ = 0;
   int rejected_ = 0;  // searches since Start that ended unsure

@@ -2,7 +2,9 @@
 
 #include <time.h>
 
+#include <optional>
 #include <utility>
+#include <vector>
 
 namespace slam {
 
@@ -42,14 +44,20 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
   }
   result.prepared = engine_.Prepare(scan);
   int64_t reserved = 0;
+  // The scan's readings in the robot's frame, for the detector and the relocaliser: computed
+  // once, when one of them wants them.
+  std::optional<std::vector<Vec2>> points;
+  const auto readings = [&]() -> const std::vector<Vec2>& {
+    if (!points) points = engine_.ReadingPoints(result.prepared);
+    return *points;
+  };
   if (detector_ != nullptr && relocalizer_ != nullptr && !relocalizer_->active() && refine) {
     reserved = (detector_->MaxLookups() + kLookupsPerRay - 1) / kLookupsPerRay;
     const Pose2 predicted = Compose(engine_.Best().pose, Between(scan.odom_begin, scan.odom_end));
     // Checked against the map as it was some scans ago: a lost tracker maps what it sees where
     // it wrongly thinks it is, and its next scans would agree with that.
     const OccupancyGrid& reference = history_.empty() ? engine_.Best().map : history_.front();
-    result.loss_check =
-        detector_->Check(reference, predicted, engine_.ReadingPoints(result.prepared));
+    result.loss_check = detector_->Check(reference, predicted, readings());
     history_.push_back(engine_.Best().map);
     while (history_.size() > static_cast<size_t>(detector_->config().history_scans)) {
       history_.pop_front();
@@ -66,8 +74,8 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
   if (relocalizer_ != nullptr && relocalizer_->active()) {
     // The detector's check of a scan found lost came out of the same quota.
     const int64_t checked = result.loss_check ? result.loss_check->lookups : 0;
-    RelocalizerStep step = relocalizer_->Add(engine_.ReadingPoints(result.prepared), scan.odom_end,
-                                             scan.t_end, quota * kLookupsPerRay - checked);
+    RelocalizerStep step =
+        relocalizer_->Add(readings(), scan.odom_end, scan.t_end, quota * kLookupsPerRay - checked);
     if (step.found) {
       result.relocated = engine_.Relocate(step.found->pose);
       if (!result.relocated) relocalizer_->Start(engine_.Best().map);

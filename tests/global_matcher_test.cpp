@@ -89,6 +89,64 @@ TEST(MatchFieldTest, ScoresFallWithDistanceAndViewsHoldTheirWindowsLargest) {
   }
 }
 
+TEST(MatchFieldTest, ABuildInSlicesEqualsOneBuildKeepsItsSharesAndHoldsTheGridAsItWas) {
+  OccupancyGrid grid = DrawnGrid(LRoom());
+  MatchFieldConfig config;
+  config.resolution_m = 0.04;
+  config.sigma_m = 0.04;
+  config.levels = 4;
+  const MatchField whole = MatchField::FromGrid(grid, config);
+  MatchFieldBuild build(grid, config);
+  // Written after the build began: not in its field.
+  grid.BeginWrite();
+  grid.Add({500, 500}, EncodeLogOdds(5.0));
+  grid.RefreshSummaries();
+  ASSERT_EQ(MatchField::FromGrid(grid, config).At(0, {250, 250}), 255);
+
+  // A call stops at its share, overrunning by at most its last step: a tile read (a read per
+  // cell, a sort's few per occupied one), 16 stamps, or a view's allocation (a copy per cell).
+  const int32_t pad = (1 << config.levels) - 1;
+  const int64_t width = whole.max_cell().x - whole.min_cell().x + pad;
+  const int64_t height = whole.max_cell().y - whole.min_cell().y + pad;
+  const int64_t side = 2 * 3 + 1;  // the kernel's: three sigmas of one cell each way
+  const int64_t step =
+      std::max({int64_t{9} * kTileCells, 16 * side * side, width * height + width});
+  const int64_t share = 1000;
+  int calls = 0;
+  while (!build.done()) {
+    ASSERT_EQ(build.field(), nullptr);
+    const int64_t before = build.lookups();
+    build.Continue(share);
+    EXPECT_GT(build.lookups(), before);
+    EXPECT_LE(build.lookups() - before, share + step / MatchFieldBuild::kCellOpsPerLookup + 1);
+    ++calls;
+  }
+  EXPECT_GT(calls, 20);
+  const std::shared_ptr<const MatchField> sliced = build.field();
+  ASSERT_NE(sliced, nullptr);
+  EXPECT_EQ(sliced->min_cell(), whole.min_cell());
+  EXPECT_EQ(sliced->max_cell(), whole.max_cell());
+  ASSERT_EQ(sliced->levels(), whole.levels());
+  for (int level = 0; level <= whole.levels(); ++level) {
+    for (int32_t y = whole.min_cell().y - pad - 1; y <= whole.max_cell().y; ++y) {
+      for (int32_t x = whole.min_cell().x - pad - 1; x <= whole.max_cell().x; ++x) {
+        ASSERT_EQ(sliced->At(level, {x, y}), whole.At(level, {x, y}))
+            << level << " " << x << " " << y;
+      }
+    }
+  }
+  EXPECT_EQ(sliced->At(0, {250, 250}), 0);
+  // Built to the end at once, the same work.
+  MatchFieldBuild at_once(DrawnGrid(LRoom()), config);
+  at_once.Finish();
+  EXPECT_EQ(at_once.lookups(), build.lookups());
+  // An empty grid: an empty field after one step.
+  MatchFieldBuild empty(OccupancyGrid(GridGeometry(kMapCell), EncodeLogOdds(5.0)), config);
+  EXPECT_TRUE(empty.Continue(1));
+  ASSERT_NE(empty.field(), nullptr);
+  EXPECT_TRUE(empty.field()->empty());
+}
+
 TEST(GlobalSearchTest, EqualsAnExhaustiveSearchOnRandomFields) {
   for (uint64_t seed = 1; seed <= 12; ++seed) {
     Rng rng(seed);

@@ -138,6 +138,41 @@ TEST(Relocalizer, AnAmbiguousSearchIsNotTakenAndAnInactiveOneDoesNothing) {
   EXPECT_TRUE(relocalizer.active());
 }
 
+TEST(Relocalizer, TheMapsFieldsAreBuiltFromTheScansSharesBeforeTheFirstSearch) {
+  // The twin rooms' fields as the relocaliser builds them (never finer than the map's cells).
+  const TwinRooms twins = DrawTwinRooms();
+  const RelocalizerConfig config;
+  int64_t build_cost = 0;
+  for (const MatchFieldConfig& field : {config.field, config.fine_field}) {
+    MatchFieldBuild build(twins.map, field);
+    build.Finish();
+    build_cost += build.lookups();
+  }
+  Relocalizer relocalizer(config);
+  relocalizer.Start(twins.map);
+  EXPECT_EQ(relocalizer.lookups(), 0);  // Start itself builds nothing
+  const int64_t share = 5000;
+  int scans = 0;
+  while (relocalizer.searches() == 0) {
+    ASSERT_LT(scans, 1000);
+    const int64_t before = relocalizer.lookups();
+    const RelocalizerStep step = relocalizer.Add(twins.seen, Pose2{}, 0.5 * scans++, share);
+    EXPECT_TRUE(step.searching);
+    EXPECT_EQ(step.lookups, relocalizer.lookups() - before);
+    // A share, overrun by at most one step of a build (a view of these small fields) or of
+    // the search (one node: four points' lookups and a few).
+    EXPECT_LE(step.lookups, share + 20'000);
+    if (relocalizer.searches() == 0) {
+      EXPECT_LE(relocalizer.lookups(), build_cost);
+    }
+  }
+  // The builds took several scans' shares (each scan spends its whole share: no more scans
+  // than shares in their cost), then the search began on the scan they ended.
+  EXPECT_GT(scans, 2);
+  EXPECT_LE(scans, build_cost / share + 1);
+  EXPECT_GE(relocalizer.lookups(), build_cost);
+}
+
 TEST(Relocalizer, AHintGivenEarlierIsCarriedByTheOdometryAndSettlesAnAmbiguity) {
   // The robot stands in the second room at (4, 0.7, 0). Someone said "about (3.5, 0.7)" when the
   // robot was half a metre behind where it is now: carried by the odometry, the hint's region
