@@ -16,7 +16,6 @@ void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region,
     field.sigma_m = std::max(field.sigma_m, map.geometry().resolution());
     return std::make_unique<MatchFieldBuild>(map, field);
   };
-  active_ = true;
   build_ = build(config_.field);
   fine_build_ = build(config_.fine_field);
   field_.reset();
@@ -32,7 +31,6 @@ void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region,
 }
 
 void Relocalizer::Cancel() {
-  active_ = false;
   pending_.reset();
   build_.reset();
   fine_build_.reset();

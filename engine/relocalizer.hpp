@@ -98,7 +98,7 @@ class Relocalizer {
              const std::optional<Pose2>& region_odom = std::nullopt);
   /// Stops relocalising.
   void Cancel();
-  bool active() const { return active_; }
+  bool active() const { return build_ != nullptr || field_ != nullptr; }  // coarse first
 
   /// Readings farther than this from the robot are dropped (no range sensor it takes reaches
   /// that far; a reading there is bad input).
@@ -139,7 +139,6 @@ class Relocalizer {
   void Spend(int64_t lookups, RelocalizerStep& step);
 
   RelocalizerConfig config_;
-  bool active_ = false;
   std::unique_ptr<MatchFieldBuild> build_, fine_build_;  // until their fields are done
   std::shared_ptr<const MatchField> field_, fine_field_;
   GlobalRegion region_;
