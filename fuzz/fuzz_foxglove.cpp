@@ -5,14 +5,16 @@
 // The first input byte chooses whether the client may change the budget (odd) and whether the
 // source is simulated (bit 1: the /ground_truth channel); the rest is split at each newline
 // into messages (text without "\n" is one message); a message starting with a NUL byte is taken
-// as a binary message, one starting with byte 1 as a message too long, discarded unread (its
-// length kMaxMessageBytes plus its own).
+// as a binary message (the bytes after the NUL: opcode, channel id, payload), one starting with
+// byte 1 as a message too long, discarded unread (its length kMaxMessageBytes plus its own).
 //
 // Invariants: nothing escapes (an exception would end slamd's serving thread); every reply is a
 // status (level 0..2, a message) or a parameterValues whose parameters are the budget's own; at
 // most kMaxSubscriptions subscriptions, each on an advertised channel; subscriptions added and
 // removed are reported as such; only budget parameters are followed; the budget stays valid,
-// never changes for a client that may not change it, and changes only with budget_changed.
+// never changes for a client that may not change it, and changes only with budget_changed;
+// at most kMaxClientChannels client channels, each of a pose estimate's schema; a pose request
+// only from a client that may change the budget, valid, and reported as pose_requested.
 
 #include <cstddef>
 #include <cstdint>
@@ -43,8 +45,16 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
                              if (merged.ok()) budget = merged.value();
                              return merged;
                            }};
+  int poses = 0;
+  constexpr double kResolution = 0.05;
+  fox::PoseAccess pose_access{kResolution, [&](const slam::server::PoseRequest& request) {
+                                Check(
+                                    slam::server::ValidatePoseRequest(request, kResolution).empty(),
+                                    "an invalid pose request passed on");
+                                ++poses;
+                              }};
   const auto channels = fox::Channels(simulated);
-  fox::ClientProtocol client(channels, writer, access);
+  fox::ClientProtocol client(channels, writer, access, pose_access);
 
   size_t start = 0;
   while (start <= input.size()) {
@@ -55,11 +65,12 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
 
     const auto before_subscriptions = client.subscriptions();
     const slam::BudgetSettings before_budget = budget;
+    const int poses_before = poses;
     fox::Effects effects;
     try {
       // A message starting with a NUL byte stands for a binary one, byte 1 for one too long.
       if (!message.empty() && message[0] == '\0') {
-        effects = client.OnBinary();
+        effects = client.OnBinary(message.substr(1));
       } else if (!message.empty() && message[0] == '\1') {
         effects = client.OnTooLong(fox::kMaxMessageBytes + message.size());
         Check(effects.refused && effects.replies.size() == 1 && effects.subscribed.empty() &&
@@ -112,6 +123,14 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     Check(slam::Validate(budget).empty(), "the budget became invalid");
     if (!writer) Check(patches == 0, "a client that may not change the budget reached it");
     if (!effects.budget_changed) Check(budget == before_budget, "the budget changed unreported");
+    Check(poses - poses_before == (effects.pose_requested ? 1 : 0),
+          "a pose request not reported, or reported and not made");
+    if (!writer) Check(poses == 0, "a client that may not change the pose reached it");
+    Check(client.client_channels().size() <= fox::kMaxClientChannels,
+          "more client channels than the cap");
+    for (const auto& [id, schema] : client.client_channels()) {
+      Check(fox::IsPoseEstimateSchema(schema), "a client channel of another schema");
+    }
   }
   return 0;
 }

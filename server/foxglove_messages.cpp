@@ -351,6 +351,108 @@ Result<json> BudgetPatch(const json& parameters) {
   return patch;
 }
 
+namespace {
+
+constexpr std::array<std::string_view, 3> kPoseEstimateSchemas = {
+    "geometry_msgs/PoseWithCovarianceStamped", "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "foxglove.PoseInFrame"};
+
+}  // namespace
+
+bool IsPoseEstimateSchema(std::string_view schema_name) {
+  return std::find(kPoseEstimateSchemas.begin(), kPoseEstimateSchemas.end(), schema_name) !=
+         kPoseEstimateSchemas.end();
+}
+
+Result<PoseRequest> PoseEstimate(std::string_view schema_name, const json& message,
+                                 double resolution_m) {
+  if (!IsPoseEstimateSchema(schema_name)) {
+    return ConfigErrors{{"", "not a pose estimate (" + std::string(schema_name) + ")", 0}};
+  }
+  if (!message.is_object()) return ConfigErrors{{"", "must be a JSON object", 0}};
+  const bool with_covariance = schema_name != "foxglove.PoseInFrame";
+  ConfigErrors errors;
+  // The member at a JSON pointer, or null (an error added) when it is missing or not of the
+  // kind wanted.
+  const auto at = [&](const std::string& pointer, bool number) -> const json* {
+    const json::json_pointer where(pointer);
+    if (!message.contains(where)) {
+      errors.push_back({pointer, "required", 0});
+      return nullptr;
+    }
+    const json& value = message.at(where);
+    if (number ? !value.is_number() : !value.is_string()) {
+      errors.push_back({pointer, number ? "must be a number" : "must be a string", 0});
+      return nullptr;
+    }
+    return &value;
+  };
+  const std::string frame_at = with_covariance ? "/header/frame_id" : "/frame_id";
+  if (message.contains(json::json_pointer(frame_at))) {
+    if (const json* frame = at(frame_at, false)) {
+      const auto name = frame->get<std::string>();
+      if (!name.empty() && name != kMapFrame) {
+        errors.push_back(
+            {frame_at,
+             "must be \"" + std::string(kMapFrame) + "\" (slamd's map frame), not \"" + name + "\"",
+             0});
+      }
+    }
+  }
+  const std::string pose_at = with_covariance ? "/pose/pose" : "/pose";
+  std::array<double, 6> v{};  // x, y, then the quaternion's x, y, z, w
+  const std::array<const char*, 6> names = {"/position/x",    "/position/y",    "/orientation/x",
+                                            "/orientation/y", "/orientation/z", "/orientation/w"};
+  for (size_t i = 0; i < names.size(); ++i) {
+    if (const json* value = at(pose_at + names[i], true)) v[i] = value->get<double>();
+  }
+  if (!errors.empty()) return errors;
+  const double qx = v[2], qy = v[3], qz = v[4], qw = v[5];
+  const double norm = std::sqrt(qx * qx + qy * qy + qz * qz + qw * qw);
+  if (!std::isfinite(norm) || norm < 1e-6) {
+    return ConfigErrors{{pose_at + "/orientation", "must be a finite, non-zero quaternion", 0}};
+  }
+  // A rotation about z alone has x = y = 0; a robot on the floor is not tilted by degrees.
+  if (std::hypot(qx, qy) / norm > std::sin(DegToRad(5.0) / 2.0)) {
+    return ConfigErrors{
+        {pose_at + "/orientation", "must be a rotation about z (the robot is on the floor)", 0}};
+  }
+  PoseRequest request;
+  const double yaw = std::atan2(2.0 * (qw * qz + qx * qy), qw * qw + qx * qx - qy * qy - qz * qz);
+  request.pose = Pose2{v[0], v[1], NormalizeAngle(yaw)};
+  if (with_covariance && message.contains(json::json_pointer("/pose/covariance"))) {
+    const json& covariance = message.at(json::json_pointer("/pose/covariance"));
+    if (!covariance.is_array() || covariance.size() != 36 ||
+        !std::all_of(covariance.begin(), covariance.end(),
+                     [](const json& c) { return c.is_number(); })) {
+      return ConfigErrors{{"/pose/covariance", "must be an array of 36 numbers", 0}};
+    }
+    // Row-major 6 x 6 over x, y, z and the rotations about x, y, z.
+    const double var_x = covariance[0].get<double>(), var_y = covariance[7].get<double>(),
+                 var_yaw = covariance[35].get<double>();
+    if (!(std::isfinite(var_x) && var_x >= 0.0 && std::isfinite(var_y) && var_y >= 0.0 &&
+          std::isfinite(var_yaw) && var_yaw >= 0.0)) {
+      return ConfigErrors{
+          {"/pose/covariance", "the variances of x, y and yaw must be finite and not negative", 0}};
+    }
+    const double sigma_m = std::sqrt(std::max(var_x, var_y));
+    const double sigma_deg = RadToDeg(std::sqrt(var_yaw));
+    if (sigma_m > 0.0) request.sigma_m = std::min(sigma_m, 50.0);
+    if (sigma_deg > 0.0) request.sigma_deg = std::min(sigma_deg, 180.0);
+  }
+  ConfigErrors invalid = ValidatePoseRequest(request, resolution_m);
+  if (!invalid.empty()) {
+    for (ConfigError& e : invalid) {  // named as the message has them
+      if (e.pointer == "/x") e.pointer = pose_at + "/position/x";
+      if (e.pointer == "/y") e.pointer = pose_at + "/position/y";
+      if (e.pointer == "/theta_deg") e.pointer = pose_at + "/orientation";
+      if (e.pointer == "/sigma_m" || e.pointer == "/sigma_deg") e.pointer = "/pose/covariance";
+    }
+    return invalid;
+  }
+  return request;
+}
+
 std::string Base64(std::string_view bytes) {
   static constexpr char kAlphabet[] =
       "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";

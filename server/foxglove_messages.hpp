@@ -103,6 +103,22 @@ bool IsBudgetParameter(std::string_view name);
 /// own validation.
 Result<nlohmann::json> BudgetPatch(const nlohmann::json& parameters);
 
+/// The schemas of the pose estimates slamd takes from a client (capability clientPublish,
+/// encoding "json"): Foxglove's 3D panel's "Pose estimate" tool publishes
+/// geometry_msgs/PoseWithCovarianceStamped (named as ROS 1 or ROS 2 name it), and
+/// foxglove.PoseInFrame is slamd's own /pose channel's.
+bool IsPoseEstimateSchema(std::string_view schema_name);
+
+/// A client's pose estimate (a message of IsPoseEstimateSchema, JSON) as a pose request in the
+/// map frame: its position and its rotation about z (a tilted quaternion is refused), in frame
+/// "map" or no frame. A PoseWithCovarianceStamped whose covariance gives x, y or yaw a positive
+/// variance is a hint: sigma_m the larger of the x and y deviations, sigma_deg the yaw's, each
+/// clamped to what POST /api/v1/pose takes (50 m, 180 degrees); a zero covariance, or a
+/// PoseInFrame, puts the robot there. Errors point into the message ("/pose/pose/position/x");
+/// the request is checked as POST /api/v1/pose checks it (ValidatePoseRequest).
+Result<PoseRequest> PoseEstimate(std::string_view schema_name, const nlohmann::json& message,
+                                 double resolution_m);
+
 /// Standard base64 (RFC 4648, with padding) of `bytes`.
 std::string Base64(std::string_view bytes);
 

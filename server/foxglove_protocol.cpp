@@ -1,6 +1,7 @@
 #include "server/foxglove_protocol.hpp"
 
 #include <algorithm>
+#include <cstdio>
 #include <utility>
 
 #include "server/api_json.hpp"
@@ -13,14 +14,99 @@ json Status(int level, const std::string& message) {
   return {{"op", "status"}, {"level", level}, {"message", message}};
 }
 
-ClientProtocol::ClientProtocol(std::vector<ChannelSpec> channels, bool writer, BudgetAccess budget)
-    : channels_(std::move(channels)), writer_(writer), budget_(std::move(budget)) {}
+ClientProtocol::ClientProtocol(std::vector<ChannelSpec> channels, bool writer, BudgetAccess budget,
+                               PoseAccess pose)
+    : channels_(std::move(channels)),
+      writer_(writer),
+      budget_(std::move(budget)),
+      pose_(std::move(pose)) {}
 
-Effects ClientProtocol::OnBinary() {
+Effects ClientProtocol::OnBinary(std::string_view data) {
   Effects out;
-  out.refused = true;
-  out.replies.push_back(Status(kError, "slamd takes no binary messages (no client publishing)"));
+  const auto refuse = [&](const std::string& why) {
+    out.refused = true;
+    out.replies.push_back(Status(kError, why));
+    return out;
+  };
+  constexpr uint8_t kClientMessageData = 0x01;
+  if (data.empty() || static_cast<uint8_t>(data[0]) != kClientMessageData) {
+    return refuse(data.empty() ? "an empty binary message"
+                               : "slamd takes no binary message of opcode " +
+                                     std::to_string(static_cast<uint8_t>(data[0])) +
+                                     " (only client message data, opcode 1)");
+  }
+  if (data.size() < 5) return refuse("a client message data frame needs a channel id");
+  uint32_t id = 0;
+  for (size_t i = 4; i > 0; --i) id = (id << 8) | static_cast<uint8_t>(data[i]);
+  const auto channel = client_channels_.find(id);
+  if (channel == client_channels_.end()) {
+    return refuse("message data on channel " + std::to_string(id) +
+                  ", which this client has not advertised");
+  }
+  const Result<json> parsed = ParseJsonBounded(data.substr(5));
+  if (!parsed.ok()) return refuse("a pose estimate must be JSON: " + parsed.Message());
+  Result<PoseRequest> request = ConfigErrors{};
+  try {
+    request = PoseEstimate(channel->second, parsed.value(), pose_.resolution_m);
+  } catch (const json::exception& e) {
+    return refuse(std::string("a malformed pose estimate: ") + e.what());
+  }
+  if (!request.ok()) {
+    std::string why;  // on one line: a status is one notification in Foxglove
+    for (const ConfigError& e : request.errors()) {
+      why += (why.empty() ? "" : "; ") + (e.pointer.empty() ? "" : e.pointer + ": ") + e.detail;
+    }
+    return refuse("the pose was not changed: " + why);
+  }
+  pose_.request(request.value());
+  out.pose_requested = true;
+  const PoseRequest& r = request.value();
+  char text[200];
+  std::snprintf(text, sizeof text, "pose estimate taken: x %.3f m, y %.3f m, theta %.1f deg%s",
+                r.pose.x, r.pose.y, RadToDeg(r.pose.theta),
+                r.sigma_m || r.sigma_deg ? " (relocalising around it)" : "");
+  out.replies.push_back(Status(kInfo, text));
   return out;
+}
+
+void ClientProtocol::AdvertiseClient(const json& list, Effects& out) {
+  if (!list.is_array()) throw json::type_error::create(302, "channels must be an array", &list);
+  const auto refuse = [&](const std::string& why) {
+    out.refused = true;
+    out.replies.push_back(Status(kError, why));
+  };
+  if (!writer_ || !pose_.request) {
+    refuse(!writer_ ? "no channel advertised: this connection comes from a web page of another "
+                      "origin and may not publish (give slamd a --token-file and connect with it)"
+                    : "no channel advertised: slamd takes no client publishing here");
+    return;
+  }
+  size_t refusals = 0;
+  for (const json& c : list) {
+    const auto id = c.at("id").get<uint32_t>();
+    const auto topic = c.at("topic").get<std::string>();
+    const auto encoding = c.at("encoding").get<std::string>();
+    const auto schema = c.at("schemaName").get<std::string>();
+    std::string why;
+    if (encoding != "json") {
+      why = "encoding \"" + encoding + "\" (slamd takes json)";
+    } else if (!IsPoseEstimateSchema(schema)) {
+      why = "schema \"" + schema +
+            "\" (slamd takes pose estimates: geometry_msgs/PoseWithCovarianceStamped, "
+            "geometry_msgs/msg/PoseWithCovarianceStamped, foxglove.PoseInFrame)";
+    } else if (client_channels_.count(id) != 0) {
+      why = "channel id " + std::to_string(id) + " is already advertised";
+    } else if (client_channels_.size() >= kMaxClientChannels) {
+      why = "at most " + std::to_string(kMaxClientChannels) + " channels per client";
+    }
+    if (!why.empty()) {
+      out.refused = true;
+      if (refusals++ < kMaxRefusalsNamed)
+        refuse("channel " + std::to_string(id) + " (" + topic + ") not advertised: " + why);
+      continue;
+    }
+    client_channels_[id] = schema;
+  }
 }
 
 Effects ClientProtocol::OnTooLong(uint64_t bytes) {
@@ -65,6 +151,14 @@ Effects ClientProtocol::OnText(std::string_view text) {
       SetParameters(message, out);
       return out;
     }
+    if (op == "advertise") {
+      AdvertiseClient(message.at("channels"), out);
+      return out;
+    }
+    if (op == "unadvertise") {
+      for (const json& id : message.at("channelIds")) client_channels_.erase(id.get<uint32_t>());
+      return out;
+    }
     if (op == "subscribeParameterUpdates" || op == "unsubscribeParameterUpdates") {
       for (const json& name : message.at("parameterNames")) {
         const auto n = name.get<std::string>();
@@ -85,7 +179,7 @@ Effects ClientProtocol::OnText(std::string_view text) {
   out.replies.push_back(op.empty() ? Status(kError, "a message needs an \"op\"")
                                    : Status(kError, "slamd does not support \"" + op +
                                                         "\" (capabilities: parameters, "
-                                                        "parametersSubscribe)"));
+                                                        "parametersSubscribe, clientPublish)"));
   return out;
 }
 

@@ -38,6 +38,16 @@ struct BudgetAccess {
   std::function<Result<BudgetSettings>(const nlohmann::json&)> patch;
 };
 
+/// A client may advertise at most this many channels of its own (clientPublish).
+inline constexpr size_t kMaxClientChannels = 16;
+
+/// How a client's pose estimates reach the SLAM (SlamService::RequestPose). Without `request`,
+/// slamd takes no client publishing.
+struct PoseAccess {
+  double resolution_m = 0.05;  // the map's cell size: the bound a pose is checked against
+  std::function<void(const PoseRequest&)> request;
+};
+
 /// What one client message did.
 struct Effects {
   std::vector<nlohmann::json> replies;  // status and parameterValues messages, in order
@@ -45,17 +55,21 @@ struct Effects {
   std::vector<uint32_t> unsubscribed;   // subscription ids removed
   bool refused = false;                 // the message, or part of it, was refused
   bool budget_changed = false;
+  bool pose_requested = false;  // a pose estimate was passed on
 };
 
 class ClientProtocol {
  public:
-  /// `writer`: whether this client may change the budget.
-  ClientProtocol(std::vector<ChannelSpec> channels, bool writer, BudgetAccess budget);
+  /// `writer`: whether this client may change the budget and publish pose estimates.
+  ClientProtocol(std::vector<ChannelSpec> channels, bool writer, BudgetAccess budget,
+                 PoseAccess pose = {});
 
   /// A text message from the client.
   Effects OnText(std::string_view text);
-  /// A binary message from the client (slamd takes none: no client publishing).
-  Effects OnBinary();
+  /// A binary message from the client: message data (opcode 1: the client's channel id,
+  /// little-endian uint32, then the payload) on a channel it advertised; a pose estimate's
+  /// payload is JSON (PoseEstimate). Other opcodes (service calls) are refused.
+  Effects OnBinary(std::string_view data);
   /// A message of `bytes` bytes, longer than kMaxMessageBytes, that was discarded unread.
   Effects OnTooLong(uint64_t bytes);
 
@@ -63,15 +77,20 @@ class ClientProtocol {
   /// The budget's parameters this client follows.
   const std::set<std::string>& parameter_updates() const { return parameter_updates_; }
   bool writer() const { return writer_; }
+  /// The channels this client advertised (clientPublish): id to schema name.
+  const std::map<uint32_t, std::string>& client_channels() const { return client_channels_; }
 
  private:
   void Subscribe(const nlohmann::json& list, Effects& out);
   void GetParameters(const nlohmann::json& message, Effects& out) const;
   void SetParameters(const nlohmann::json& message, Effects& out);
+  void AdvertiseClient(const nlohmann::json& list, Effects& out);
 
   std::vector<ChannelSpec> channels_;
   bool writer_;
   BudgetAccess budget_;
+  PoseAccess pose_;
+  std::map<uint32_t, std::string> client_channels_;
   std::map<uint32_t, Channel> subscriptions_;
   std::set<std::string> parameter_updates_;
 };

@@ -136,15 +136,15 @@ struct FoxgloveServer::Impl {
   std::atomic<int64_t> clients{0};
   std::atomic<uint64_t> connections{0}, refused{0}, evicted{0}, closed_unread{0}, messages_sent{0},
       messages_dropped{0}, messages_replaced{0}, bytes_sent{0}, parameter_changes{0},
-      bad_requests{0};
+      pose_estimates{0}, bad_requests{0};
 
   Impl(SlamService& s, const FoxgloveOptions& o) : service(s), options(o) {
     channels = foxglove::Channels(service.simulated());
     server_info =
         json{{"op", "serverInfo"},
              {"name", std::string("slamd ") + SLAMD_VERSION},
-             {"capabilities", {"parameters", "parametersSubscribe"}},
-             {"supportedEncodings", json::array()},
+             {"capabilities", {"parameters", "parametersSubscribe", "clientPublish"}},
+             {"supportedEncodings", {"json"}},
              {"metadata",
               {{"map_frame", foxglove::kMapFrame}, {"robot_frame", foxglove::kRobotFrame}}},
              {"sessionId",
@@ -333,10 +333,13 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
   void OnOpen() {
     open = true;
     protocol.emplace(server.channels, writer,
-                     foxglove::BudgetAccess{[this] { return server.service.Budget(); },
-                                            [this](const nlohmann::json& patch) {
-                                              return server.PatchBudget(patch);
-                                            }});
+                     foxglove::BudgetAccess{
+                         [this] { return server.service.Budget(); },
+                         [this](const nlohmann::json& patch) { return server.PatchBudget(patch); }},
+                     foxglove::PoseAccess{server.service.config().resolution_m,
+                                          [this](const PoseRequest& request) {
+                                            server.service.RequestPose(request);
+                                          }});
     server.clients.fetch_add(1);
     server.connections.fetch_add(1);
     buffer.clear();
@@ -367,7 +370,7 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
       self->Apply(bytes > foxglove::kMaxMessageBytes ? self->protocol->OnTooLong(bytes)
                   : self->ws.got_text()
                       ? self->protocol->OnText(beast::buffers_to_string(self->buffer.data()))
-                      : self->protocol->OnBinary());
+                      : self->protocol->OnBinary(beast::buffers_to_string(self->buffer.data())));
       self->buffer.consume(self->buffer.size());
       if (!self->closed) self->Read();
     });
@@ -492,6 +495,7 @@ struct FoxgloveServer::Impl::Session : std::enable_shared_from_this<Session> {
   void Apply(const foxglove::Effects& effects) {
     if (effects.refused) server.bad_requests.fetch_add(1);
     if (effects.budget_changed) server.parameter_changes.fetch_add(1);
+    if (effects.pose_requested) server.pose_estimates.fetch_add(1);
     for (const json& reply : effects.replies) SendJson(reply);
     for (const uint32_t id : effects.unsubscribed) sent.erase(id);
     for (const uint32_t id : effects.subscribed) sent.erase(id);
@@ -745,6 +749,7 @@ FoxgloveCounters FoxgloveServer::Counters() const {
   c.messages_replaced = s.messages_replaced.load();
   c.bytes_sent = s.bytes_sent.load();
   c.parameter_changes = s.parameter_changes.load();
+  c.pose_estimates = s.pose_estimates.load();
   c.bad_requests = s.bad_requests.load();
   return c;
 }
@@ -779,6 +784,9 @@ std::string FoxgloveServer::MetricsText() const {
   metric("sent_bytes_total", "counter", "Bytes written to Foxglove clients.", c.bytes_sent);
   metric("parameter_changes_total", "counter", "Budget changes made through Foxglove parameters.",
          c.parameter_changes);
+  metric("pose_estimates_total", "counter",
+         "Pose estimates published by Foxglove clients and passed on (as POST /api/v1/pose).",
+         c.pose_estimates);
   metric("bad_requests_total", "counter",
          "Foxglove client messages refused (not JSON, unknown op, invalid parameters).",
          c.bad_requests);

@@ -1,8 +1,9 @@
 #pragma once
 // slamd's Foxglove WebSocket server (docs/http-api.md, "Foxglove"): the map, pose, trajectory,
 // transform, scan and ground truth as channels of the Foxglove WebSocket protocol
-// (foxglove.websocket.v1, or foxglove.sdk.v1), JSON-encoded with the Foxglove schemas, and the
-// budget as parameters. One thread of its own serves every client (Boost.Beast on Boost.Asio):
+// (foxglove.websocket.v1, or foxglove.sdk.v1), JSON-encoded with the Foxglove schemas, the
+// budget as parameters, and the clients' pose estimates (clientPublish: the 3D panel's "Pose
+// estimate" tool). One thread of its own serves every client (Boost.Beast on Boost.Asio):
 // it reads the SLAM's published snapshots and never makes the SLAM thread wait. Each client has
 // a bounded send queue, counted at what its entries cost in memory: a slow or stuck client loses
 // messages (counted, and told once in a while with a status message), never delays anyone else,
@@ -50,12 +51,14 @@ struct FoxgloveCounters {
   uint64_t messages_replaced = 0;  // /map, /trajectory replaced in the queue by a newer one
   uint64_t bytes_sent = 0;         // written to the sockets
   uint64_t parameter_changes = 0;  // setParameters requests that changed the budget
+  uint64_t pose_estimates = 0;     // client-published pose estimates passed on
   uint64_t bad_requests = 0;       // client messages refused (not JSON, unknown op, ...)
 };
 
 class FoxgloveServer {
  public:
-  /// Budget changes go to `service` (SlamService::ChangeBudget), as the REST routes' do.
+  /// Budget changes go to `service` (SlamService::ChangeBudget) and pose estimates too
+  /// (SlamService::RequestPose), as the REST routes' do.
   FoxgloveServer(SlamService& service, const FoxgloveOptions& options);
   ~FoxgloveServer();  // stops
   FoxgloveServer(const FoxgloveServer&) = delete;

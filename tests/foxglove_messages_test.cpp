@@ -1,6 +1,7 @@
 // The Foxglove protocol's messages as slamd builds them (server/foxglove_messages.hpp): base64,
 // the binary message-data frame, times, the map as a foxglove.Grid (cells, origin, merging of
-// large maps), poses, the trajectory's thinning, the budget as parameters and back. The official
+// large maps), poses, the trajectory's thinning, the budget as parameters and back, client
+// pose estimates (clientPublish) read and passed on. The official
 // client and schemas check the same messages end to end (tests/foxglove/).
 
 #include "server/foxglove_messages.hpp"
@@ -268,7 +269,7 @@ TEST(FoxgloveProtocolTest, BadMessagesAreRefusedWithAStatusAndChangeNothing) {
     EXPECT_EQ(e.replies[0]["op"], "status") << text;
     EXPECT_EQ(e.replies[0]["level"], kError) << text;
   }
-  EXPECT_TRUE(client.OnBinary().refused);
+  EXPECT_TRUE(client.OnBinary("").refused);
   EXPECT_TRUE(client.subscriptions().empty());
   EXPECT_EQ(b.budget, BudgetSettings{});
 }
@@ -307,6 +308,174 @@ TEST(FoxgloveProtocolTest, AClientThatMayNotWriteNeverReachesTheBudget) {
   EXPECT_TRUE(e.refused);
   EXPECT_EQ(b.patches, 0);
   EXPECT_EQ(b.budget.rays_per_scan, 65000);
+}
+
+/// Foxglove's 3D panel's pose estimate at (x, y), heading yaw, with the deviations given.
+json PoseEstimateMessage(double x, double y, double yaw, double sigma_xy, double sigma_yaw,
+                         const std::string& frame = "map") {
+  json covariance = json::array();
+  for (int i = 0; i < 36; ++i) covariance.push_back(0.0);
+  covariance[0] = covariance[7] = sigma_xy * sigma_xy;
+  covariance[35] = sigma_yaw * sigma_yaw;
+  return {{"header", {{"stamp", {{"sec", 12}, {"nsec", 0}}}, {"frame_id", frame}}},
+          {"pose",
+           {{"pose",
+             {{"position", {{"x", x}, {"y", y}, {"z", 0.0}}},
+              {"orientation",
+               {{"x", 0.0}, {"y", 0.0}, {"z", std::sin(yaw / 2)}, {"w", std::cos(yaw / 2)}}}}},
+            {"covariance", covariance}}}};
+}
+
+constexpr const char* kPoseWithCovariance = "geometry_msgs/PoseWithCovarianceStamped";
+
+TEST(FoxglovePoseEstimateTest, APoseWithCovarianceIsAHintAZeroCovarianceAPose) {
+  Result<PoseRequest> r =
+      PoseEstimate(kPoseWithCovariance, PoseEstimateMessage(1.5, -2.0, 2.0, 0.0, 0.0), 0.05);
+  ASSERT_TRUE(r.ok()) << r.Message();
+  EXPECT_NEAR(r.value().pose.x, 1.5, 1e-12);
+  EXPECT_NEAR(r.value().pose.y, -2.0, 1e-12);
+  EXPECT_NEAR(r.value().pose.theta, 2.0, 1e-12);
+  EXPECT_FALSE(r.value().sigma_m);
+  EXPECT_FALSE(r.value().sigma_deg);
+  // Foxglove's default deviations: 0.5 m in x and y, 15 degrees in yaw.
+  r = PoseEstimate("geometry_msgs/msg/PoseWithCovarianceStamped",
+                   PoseEstimateMessage(0.0, 0.0, -3.0, 0.5, DegToRad(15.0)), 0.05);
+  ASSERT_TRUE(r.ok()) << r.Message();
+  EXPECT_NEAR(r.value().pose.theta, -3.0, 1e-12);
+  EXPECT_NEAR(*r.value().sigma_m, 0.5, 1e-12);
+  EXPECT_NEAR(*r.value().sigma_deg, 15.0, 1e-9);
+  // Deviations beyond what the pose route takes are clamped to it: "anywhere".
+  r = PoseEstimate(kPoseWithCovariance, PoseEstimateMessage(0.0, 0.0, 0.0, 80.0, 10.0), 0.05);
+  ASSERT_TRUE(r.ok()) << r.Message();
+  EXPECT_EQ(*r.value().sigma_m, 50.0);
+  EXPECT_EQ(*r.value().sigma_deg, 180.0);
+  // A foxglove.PoseInFrame puts the robot there; no frame is the map frame.
+  r = PoseEstimate("foxglove.PoseInFrame", json::parse(R"({"timestamp": {"sec": 1, "nsec": 0},
+      "pose": {"position": {"x": 0.25, "y": 0.5, "z": 0},
+               "orientation": {"x": 0, "y": 0, "z": 1, "w": 0}}})"),
+                   0.05);
+  ASSERT_TRUE(r.ok()) << r.Message();
+  EXPECT_NEAR(std::abs(r.value().pose.theta), kPi, 1e-12);
+  EXPECT_FALSE(r.value().sigma_m);
+}
+
+TEST(FoxglovePoseEstimateTest, WhatIsNotAPlanarPoseInTheMapFrameIsRefusedNamingWhere) {
+  const auto error = [](const json& message, const char* schema = kPoseWithCovariance) {
+    const Result<PoseRequest> r = PoseEstimate(schema, message, 0.05);
+    return r.ok() ? std::string("accepted") : r.errors().front().pointer;
+  };
+  EXPECT_EQ(error(PoseEstimateMessage(0, 0, 0, 0, 0, "odom")), "/header/frame_id");
+  json m = PoseEstimateMessage(0, 0, 0, 0, 0);
+  m["pose"]["pose"]["orientation"] = {{"x", 0.3}, {"y", 0.0}, {"z", 0.0}, {"w", 0.95}};
+  EXPECT_EQ(error(m), "/pose/pose/orientation");  // tilted by 35 degrees
+  m["pose"]["pose"]["orientation"] = {{"x", 0.0}, {"y", 0.0}, {"z", 0.0}, {"w", 0.0}};
+  EXPECT_EQ(error(m), "/pose/pose/orientation");
+  m = PoseEstimateMessage(0, 0, 0, 0, 0);
+  m["pose"]["pose"]["position"].erase("y");
+  EXPECT_EQ(error(m), "/pose/pose/position/y");
+  m = PoseEstimateMessage(0, 0, 0, 0, 0);
+  m["pose"]["pose"]["position"]["x"] = "1";
+  EXPECT_EQ(error(m), "/pose/pose/position/x");
+  m = PoseEstimateMessage(0, 0, 0, 0.1, 0);
+  m["pose"]["covariance"].erase(35);
+  EXPECT_EQ(error(m), "/pose/covariance");
+  m = PoseEstimateMessage(0, 0, 0, 0.1, 0);
+  m["pose"]["covariance"][7] = -1.0;
+  EXPECT_EQ(error(m), "/pose/covariance");
+  EXPECT_EQ(error(PoseEstimateMessage(1e9, 0, 0, 0, 0)), "");  // beyond the map's bound
+  EXPECT_EQ(error(json::array()), "");
+  EXPECT_EQ(error(PoseEstimateMessage(0, 0, 0, 0, 0), "geometry_msgs/PoseStamped"), "");
+  EXPECT_EQ(error(PoseEstimateMessage(0, 0, 0, 0, 0)), "accepted");
+}
+
+/// A client message data frame: opcode 1, the channel id (little-endian), the payload.
+std::string ClientData(uint32_t channel, const std::string& payload) {
+  std::string frame(1, '\x01');
+  for (int i = 0; i < 4; ++i) frame.push_back(static_cast<char>((channel >> (8 * i)) & 0xff));
+  return frame + payload;
+}
+
+std::string AdvertiseText(uint32_t id, const std::string& schema, const std::string& encoding) {
+  return json{
+      {"op", "advertise"},
+      {"channels",
+       {{{"id", id}, {"topic", "/initialpose"}, {"encoding", encoding}, {"schemaName", schema}}}}}
+      .dump();
+}
+
+TEST(FoxgloveProtocolTest, PoseEstimatesOnAnAdvertisedChannelArePassedOn) {
+  Budgeted b;
+  std::vector<PoseRequest> requests;
+  ClientProtocol client(Channels(false), true, b.Access(),
+                        {0.05, [&](const PoseRequest& r) { requests.push_back(r); }});
+  const std::string estimate = PoseEstimateMessage(1.0, 2.0, 0.5, 0.5, 0.2).dump();
+  // Nothing advertised yet.
+  Effects e = client.OnBinary(ClientData(3, estimate));
+  EXPECT_TRUE(e.refused);
+  EXPECT_EQ(e.replies.at(0)["message"],
+            "message data on channel 3, which this client has not advertised");
+  // Only pose estimates, JSON-encoded.
+  e = client.OnText(AdvertiseText(3, "geometry_msgs/Twist", "json"));
+  EXPECT_TRUE(e.refused);
+  e = client.OnText(AdvertiseText(3, kPoseWithCovariance, "cdr"));
+  EXPECT_TRUE(e.refused);
+  EXPECT_TRUE(client.client_channels().empty());
+  e = client.OnText(AdvertiseText(3, kPoseWithCovariance, "json"));
+  EXPECT_FALSE(e.refused);
+  EXPECT_TRUE(e.replies.empty());
+  EXPECT_TRUE(client.OnText(AdvertiseText(3, kPoseWithCovariance, "json")).refused);  // in use
+
+  e = client.OnBinary(ClientData(3, estimate));
+  EXPECT_FALSE(e.refused);
+  EXPECT_TRUE(e.pose_requested);
+  ASSERT_EQ(requests.size(), 1u);
+  EXPECT_NEAR(requests[0].pose.x, 1.0, 1e-12);
+  EXPECT_NEAR(requests[0].pose.theta, 0.5, 1e-12);
+  EXPECT_NEAR(*requests[0].sigma_m, 0.5, 1e-12);
+  ASSERT_EQ(e.replies.size(), 1u);
+  EXPECT_EQ(e.replies[0]["level"], kInfo);
+  EXPECT_EQ(e.replies[0]["message"],
+            "pose estimate taken: x 1.000 m, y 2.000 m, theta 28.6 deg (relocalising around it)");
+
+  // Bad payloads and frames change nothing.
+  for (const std::string& bad :
+       {ClientData(3, "{"), ClientData(3, "[1]"), ClientData(3, ""), std::string("\x01\x03"),
+        std::string("\x02\x03\x00\x00\x00{}"), ClientData(3, R"({"pose": 7})")}) {
+    e = client.OnBinary(bad);
+    EXPECT_TRUE(e.refused);
+    EXPECT_FALSE(e.pose_requested);
+    ASSERT_EQ(e.replies.size(), 1u);
+    EXPECT_EQ(e.replies[0]["level"], kError);
+  }
+  EXPECT_EQ(requests.size(), 1u);
+
+  client.OnText(R"({"op": "unadvertise", "channelIds": [3, 4]})");
+  EXPECT_TRUE(client.OnBinary(ClientData(3, estimate)).refused);
+  EXPECT_EQ(requests.size(), 1u);
+  // A client cannot advertise without end.
+  json many = json::array();
+  for (uint32_t id = 0; id < 40; ++id) {
+    many.push_back({{"id", id},
+                    {"topic", "/p"},
+                    {"encoding", "json"},
+                    {"schemaName", "foxglove.PoseInFrame"}});
+  }
+  e = client.OnText(json{{"op", "advertise"}, {"channels", many}}.dump());
+  EXPECT_TRUE(e.refused);
+  EXPECT_EQ(client.client_channels().size(), kMaxClientChannels);
+  EXPECT_EQ(e.replies.size(), kMaxRefusalsNamed);
+}
+
+TEST(FoxgloveProtocolTest, AClientThatMayNotWriteCannotPublishAPose) {
+  Budgeted b;
+  int requests = 0;
+  ClientProtocol client(Channels(false), false, b.Access(),
+                        {0.05, [&](const PoseRequest&) { ++requests; }});
+  const Effects e = client.OnText(AdvertiseText(1, kPoseWithCovariance, "json"));
+  EXPECT_TRUE(e.refused);
+  EXPECT_TRUE(client.client_channels().empty());
+  EXPECT_TRUE(client.OnBinary(ClientData(1, PoseEstimateMessage(0, 0, 0, 0, 0).dump())).refused);
+  EXPECT_EQ(requests, 0);
 }
 
 }  // namespace

@@ -126,7 +126,8 @@ TEST_F(FoxgloveSlamd, ServerInfoThenEveryChannelOnSubscription) {
   EXPECT_EQ(client.response()[beast::http::field::sec_websocket_protocol], "foxglove.websocket.v1");
   const auto info = client.NextOp("serverInfo");
   ASSERT_TRUE(info);
-  EXPECT_EQ((*info)["capabilities"], json({"parameters", "parametersSubscribe"}));
+  EXPECT_EQ((*info)["capabilities"], json({"parameters", "parametersSubscribe", "clientPublish"}));
+  EXPECT_EQ((*info)["supportedEncodings"], json({"json"}));
   const auto topics = client.SubscribeAll();
   ASSERT_EQ(topics.size(), 6u);  // simulated: /ground_truth too
   std::set<std::string> seen;

@@ -174,6 +174,8 @@ async function openChecks() {
   await waitFor('serverInfo and advertise', 5000, () => a.serverInfo && a.channels.size > 0);
   check(a.serverInfo.capabilities.includes('parameters'), 'no parameters capability');
   check(a.serverInfo.capabilities.includes('parametersSubscribe'), 'no parametersSubscribe capability');
+  check(a.serverInfo.capabilities.includes('clientPublish'), 'no clientPublish capability');
+  check(a.serverInfo.supportedEncodings?.includes('json'), 'json is not a supported encoding');
   for (const [topic, schemaName] of Object.entries(expectedChannels)) {
     const channel = a.channels.get(topic);
     check(channel, `channel ${topic} not advertised`);
@@ -296,8 +298,8 @@ async function openChecks() {
   await expectStatusError(a, 'a malformed subscribe', 'subscribe');
   a.ws.send('not json');
   await expectStatusError(a, 'text that is not JSON', 'JSON');
-  a.ws.send(JSON.stringify({ op: 'advertise', channels: [] }));
-  await expectStatusError(a, 'client publishing', 'advertise');
+  a.ws.send(JSON.stringify({ op: 'callService', serviceId: 1, callId: 1, encoding: 'json', data: '' }));
+  await expectStatusError(a, 'a service call', 'callService');
   a.ws.send(' '.repeat(65 * 1024) + '{}');
   await expectStatusError(a, 'a message of 65 KiB', '64 KiB');
   const poses = count(a, '/pose');
@@ -321,12 +323,68 @@ async function openChecks() {
   app.client.setParameters([{ name: 'budget.rays_per_scan', value: 65000 }], 'app');
   await waitFor('the Foxglove app set the budget', 5000, () => app.parameterValues.some((p) => p.id === 'app'));
   check((await getBudget()).rays_per_scan === 65000, 'the Foxglove app could not set the budget');
+  await poseEstimateChecks(a, foreign);
   for (const s of [a, foreign, app]) {
     noErrors(s, 'messages');
     s.client.close();
   }
   await waitFor('clients gone from /metrics', 5000, async () => (await metric('slamd_foxglove_clients')) === 0);
   check((await metric('slamd_foxglove_refused_total')) >= 3, 'refusals not counted');
+}
+
+/** A planar pose estimate as Foxglove's 3D panel publishes it (geometry_msgs/PoseWithCovarianceStamped, JSON). */
+function poseEstimate(x, y, yaw, sigmaM, sigmaRad, frame = 'map') {
+  const covariance = new Array(36).fill(0);
+  covariance[0] = covariance[7] = sigmaM * sigmaM;
+  covariance[35] = sigmaRad * sigmaRad;
+  const message = {
+    header: { stamp: { sec: 0, nsec: 0 }, frame_id: frame },
+    pose: {
+      pose: { position: { x, y, z: 0 }, orientation: { x: 0, y: 0, z: Math.sin(yaw / 2), w: Math.cos(yaw / 2) } },
+      covariance,
+    },
+  };
+  return new TextEncoder().encode(JSON.stringify(message));
+}
+const yawOf = (q) => 2 * Math.atan2(q.z, q.w);
+
+/**
+ * Client publishing: a pose estimate on an advertised channel reaches the SLAM as POST
+ * /api/v1/pose does (counted; the robot put there; a hint starts a relocalisation around it);
+ * a bad one changes nothing; another site's page may not publish.
+ */
+async function poseEstimateChecks(a, foreign) {
+  const channel = a.client.advertise({ topic: '/initialpose', encoding: 'json', schemaName: 'geometry_msgs/PoseWithCovarianceStamped' });
+  const setBefore = await metric('slamd_poses_set_total');
+  // Where the SLAM has the robot now, published back with no uncertainty: put there.
+  const here = last(a, '/pose').pose;
+  const statuses = a.statuses.length;
+  a.client.sendMessage(channel, poseEstimate(here.position.x, here.position.y, yawOf(here.orientation), 0, 0));
+  await waitFor('the pose estimate taken', 5000, () => a.statuses.slice(statuses).some((s) => s.message.startsWith('pose estimate taken')));
+  const taken = a.statuses.slice(statuses).find((s) => s.message.startsWith('pose estimate taken'));
+  check(taken.level === 0 && !taken.message.includes('relocalising'), `the pose estimate answered: ${taken.message}`);
+  await waitFor('slamd_poses_set_total counts it', 5000, async () => (await metric('slamd_poses_set_total')) === setBefore + 1);
+  check((await metric('slamd_foxglove_pose_estimates_total')) === 1, 'slamd_foxglove_pose_estimates_total is not 1');
+  // Bad estimates: refused, nothing set.
+  a.client.sendMessage(channel, poseEstimate(0, 0, 0, 0, 0, 'odom'));
+  await expectStatusError(a, 'a pose estimate in another frame', 'frame_id');
+  a.client.sendMessage(channel, new TextEncoder().encode('{"pose": 3}'));
+  await expectStatusError(a, 'a malformed pose estimate', 'pose');
+  a.client.sendMessage(channel + 100, poseEstimate(0, 0, 0, 0, 0));
+  await expectStatusError(a, 'a pose estimate on a channel never advertised', 'not advertised');
+  a.ws.send(JSON.stringify({ op: 'advertise', channels: [{ id: 99, topic: '/cmd_vel', encoding: 'json', schemaName: 'geometry_msgs/Twist' }] }));
+  await expectStatusError(a, 'a channel of another schema', 'geometry_msgs/Twist');
+  foreign.client.advertise({ topic: '/initialpose', encoding: 'json', schemaName: 'geometry_msgs/PoseWithCovarianceStamped' });
+  await expectStatusError(foreign, 'publishing from another site\'s page', 'may not publish');
+  check((await metric('slamd_poses_set_total')) === setBefore + 1, 'a refused pose estimate set the pose');
+  // With Foxglove's default deviations the estimate is a hint: slamd relocalises around it.
+  const relocalizingBefore = await metric('slamd_relocalizing_scans_total');
+  const now = last(a, '/pose').pose;
+  a.client.sendMessage(channel, poseEstimate(now.position.x, now.position.y, yawOf(now.orientation), 0.5, Math.PI / 12));
+  await waitFor('a relocalisation around the hint', 10000, async () => (await metric('slamd_relocalizing_scans_total')) > relocalizingBefore);
+  check(a.statuses.some((s) => s.message.includes('relocalising around it')), 'the hint was not told as one');
+  a.client.unadvertise(channel);
+  log('pose estimates through clientPublish: set, refused when bad, a hint relocalises');
 }
 
 async function tokenChecks() {
