@@ -59,6 +59,8 @@ int64_t MatchFieldBuild::Step() {
   switch (stage_) {
     case Stage::kMark:
       return next_tile_ < tiles_.size() ? MarkTile() : StartStamping();
+    case Stage::kClear:
+      return ClearRow();
     case Stage::kStamp:
       return StampCells();
     case Stage::kViews:
@@ -125,9 +127,18 @@ int64_t MatchFieldBuild::StartStamping() {
   f.origin_ = {lo_.x - reach_ - f.pad_, lo_.y - reach_ - f.pad_};
   f.width_ = int64_t{hi_.x} + reach_ + 1 - (lo_.x - reach_) + f.pad_;
   f.height_ = int64_t{hi_.y} + reach_ + 1 - (lo_.y - reach_) + f.pad_;
-  f.views_.assign(1, std::vector<uint8_t>(static_cast<size_t>(f.width_ * f.height_), 0));
-  stage_ = Stage::kStamp;
-  return f.width_ * f.height_ + static_cast<int64_t>(kernel_.size());
+  // The base view is cleared a row a step (ClearRow), so that no step costs a whole view.
+  f.views_.assign(1, {});
+  f.views_[0].reserve(static_cast<size_t>(f.width_ * f.height_));
+  stage_ = Stage::kClear;
+  return static_cast<int64_t>(kernel_.size());
+}
+
+int64_t MatchFieldBuild::ClearRow() {
+  std::vector<uint8_t>& base = field_.views_[0];
+  base.resize(base.size() + static_cast<size_t>(field_.width_), 0);
+  if (base.size() == static_cast<size_t>(field_.width_ * field_.height_)) stage_ = Stage::kStamp;
+  return field_.width_;
 }
 
 int64_t MatchFieldBuild::StampCells() {
@@ -160,9 +171,16 @@ int64_t MatchFieldBuild::StampCells() {
 int64_t MatchFieldBuild::ViewRow() {
   MatchField& f = field_;
   int64_t ops = f.width_;
-  if (!along_y_ && row_ == 0) {  // a new view, from a copy of the one below
-    f.views_.push_back(f.views_.back());
-    ops += f.width_ * f.height_;
+  if (!along_y_) {  // a new view, copied from the one below a row at a time
+    if (row_ == 0) {
+      f.views_.emplace_back();
+      f.views_.back().reserve(static_cast<size_t>(f.width_ * f.height_));
+    }
+    const std::vector<uint8_t>& below = f.views_[f.views_.size() - 2];
+    const auto from = below.begin() + static_cast<std::ptrdiff_t>(row_ * f.width_);
+    f.views_.back().insert(f.views_.back().end(), from,
+                           from + static_cast<std::ptrdiff_t>(f.width_));
+    ops += f.width_;
   }
   const int64_t half = int64_t{1} << (level_ - 1);
   WindowMax(f.views_.back(), f.width_, f.height_, half, /*along_x=*/!along_y_, row_, row_ + 1);

@@ -103,8 +103,10 @@ class MatchFieldBuild {
   /// Precondition: as FromGrid's.
   MatchFieldBuild(const OccupancyGrid& grid, const MatchFieldConfig& config);
 
-  /// Builds until `max_lookups` were spent (at least one step is always taken: a tile read, a
-  /// row stamped or passed over, so every call progresses) or the field is done. Returns
+  /// Builds until `max_lookups` were spent (at least one step is always taken, so every call
+  /// progresses) or the field is done; a call overruns its share by at most its last step,
+  /// which is never more than a tile read, 16 cells stamped, or one row of a view cleared,
+  /// copied or passed over (a large map's view costs as many steps as it has rows). Returns
   /// whether it is done.
   bool Continue(int64_t max_lookups);
   /// Runs to the end.
@@ -116,11 +118,12 @@ class MatchFieldBuild {
   std::shared_ptr<const MatchField> field() const { return result_; }
 
  private:
-  enum class Stage { kMark, kStamp, kViews, kDone };
+  enum class Stage { kMark, kClear, kStamp, kViews, kDone };
   /// One step of the stage; returns the cell operations it took.
   int64_t Step();
   int64_t MarkTile();
   int64_t StartStamping();
+  int64_t ClearRow();
   int64_t StampCells();
   int64_t ViewRow();
 

@@ -104,13 +104,12 @@ TEST(MatchFieldTest, ABuildInSlicesEqualsOneBuildKeepsItsSharesAndHoldsTheGridAs
   ASSERT_EQ(MatchField::FromGrid(grid, config).At(0, {250, 250}), 255);
 
   // A call stops at its share, overrunning by at most its last step: a tile read (a read per
-  // cell, a sort's few per occupied one), 16 stamps, or a view's allocation (a copy per cell).
+  // cell, a sort's few per occupied one), 16 stamps, or a row of a view (cleared, or copied and
+  // passed over).
   const int32_t pad = (1 << config.levels) - 1;
   const int64_t width = whole.max_cell().x - whole.min_cell().x + pad;
-  const int64_t height = whole.max_cell().y - whole.min_cell().y + pad;
   const int64_t side = 2 * 3 + 1;  // the kernel's: three sigmas of one cell each way
-  const int64_t step =
-      std::max({int64_t{9} * kTileCells, 16 * side * side, width * height + width});
+  const int64_t step = std::max({int64_t{9} * kTileCells, 16 * side * side, 2 * width});
   const int64_t share = 1000;
   int calls = 0;
   while (!build.done()) {
@@ -145,6 +144,42 @@ TEST(MatchFieldTest, ABuildInSlicesEqualsOneBuildKeepsItsSharesAndHoldsTheGridAs
   EXPECT_TRUE(empty.Continue(1));
   ASSERT_NE(empty.field(), nullptr);
   EXPECT_TRUE(empty.field()->empty());
+}
+
+TEST(MatchFieldTest, OnALargeMapNoSliceOfTheBuildCostsAWholeView) {
+  // A 30 x 24 m building's outline: its views hold some 450000 cells at 4 cm, far more than a
+  // tile read or a row costs, and a scan's share of a few thousand lookups is never overrun by
+  // more than a row's work.
+  const OccupancyGrid grid = DrawnGrid(testing::Outline(
+      {{-15.0, -12.0}, {15.0, -12.0}, {15.0, 12.0}, {-15.0, 12.0}, {-15.0, -12.0}}, 0.02));
+  MatchFieldConfig config;
+  config.resolution_m = 0.04;
+  config.sigma_m = 0.04;
+  config.levels = 4;
+  MatchFieldBuild build(grid, config);
+  const int64_t share = 2000;
+  int64_t largest = 0;
+  while (!build.done()) {
+    const int64_t before = build.lookups();
+    build.Continue(share);
+    largest = std::max(largest, build.lookups() - before);
+  }
+  const MatchField& field = *build.field();
+  const int32_t pad = (1 << config.levels) - 1;
+  const int64_t width = field.max_cell().x - field.min_cell().x + pad;
+  const int64_t height = field.max_cell().y - field.min_cell().y + pad;
+  ASSERT_GT(width * height, 400000);
+  EXPECT_LE(largest, share + std::max<int64_t>(9 * kTileCells, 2 * width));
+  EXPECT_LT(largest, width * height / 4);
+  const MatchField whole = MatchField::FromGrid(grid, config);
+  for (int level = 0; level <= whole.levels(); ++level) {
+    for (int32_t y = whole.min_cell().y - pad - 1; y <= whole.max_cell().y; y += 7) {
+      for (int32_t x = whole.min_cell().x - pad - 1; x <= whole.max_cell().x; ++x) {
+        ASSERT_EQ(field.At(level, {x, y}), whole.At(level, {x, y}))
+            << level << " " << x << " " << y;
+      }
+    }
+  }
 }
 
 TEST(GlobalSearchTest, EqualsAnExhaustiveSearchOnRandomFields) {
