@@ -22,6 +22,7 @@ void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region,
   fine_field_.reset();
   region_ = region;
   region_odom_ = region.whole_map ? std::nullopt : region_odom;
+  rival_.reset();
   entries_.clear();
   search_.reset();
   pending_.reset();
@@ -107,10 +108,20 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
   switch (stage_) {
     case Stage::kCoarse:
       candidates_ = search_->candidates();
+      if (rival_) {  // checked too, unless a candidate stands for it
+        GlobalMatch rival;
+        rival.pose = Compose(rival_->pose, Between(rival_->odom, query_odom_));
+        if (std::all_of(candidates_.begin(), candidates_.end(),
+                        [&](const GlobalMatch& c) { return Distinct(c, rival, config_.search); })) {
+          candidates_.push_back(rival);
+        }
+      }
       checked_.clear();
       break;
     case Stage::kCheck:
-      if (best) checked_.push_back(*best);
+      // A check that scores nowhere (its region off the field: a rival beyond the map) scores
+      // 0 there: every candidate is checked once.
+      checked_.push_back(best ? *best : GlobalMatch{candidates_[checked_.size()].pose, 0, 0.0});
       break;
     case Stage::kConfirm:
       if (best && best->score >= config_.accept_score &&
@@ -126,6 +137,7 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
         found.pose = Compose(best->pose, Between(query_odom_, odom_end));
         found.score = best->score;
         found.runner_up_score = runner_up_;
+        found.rival_score = rival_score_;
         found.points = query_points_;
         found.lookups = search_lookups_;
         found.searches = searches_;
@@ -150,9 +162,14 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
     if (const std::optional<GlobalMatch> answer = Decide()) {
       // The next distinct candidate's fine score: how far the answer stood out.
       runner_up_ = 0.0;
+      rival_score_ = 0.0;
+      GlobalMatch rival;
+      if (rival_) rival.pose = Compose(rival_->pose, Between(rival_->odom, query_odom_));
       for (const GlobalMatch& other : checked_) {
         if (Distinct(other, *answer, config_.search))
           runner_up_ = std::max(runner_up_, other.score);
+        if (rival_ && !Distinct(other, rival, config_.search))
+          rival_score_ = std::max(rival_score_, other.score);
       }
       // Carried to the newest scan and confirmed there with the newest multiscan.
       StartSearch(Stage::kConfirm, Query(), odom_end,

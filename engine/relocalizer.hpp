@@ -68,9 +68,11 @@ struct Relocalization {
   Pose2 pose;  // the robot's pose at the end of the scan that completed the search
   double score = 0.0;
   double runner_up_score = 0.0;  // 0 when no distinct candidate scored above the floor
-  int points = 0;                // in the multiscan
-  int64_t lookups = 0;           // the cost since Start: the fields' builds and the searches
-  int searches = 0;              // searches it took (an ambiguous one searches again)
+  /// The rival's fine score (SetRival), 0 without one.
+  double rival_score = 0.0;
+  int points = 0;       // in the multiscan
+  int64_t lookups = 0;  // the cost since Start: the fields' builds and the searches
+  int searches = 0;     // searches it took (an ambiguous one searches again)
 };
 
 /// What the last Add did.
@@ -96,6 +98,12 @@ class Relocalizer {
   /// around the region carried by the odometry from there to its newest scan.
   void Start(const OccupancyGrid& map, const GlobalRegion& region = {},
              const std::optional<Pose2>& region_odom = std::nullopt);
+  /// A pose the answer must beat (a background check's: the tracked pose, where the odometry
+  /// read `odom`), given before each Add: carried to the multiscan's time, it is checked on the
+  /// fine field with the coarse search's candidates, so an answer elsewhere is taken only when
+  /// it beats the rival by unique_margin, and an answer at the rival says the rival was right.
+  /// Start forgets it.
+  void SetRival(const Pose2& pose, const Pose2& odom) { rival_ = {pose, odom}; }
   /// Stops relocalising.
   void Cancel();
   bool active() const { return build_ != nullptr || field_ != nullptr; }  // coarse first
@@ -143,6 +151,10 @@ class Relocalizer {
   std::shared_ptr<const MatchField> field_, fine_field_;
   GlobalRegion region_;
   std::optional<Pose2> region_odom_;  // where the odometry read when region_ was given
+  struct Rival {
+    Pose2 pose, odom;
+  };
+  std::optional<Rival> rival_;
   std::deque<Entry> entries_;
   std::unique_ptr<GlobalSearch> search_;
   Stage stage_ = Stage::kCoarse;         // search_'s
@@ -152,6 +164,7 @@ class Relocalizer {
   std::vector<GlobalMatch> checked_;     // their fine answers so far
   int confirmed_ = 0;                    // confirmations of the answer so far
   double runner_up_ = 0.0;               // the answer's distinct runner-up's fine score
+  double rival_score_ = 0.0;             // the rival's fine score when the answer was decided
   std::optional<Pose2> pending_;         // the answer between confirmations, at pending_odom_
   Pose2 pending_odom_;
   double pending_due_t_ = 0.0;

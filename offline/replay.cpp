@@ -25,7 +25,7 @@ class LocalizationLog {
   /// A relocalisation starts (the relocaliser was just started) before the scan beginning at t.
   void Start(RelocalizationStart cause, double t) {
     relocalizing_ = true;
-    if (cause == RelocalizationStart::kLost) {
+    if (cause == RelocalizationStart::kLost || cause == RelocalizationStart::kWatch) {
       ++losses_;
       loss_times_.push_back(t - t_origin_);
     }
@@ -38,6 +38,11 @@ class LocalizationLog {
   /// What the step did with `scan`.
   void Step(const Scan& scan, const BudgetedStep::Result& step) {
     last_given_end_ = scan.t_end;
+    if (step.watch) {
+      watch_lookups_ += step.watch->lookups;
+      watch_unsure_ += step.watch->rejected_best ? 1 : 0;
+      watch_confirmed_ += step.watch->found && !step.watch_relocated ? 1 : 0;
+    }
     if (step.loss_check && step.loss_check->window_share > share_max_) {
       share_max_ = step.loss_check->window_share;
       share_max_t_ = scan.t_end;
@@ -56,7 +61,7 @@ class LocalizationLog {
     untracked_since_ = tracked_;
     ++scans_;
     ++scans_total_;
-    lookups_ += r.lookups;
+    if (!step.watch_relocated) lookups_ += r.lookups;  // the watch's are counted above
     if (r.rejected_best) {
       ++unsure_;
       if (!best_unsure_ || r.rejected_best->score > best_unsure_->score) {
@@ -98,6 +103,9 @@ class LocalizationLog {
     result.best_unsure_runner_up = best_unsure_runner_up_;
     result.best_unsure_t = best_unsure_t_;
     result.relocalizing_scans = scans_total_;
+    result.watch_lookups = watch_lookups_;
+    result.watch_unsure = watch_unsure_;
+    result.watch_confirmed = watch_confirmed_;
     result.relocalizing_at_end = still_searching;
     result.relocalizing_since_t = still_searching ? since_t_ : 0.0;
   }
@@ -108,6 +116,7 @@ class LocalizationLog {
   RelocalizationStart cause_ = RelocalizationStart::kStart;
   double since_t_ = 0.0;
   int64_t scans_ = 0, scans_total_ = 0, lookups_ = 0, unsure_ = 0, losses_ = 0;
+  int64_t watch_lookups_ = 0, watch_unsure_ = 0, watch_confirmed_ = 0;
   std::optional<GlobalMatch> best_unsure_;
   double best_unsure_runner_up_ = 0.0, best_unsure_t_ = 0.0;
   double share_max_ = 0.0, share_max_t_ = 0.0;
@@ -132,6 +141,8 @@ const char* ToString(RelocalizationStart start) {
       return "drop";
     case RelocalizationStart::kLost:
       return "lost";
+    case RelocalizationStart::kWatch:
+      return "watch";
   }
   return "?";
 }
@@ -183,6 +194,7 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
   if (options.loss_detector) {
     detector.emplace(*options.loss_detector);
     stepper.SetLossDetector(&*detector);
+    if (options.watch) stepper.EnableWatch(*options.watch);
   }
   const double t_origin = scans.empty() ? 0.0 : scans.front().t_begin;
   LocalizationLog log(t_origin);
@@ -231,6 +243,7 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
     left_out = false;
     const BudgetedStep::Result step = stepper.Run(scan, options.refine);
     if (step.lost) log.Start(RelocalizationStart::kLost, scan.t_begin);  // this scan went to it
+    if (step.watch_relocated) log.Start(RelocalizationStart::kWatch, scan.t_begin);
     log.Step(scan, step);
     if (step.record) plans.push_back(*step.record);
     rays_total += step.report.rays.total();

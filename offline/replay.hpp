@@ -24,6 +24,7 @@
 #include "engine/robot.hpp"
 #include "engine/scan.hpp"
 #include "engine/slam.hpp"
+#include "scheduler/budgeted_step.hpp"
 #include "scheduler/params_catalog.hpp"
 #include "scheduler/ray_budget_scheduler.hpp"
 
@@ -91,6 +92,9 @@ struct ReplayOptions {
   /// SetLossDetector): a loss takes back what the lost tracker mapped and relocalises. None (the
   /// default, as the tuner and the reference table replay): no check.
   std::optional<LossDetectorConfig> loss_detector;
+  /// With it and the loss detector, the background check as well (BudgetedStep::EnableWatch):
+  /// a confirmed answer away from the tracked pose moves the engine there.
+  std::optional<WatchConfig> watch;
 };
 
 /// Why a replay relocalised.
@@ -98,8 +102,9 @@ enum class RelocalizationStart {
   kStart,  // on `map` without a start pose
   kDrop,   // after a stretch left out
   kLost,   // the loss detector found the tracker lost
+  kWatch,  // the background check found the robot elsewhere (the tracker was lost)
 };
-/// "start", "drop", "lost".
+/// "start", "drop", "lost", "watch".
 const char* ToString(RelocalizationStart start);
 
 /// One answer of the relocaliser during a replay.
@@ -155,6 +160,9 @@ struct ReplayResult {
   double best_unsure_runner_up = 0.0;
   double best_unsure_t = 0.0;
   int64_t relocalizing_scans = 0;
+  /// The background check's (ReplayOptions::watch): lookups spent, searches that ended unsure,
+  /// answers at the tracked pose.
+  int64_t watch_lookups = 0, watch_unsure = 0, watch_confirmed = 0;
   bool relocalizing_at_end = false;
   double relocalizing_since_t = 0.0;
   ParamsSet params_set;           // the parameter set of the last scan

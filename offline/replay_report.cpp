@@ -149,6 +149,10 @@ void LocalizationSummary(const offline::Experiment& experiment, const ReplayResu
     j["best_unsure"] = nullptr;
   }
   j["relocalizing_scans"] = run.relocalizing_scans;
+  j["watch"] = options.watch && options.loss_detector ? Json{{"lookups", run.watch_lookups},
+                                                             {"searches_unsure", run.watch_unsure},
+                                                             {"confirmed", run.watch_confirmed}}
+                                                      : Json();
   j["relocalizing_at_end"] = run.relocalizing_at_end;
   if (run.relocalizing_at_end) j["relocalizing_since_s"] = run.relocalizing_since_t - t_origin;
 }

@@ -2,6 +2,7 @@
 
 #include <time.h>
 
+#include <cmath>
 #include <optional>
 #include <utility>
 #include <vector>
@@ -20,6 +21,37 @@ void BudgetedStep::SetLossDetector(LossDetector* detector) {
   detector_ = detector;
   history_.clear();
   if (detector_ != nullptr) detector_->Reset();
+}
+
+ConfigErrors WatchConfig::Validate() const {
+  ConfigErrors errors;
+  if (!(share > 0.0 && share <= 0.5)) errors.push_back({"/share", "must be in (0, 0.5]"});
+  if (!(distinct_m > 0.0 && std::isfinite(distinct_m))) {
+    errors.push_back({"/distinct_m", "must be a positive number of metres"});
+  }
+  if (!(distinct_deg > 0.0 && distinct_deg <= 180.0)) {
+    errors.push_back({"/distinct_deg", "must be in (0, 180] degrees"});
+  }
+  if (!(max_tracked_score >= 0.0 && max_tracked_score <= 1.0)) {
+    errors.push_back({"/max_tracked_score", "must be in [0, 1]"});
+  }
+  if (!(margin >= 0.0 && margin <= 1.0)) errors.push_back({"/margin", "must be in [0, 1]"});
+  if (refresh_after_unsure < 1) {
+    errors.push_back({"/refresh_after_unsure", "must be at least 1"});
+  }
+  return errors;
+}
+
+void BudgetedStep::EnableWatch(const WatchConfig& config) {
+  watch_config_ = config;
+  watch_.emplace(config.relocalizer);
+  watch_unsure_ = 0;
+}
+
+void BudgetedStep::StartWatch(const OccupancyGrid& map) {
+  watch_map_ = map;
+  watch_->Start(*watch_map_);
+  watch_unsure_ = 0;
 }
 
 double CpuSeconds(CpuClock clock) {
@@ -69,9 +101,49 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
       history_.clear();
       detector_->Reset();
       result.lost = true;
+      if (watch_) watch_->Cancel();
+    } else if (watch_) {
+      // Never on a map newer than the detector's reference: the oldest one kept.
+      if (!watch_->active() && history_.front().HasTiles()) StartWatch(history_.front());
+      if (watch_->active()) {
+        const auto share = static_cast<int64_t>(watch_config_.share * static_cast<double>(quota));
+        // The multiscan is placed by the odometry, as the relocaliser's: a lost tracker's own
+        // poses smear it (placed by them, it fitted the truth worse after a kidnap and a
+        // symmetric twin better before one: docs/accuracy.md). The tracked pose is its rival.
+        watch_->SetRival(predicted, scan.odom_end);
+        RelocalizerStep w =
+            watch_->Add(readings(), scan.odom_end, scan.t_end, share * kLookupsPerRay);
+        // What it spent is taken from the plan's rays (it may have spent nothing, gathering).
+        reserved += (w.lookups + kLookupsPerRay - 1) / kLookupsPerRay;
+        if (w.rejected_best && ++watch_unsure_ >= watch_config_.refresh_after_unsure) {
+          StartWatch(history_.front());
+        }
+        if (w.found) {
+          const Pose2 d = Between(predicted, w.found->pose);
+          const bool elsewhere = d.translation().norm() >= watch_config_.distinct_m ||
+                                 std::abs(d.theta) >= DegToRad(watch_config_.distinct_deg);
+          const bool better = w.found->rival_score <= watch_config_.max_tracked_score &&
+                              w.found->score >= w.found->rival_score + watch_config_.margin;
+          if (elsewhere && better && engine_.AcceptsPose(w.found->pose)) {
+            engine_.ReplaceMap(*watch_map_);
+            result.relocated = engine_.Relocate(w.found->pose);
+            result.watch_relocated = result.relocated;
+            result.watch_from = predicted;
+            history_.clear();
+            detector_->Reset();
+            result.watch = w;
+            result.relocalization = std::move(w);
+            result.cpu_s = CpuSeconds(clock_) - cpu_start;
+            return result;
+          }
+          // Found where the tracker is: the next search runs on a newer snapshot.
+        }
+        result.watch = std::move(w);
+      }
     }
   }
   if (relocalizer_ != nullptr && relocalizer_->active()) {
+    if (watch_) watch_->Cancel();  // the map it watched may not be the engine's afterwards
     // The detector's check of a scan found lost came out of the same quota.
     const int64_t checked = result.loss_check ? result.loss_check->lookups : 0;
     RelocalizerStep step =

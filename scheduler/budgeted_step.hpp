@@ -23,6 +23,37 @@ enum class CpuClock { kProcess, kThread };
 /// CPU seconds so far on `clock`.
 double CpuSeconds(CpuClock clock);
 
+/// The background check's options (BudgetedStep::EnableWatch).
+struct WatchConfig {
+  /// Of each scan's quota, spent on the watch's fields and searches.
+  double share = 0.1;
+  /// The watch's relocaliser: as the relocaliser's, but its window never widens (a widened
+  /// window reaches back over a kidnap).
+  RelocalizerConfig relocalizer = [] {
+    RelocalizerConfig c;
+    c.max_window_s = c.window_s;
+    c.max_points = 250;
+    c.search.min_score = 0.6;
+    c.search.unique_ratio = 0.85;
+    return c;
+  }();
+  /// An answer this far from the tracked pose on an axis, or turned this much, is elsewhere.
+  double distinct_m = 0.3;
+  double distinct_deg = 10.0;
+  /// ... and taken only when the tracked pose explains the readings badly (its fine score at
+  /// most this) and the answer far better (by at least `margin`): a multiscan may fit a
+  /// symmetric twin of a room, or a place a few tens of centimetres off, nearly as well as the
+  /// truth, and a false correction breaks a good track.
+  double max_tracked_score = 0.5;
+  double margin = 0.25;
+  /// Searches in a row ending unsure after which the snapshot is renewed (the robot may be
+  /// where the snapshot has not mapped yet).
+  int refresh_after_unsure = 2;
+
+  /// Out-of-range values as JSON pointers; empty when valid.
+  ConfigErrors Validate() const;
+};
+
 class BudgetedStep {
  public:
   /// `engine` and `scheduler` must outlive the step. `choice` gives the set of each quota;
@@ -54,6 +85,32 @@ class BudgetedStep {
   void SetLossDetector(LossDetector* detector);
   bool localize_only() const { return localize_only_; }
 
+  /// The background check, "where else?" (needs the loss detector; off until called). The
+  /// detector only sees readings that contradict the map: a tracker carried by the odometry
+  /// into a part of the map that holds nothing yet (a kidnap's usual aftermath) or onto a
+  /// symmetric twin of the room is never contradicted. So while the engine tracks, a
+  /// relocaliser of the step's own (the watch) searches the whole map for the last seconds'
+  /// readings, anytime, from `config.share` of each scan's quota (reserved from the plan as the
+  /// detector's check is). Its map is a snapshot, never newer than the detector's reference (the
+  /// map some scans ago): readings are searched on a map they did not draw. The tracked pose
+  /// is the search's rival (Relocalizer::SetRival). When its confirmed answer (the
+  /// relocaliser's own checks: unique, confirmed seconds apart) is distinct from the tracked
+  /// pose, and the tracked pose explains the readings badly and the answer far better
+  /// (WatchConfig::max_tracked_score, margin), the tracker was lost: the map goes back to the
+  /// snapshot (what the lost tracker drew since is taken back), the engine is moved to the
+  /// answer, and the scan reports it (Result::watch_relocated). An answer at the tracked pose
+  /// vouches for the map: the next search runs on a snapshot of then. A search that ends unsure
+  /// keeps the snapshot (a kidnap in the middle of a multiscan muddles it; the next one is
+  /// clean) until `config.refresh_after_unsure` did in a row. Experimental: off in slamd, and
+  /// `slam-replay --watch` (docs/accuracy.md has what it finds and where it errs).
+  void EnableWatch(const WatchConfig& config);
+  const Relocalizer* watch() const { return watch_ ? &*watch_ : nullptr; }
+  /// After the engine was moved or its map changed from outside (a pose set by hand): the
+  /// watch starts over on the map of then, with readings from then on.
+  void RestartWatch() {
+    if (watch_) watch_->Cancel();
+  }
+
   struct Result {
     PreparedScan prepared;  // the scan as the engine measured it (refers to the scan)
     ScanReport report;
@@ -72,6 +129,13 @@ class BudgetedStep {
     std::optional<LossCheck> loss_check;
     /// The detector found the tracker lost at this scan: the relocaliser started.
     bool lost = false;
+    /// The watch's step of this scan, when it ran.
+    std::optional<RelocalizerStep> watch;
+    /// The watch found the robot elsewhere than the tracked pose (`watch_from`, this scan's end
+    /// as the engine predicted it): the engine took its answer. Then `relocalization` is that
+    /// step and `relocated` true, as for the relocaliser's answers, and nothing was matched.
+    bool watch_relocated = false;
+    Pose2 watch_from;
   };
   /// Runs one scan; `refine` false maps on the odometry alone (phase B off, nothing matched).
   Result Run(const Scan& scan, bool refine = true);
@@ -89,6 +153,12 @@ class BudgetedStep {
   /// shared): the oldest is what scans are checked against, and what a loss goes back to.
   std::deque<OccupancyGrid> history_;
   int64_t switches_ = 0;
+  /// Starts the watch on `map` (its snapshot).
+  void StartWatch(const OccupancyGrid& map);
+  WatchConfig watch_config_;
+  std::optional<Relocalizer> watch_;
+  std::optional<OccupancyGrid> watch_map_;  // the watch's snapshot
+  int watch_unsure_ = 0;                    // its searches in a row that ended unsure
 };
 
 }  // namespace slam

@@ -276,5 +276,105 @@ TEST(BudgetedStep, AKidnappedTrackerIsFoundLostStopsMappingAndIsReacquiredOnItsM
   EXPECT_GT(run.precision, calm.precision - 0.05);
 }
 
+/// The rooms world with the shipped odometry, the loss detector and the watch, through the
+/// budget; at `jump_s` (0: never) the engine's pose is moved 3 m away and turned, beyond the
+/// rooms: where the map knows nothing, so the readings placed there contradict nothing and the
+/// detector cannot tell (what a kidnap does when the odometry carries the tracker off the map).
+struct WatchRun {
+  int watch_relocations = 0, losses = 0, confirmed = 0;
+  double relocated_t = -1.0;                            // the watch's first relocation
+  double error_after_m = -1.0, error_after_deg = -1.0;  // the engine's, right after it
+  int64_t over_quota_scans = 0;
+  int64_t watch_lookups = 0;
+};
+
+WatchRun RunWatched(double jump_s) {
+  sim::ScenarioConfig config;
+  config.duration_s = 130.0;
+  config.seed = 4;
+  const sim::World world = *sim::BuiltinWorld("rooms");
+  const sim::ScenarioOutput out = sim::RunScenario(world, ShippedRobot(), config);
+  const std::vector<Scan> scans = sim::BuildScans(ShippedRobot(), out.odometry, out.scanner);
+  constexpr int64_t kBudget = 65000;
+  BudgetSettings settings;
+  settings.rays_per_scan = kBudget;
+  RayBudgetScheduler scheduler(settings);
+  const ParamsChoice choice;
+  SlamConfig slam_config;
+  slam_config.parallel = false;
+  slam_config.history_samples = false;
+  Slam engine(ShippedRobot(), choice.For(kBudget).params, slam_config);
+  BudgetedStep step(engine, scheduler, choice, choice.For(kBudget), CpuClock::kThread);
+  Relocalizer relocalizer;
+  LossDetector detector;
+  step.SetRelocalizer(&relocalizer);
+  step.SetLossDetector(&detector);
+  step.EnableWatch(WatchConfig{});
+  const Pose2 origin = *PoseAt(out.ground_truth, scans.front().t_begin);
+  const RigidTransform2 map_to_world{origin.theta, origin.translation()};
+  WatchRun run;
+  bool jumped = false;
+  for (const Scan& scan : scans) {
+    if (jump_s > 0.0 && !jumped && scan.t_begin >= jump_s) {
+      jumped = true;
+      const Pose2 p = engine.Best().pose;
+      EXPECT_TRUE(engine.Relocate(Pose2{p.x + 3.0, p.y - 3.0, p.theta + 1.5}));
+      step.RestartWatch();
+    }
+    const BudgetedStep::Result r = step.Run(scan);
+    const int64_t rays = r.record ? r.record->used_rays : 0;
+    const int64_t lookups =
+        (r.loss_check ? r.loss_check->lookups : 0) +
+        (r.relocalization ? r.relocalization->lookups : (r.watch ? r.watch->lookups : 0));
+    if (rays * kLookupsPerRay + lookups > (kBudget + 64) * kLookupsPerRay) ++run.over_quota_scans;
+    if (r.watch) run.watch_lookups += r.watch->lookups;
+    run.losses += r.lost ? 1 : 0;
+    run.confirmed += r.watch && r.watch->found && !r.watch_relocated ? 1 : 0;
+    if (r.watch_relocated) {
+      EXPECT_TRUE(r.relocated);
+      EXPECT_TRUE(r.relocalization && r.relocalization->found);
+      if (run.watch_relocations++ == 0) {
+        run.relocated_t = scan.t_end;
+        const Pose2 p = engine.Best().pose;
+        const Pose2 truth = *PoseAt(out.ground_truth, scan.t_end);
+        run.error_after_m = (map_to_world.Apply(p.translation()) - truth.translation()).norm();
+        run.error_after_deg =
+            std::abs(RadToDeg(NormalizeAngle(p.theta + map_to_world.rotation_rad - truth.theta)));
+      }
+    }
+  }
+  return run;
+}
+
+TEST(BudgetedStep, TheWatchFindsATrackerCarriedOffTheMapWhereTheDetectorSeesNothing) {
+  const WatchRun calm = RunWatched(0.0);
+  EXPECT_EQ(calm.watch_relocations, 0) << "no correction of a good track";
+  EXPECT_GE(calm.confirmed, 1) << "the watch found the robot where the tracker had it";
+  EXPECT_EQ(calm.over_quota_scans, 0);
+  EXPECT_GT(calm.watch_lookups, 0);
+
+  const WatchRun run = RunWatched(70.0);
+  EXPECT_EQ(run.over_quota_scans, 0);
+  EXPECT_EQ(run.losses, 0) << "the detector cannot see this one";
+  ASSERT_GE(run.watch_relocations, 1);
+  EXPECT_GT(run.relocated_t, 70.0);
+  EXPECT_LT(run.relocated_t, 110.0) << "found within 40 s of driving";
+  EXPECT_LT(run.error_after_m, 0.10);
+  EXPECT_LT(run.error_after_deg, 5.0);
+}
+
+TEST(BudgetedStep, WatchConfigValidates) {
+  EXPECT_TRUE(WatchConfig{}.Validate().empty());
+  WatchConfig bad;
+  bad.share = 0.0;
+  bad.distinct_m = -1.0;
+  bad.distinct_deg = 200.0;
+  bad.max_tracked_score = 1.5;
+  bad.margin = -0.1;
+  bad.refresh_after_unsure = 0;
+  const ConfigErrors errors = bad.Validate();
+  ASSERT_EQ(errors.size(), 6u);
+  EXPECT_EQ(errors.front().pointer, "/share");
+}
 }  // namespace
 }  // namespace slam

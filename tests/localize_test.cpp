@@ -280,6 +280,7 @@ TEST_F(LocalizeTest, SlamReplayLocalisesOnAMapYamlAndOnSlamdsState) {
   EXPECT_EQ(j["losses"], 0);
   EXPECT_TRUE(j["losses_s"].empty());
   EXPECT_TRUE(j["loss_share_max"].is_null());
+  EXPECT_TRUE(j["watch"].is_null());
   const CommandResult detected =
       RunCommand(tool + " --localize " + (root_ / "map" / "map.yaml").string() +
                      " --pose 0,0,0 --drop 20:28 --no-relocalize --detect-loss --out " +
@@ -298,6 +299,19 @@ TEST_F(LocalizeTest, SlamReplayLocalisesOnAMapYamlAndOnSlamdsState) {
                    lost["relocalizations"][0]["started_s"].get<double>());
   EXPECT_GE(lost["loss_share_max"]["share"].get<double>(), LossDetectorConfig{}.lost_share);
   EXPECT_LE(lost["loss_share_max"]["t_s"].get<double>(), lost["losses_s"][0].get<double>() + 2.0);
+  EXPECT_TRUE(lost["watch"].is_null());  // not asked for
+  // The background check, asked for: what it spent and found, in the summary.
+  const CommandResult watched =
+      RunCommand(std::string(SLAM_REPLAY_BIN) + " " + (root_ / "rooms").string() +
+                     " --quiet --detect-loss --watch --out " + (scratch / "watched").string(),
+                 scratch);
+  ASSERT_EQ(watched.status, 0) << watched.err;
+  const Json w = Json::parse(watched.out);
+  ASSERT_TRUE(w["watch"].is_object());
+  EXPECT_GT(w["watch"]["lookups"].get<int64_t>(), 0);
+  EXPECT_GE(w["watch"]["searches_unsure"].get<int64_t>() + w["watch"]["confirmed"].get<int64_t>(),
+            1)
+      << "a search ended";
   // The map written is the map localised on.
   EXPECT_EQ(testing::ReadFile((scratch / "yaml" / "map.pgm").string()),
             testing::ReadFile((root_ / "map" / "map.pgm").string()));
@@ -362,6 +376,7 @@ TEST_F(LocalizeTest, SlamReplaysBadLocalisationOptionsExitWithStatusTwo) {
       {"--localize " + (scratch / "bad.yaml").string(),
        (scratch / "bad.yaml").string() + ":2: resolution: 'x' is not a finite number"},
       {"--localize " + (scratch / "empty").string(), "neither a slamd state directory"},
+      {"--watch", "--watch needs --detect-loss"},
   };
   for (const Case& c : cases) {
     const CommandResult run = RunCommand(tool + " " + c.args, scratch);
@@ -373,8 +388,9 @@ TEST_F(LocalizeTest, SlamReplaysBadLocalisationOptionsExitWithStatusTwo) {
   }
   const CommandResult help = RunCommand(std::string(SLAM_REPLAY_BIN) + " --help", scratch);
   EXPECT_EQ(help.status, 0);
-  for (const char* option : {"--localize", "--pose", "--drop", "--from", "--until",
-                             "--no-relocalize", "--detect-loss", "seconds after the first scan"}) {
+  for (const char* option :
+       {"--localize", "--pose", "--drop", "--from", "--until", "--no-relocalize", "--detect-loss",
+        "--watch", "seconds after the first scan"}) {
     EXPECT_NE(help.out.find(option), std::string::npos) << option;
   }
 }

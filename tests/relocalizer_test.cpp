@@ -35,7 +35,8 @@ struct Drive {
 // carried), each scan's view given to the relocaliser until it answers. With `bad_input`, every
 // scan also brings readings that are not finite or absurdly far, and a scan of odometry that is
 // not finite comes before each.
-Drive DriveInLRoom(bool bad_input) {
+// With `rival_offset`, the relocaliser is given a rival each scan: the truth moved by it.
+Drive DriveInLRoom(bool bad_input, std::optional<Pose2> rival_offset = std::nullopt) {
   const std::vector<Vec2> outline = LRoom();
   Relocalizer relocalizer;
   relocalizer.Start(Draw(outline, 0.01));
@@ -56,6 +57,7 @@ Drive DriveInLRoom(bool bad_input) {
       EXPECT_FALSE(skipped.found);
       points.insert(points.begin(), {Vec2{nan, 0.5}, Vec2{1e300, -1e300}});
     }
+    if (rival_offset) relocalizer.SetRival(Compose(drive.truth, *rival_offset), odom);
     const RelocalizerStep step = relocalizer.Add(points, odom, t, 200'000);
     EXPECT_TRUE(step.searching || step.found);
     EXPECT_LE(step.lookups, 200'000 + 4 * RelocalizerConfig{}.max_points);
@@ -80,6 +82,24 @@ TEST(Relocalizer, FindsARobotDrivingInADrawnRoomAndCarriesItsPoseToTheNewestScan
   EXPECT_GE(found->searches, 4);
   // Slower than one scan: the search was spread over several.
   EXPECT_GT(drive.scans, 3);
+}
+
+TEST(Relocalizer, ARivalIsScoredBesideTheAnswerWhereverItIs) {
+  const Drive plain = DriveInLRoom(false);
+  ASSERT_TRUE(plain.found);
+  EXPECT_EQ(plain.found->rival_score, 0.0);
+  // The rival at the truth: the answer is there, and the rival scores as well as it.
+  const Drive at_truth = DriveInLRoom(false, Pose2{0.0, 0.0, 0.0});
+  ASSERT_TRUE(at_truth.found);
+  EXPECT_LT((at_truth.found->pose.translation() - at_truth.truth.translation()).norm(), 0.03);
+  EXPECT_GE(at_truth.found->rival_score, RelocalizerConfig{}.accept_score);
+  // The rival turned and moved away (where a lost tracker would be): the answer is still the
+  // truth, and the rival's score says the readings do not fit there.
+  const Drive away = DriveInLRoom(false, Pose2{3.0, -3.0, 1.5});
+  ASSERT_TRUE(away.found);
+  EXPECT_LT((away.found->pose.translation() - away.truth.translation()).norm(), 0.03);
+  EXPECT_LT(away.found->rival_score, 0.5);
+  EXPECT_GT(away.found->score, away.found->rival_score + 0.3);
 }
 
 TEST(Relocalizer, ReadingsAndOdometryThatAreNotFiniteAreSkipped) {

@@ -103,6 +103,7 @@ struct ReplayConfig {
   double from_s = 0.0, until_s = 0.0;
   bool no_relocalize = false;
   bool detect_loss = false;
+  bool watch = false;
 };
 
 constexpr char kTimeBase[] =
@@ -178,6 +179,11 @@ void AddOptions(CLI::App& app, ReplayConfig& c) {
   app.add_flag("--detect-loss", c.detect_loss,
                "check each scan tracked against the map (engine/loss_detector.hpp, as slamd "
                "does): a loss takes back what the lost tracker mapped and relocalises");
+  app.add_flag("--watch", c.watch,
+               "with --detect-loss, also search the whole map for the last seconds' readings in "
+               "the background from a tenth of each scan's rays (experimental, off in slamd): "
+               "an answer that explains them far better than the tracked pose moves the SLAM "
+               "there");
   app.add_option(
          "--from", c.from_s,
          std::string("replay only the scans that begin at or after this time, ") + kTimeBase)
@@ -257,7 +263,9 @@ std::optional<int> StretchOptions(const ReplayConfig& c, const CLI::App& app,
     options.drop.push_back({(*v)[0], (*v)[1]});
   }
   options.relocalize_after_drop = !c.no_relocalize;
+  if (c.watch && !c.detect_loss) return Usage("--watch needs --detect-loss");
   if (c.detect_loss) options.loss_detector = slam::LossDetectorConfig{};
+  if (c.watch) options.watch = slam::WatchConfig{};
   return std::nullopt;
 }
 
