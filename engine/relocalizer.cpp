@@ -103,14 +103,19 @@ GlobalRegion Around(const Pose2& pose, double half_width_m, double half_angle_de
 
 }  // namespace
 
+GlobalMatch Relocalizer::RivalAtQuery() const {
+  GlobalMatch rival;
+  rival.pose = Compose(rival_->pose, Between(rival_->odom, query_odom_));
+  return rival;
+}
+
 void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep& step) {
   const std::optional<GlobalMatch> best = search_->best();
   switch (stage_) {
     case Stage::kCoarse:
       candidates_ = search_->candidates();
       if (rival_) {  // checked too, unless a candidate stands for it
-        GlobalMatch rival;
-        rival.pose = Compose(rival_->pose, Between(rival_->odom, query_odom_));
+        const GlobalMatch rival = RivalAtQuery();
         if (std::all_of(candidates_.begin(), candidates_.end(),
                         [&](const GlobalMatch& c) { return Distinct(c, rival, config_.search); })) {
           candidates_.push_back(rival);
@@ -163,8 +168,7 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
       // The next distinct candidate's fine score: how far the answer stood out.
       runner_up_ = 0.0;
       rival_score_ = 0.0;
-      GlobalMatch rival;
-      if (rival_) rival.pose = Compose(rival_->pose, Between(rival_->odom, query_odom_));
+      const GlobalMatch rival = rival_ ? RivalAtQuery() : GlobalMatch{};
       for (const GlobalMatch& other : checked_) {
         if (Distinct(other, *answer, config_.search))
           runner_up_ = std::max(runner_up_, other.score);

@@ -141,6 +141,8 @@ class Relocalizer {
   void EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep& step);
   /// The checks ended: the unique fine answer, if any.
   std::optional<GlobalMatch> Decide() const;
+  /// The rival (SetRival) carried by the odometry to the time of the query; call with one set.
+  GlobalMatch RivalAtQuery() const;
 
   /// Spends on the fields' builds; returns whether both are done.
   bool Build(int64_t max_lookups, RelocalizerStep& step);

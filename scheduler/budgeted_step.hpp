@@ -103,8 +103,8 @@ class BudgetedStep {
   /// keeps the snapshot (a kidnap in the middle of a multiscan muddles it; the next one is
   /// clean) until `config.refresh_after_unsure` did in a row. Experimental: off in slamd, and
   /// `slam-replay --watch` (docs/accuracy.md has what it finds and where it errs).
+  /// Precondition: config.Validate() is empty.
   void EnableWatch(const WatchConfig& config);
-  const Relocalizer* watch() const { return watch_ ? &*watch_ : nullptr; }
   /// After the engine was moved or its map changed from outside (a pose set by hand): the
   /// watch starts over on the map of then, with readings from then on.
   void RestartWatch() {

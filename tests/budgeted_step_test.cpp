@@ -7,6 +7,8 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <tuple>
+#include <utility>
 
 #include "engine/loss_detector.hpp"
 #include "engine/quality.hpp"
@@ -192,6 +194,66 @@ TEST(BudgetedStep, LocalisingOnlyTracksOnTheMapAndNeverChangesACell) {
   EXPECT_LT(std::abs(NormalizeAngle(here.theta - there.theta)), DegToRad(2.0));
 }
 
+/// A run of the rooms world simulated with `config`, stepped through `budget` by a serial engine
+/// with the loss detector and the relocaliser; the truth to compare with.
+struct RoomsThroughTheBudget {
+  RoomsThroughTheBudget(const sim::ScenarioConfig& config, int64_t budget_rays)
+      : budget(budget_rays),
+        world(*sim::BuiltinWorld("rooms")),
+        out(sim::RunScenario(world, ShippedRobot(), config)),
+        scans(sim::BuildScans(ShippedRobot(), out.odometry, out.scanner)),
+        scheduler([&] {
+          BudgetSettings settings;
+          settings.rays_per_scan = budget;
+          return settings;
+        }()),
+        engine(ShippedRobot(), choice.For(budget).params,
+               [] {
+                 SlamConfig c;
+                 c.parallel = false;
+                 c.history_samples = false;
+                 return c;
+               }()),
+        step(engine, scheduler, choice, choice.For(budget), CpuClock::kThread) {
+    step.SetRelocalizer(&relocalizer);
+    step.SetLossDetector(&detector);
+    const Pose2 origin = *PoseAt(out.ground_truth, scans.front().t_begin);
+    map_to_world = {origin.theta, origin.translation()};
+  }
+
+  /// Whether the scan spent more than its quota (rays and the searches' lookups); a search's
+  /// last node may run past its share by one expansion (GlobalSearch::Continue).
+  bool OverQuota(const BudgetedStep::Result& r) const {
+    const int64_t rays = r.record ? r.record->used_rays : 0;
+    const int64_t lookups =
+        (r.loss_check ? r.loss_check->lookups : 0) +
+        (r.relocalization ? r.relocalization->lookups : (r.watch ? r.watch->lookups : 0));
+    return rays * kLookupsPerRay + lookups > (budget + 64) * kLookupsPerRay;
+  }
+  /// How far the engine's pose is from the truth at `t`: metres, degrees.
+  std::pair<double, double> Error(double t) const {
+    const Pose2 p = engine.Best().pose;
+    const Pose2 truth = *PoseAt(out.ground_truth, t);
+    return {(map_to_world.Apply(p.translation()) - truth.translation()).norm(),
+            std::abs(RadToDeg(NormalizeAngle(p.theta + map_to_world.rotation_rad - truth.theta)))};
+  }
+  double Precision() const {
+    return sim::EvaluateMap(engine.Best().map, map_to_world, world, out.ground_truth).precision;
+  }
+
+  const int64_t budget;
+  const sim::World world;
+  const sim::ScenarioOutput out;
+  const std::vector<Scan> scans;
+  RayBudgetScheduler scheduler;
+  const ParamsChoice choice;
+  Slam engine;
+  BudgetedStep step;
+  Relocalizer relocalizer;
+  LossDetector detector;
+  RigidTransform2 map_to_world;
+};
+
 /// A run of the rooms world with a tracked robot's odometry, kidnapped at `kidnap_s` (0: not)
 /// to where it was at half that time, through the budget with the loss detector and the
 /// relocaliser: what happened, against the ground truth.
@@ -209,54 +271,28 @@ KidnapRun RunKidnapped(double kidnap_s, uint64_t seed) {
   config.duration_s = 160.0;
   config.seed = seed;
   if (kidnap_s > 0.0) config.kidnap_t_s = kidnap_s;
-  const sim::World world = *sim::BuiltinWorld("rooms");
-  const sim::ScenarioOutput out = sim::RunScenario(world, ShippedRobot(), config);
-  const std::vector<Scan> scans = sim::BuildScans(ShippedRobot(), out.odometry, out.scanner);
-  constexpr int64_t kBudget = 16250;
-  BudgetSettings settings;
-  settings.rays_per_scan = kBudget;
-  RayBudgetScheduler scheduler(settings);
-  const ParamsChoice choice;
-  SlamConfig slam_config;
-  slam_config.parallel = false;
-  slam_config.history_samples = false;
-  Slam engine(ShippedRobot(), choice.For(kBudget).params, slam_config);
-  BudgetedStep step(engine, scheduler, choice, choice.For(kBudget), CpuClock::kThread);
-  Relocalizer relocalizer;
-  LossDetector detector;
-  step.SetRelocalizer(&relocalizer);
-  step.SetLossDetector(&detector);
-  const Pose2 origin = *PoseAt(out.ground_truth, scans.front().t_begin);
-  const RigidTransform2 map_to_world{origin.theta, origin.translation()};
+  RoomsThroughTheBudget rig(config, 16250);
   KidnapRun run;
   uint64_t version = 0;
-  for (const Scan& scan : scans) {
-    const BudgetedStep::Result r = step.Run(scan);
-    const int64_t rays = r.record ? r.record->used_rays : 0;
-    const int64_t lookups = (r.loss_check ? r.loss_check->lookups : 0) +
-                            (r.relocalization ? r.relocalization->lookups : 0);
-    // A search's last node may run past its share by one expansion (GlobalSearch::Continue).
-    if (rays * kLookupsPerRay + lookups > (kBudget + 64) * kLookupsPerRay) ++run.over_quota_scans;
+  for (const Scan& scan : rig.scans) {
+    const BudgetedStep::Result r = rig.step.Run(scan);
+    if (rig.OverQuota(r)) ++run.over_quota_scans;
     if (r.lost) {
       ++run.losses;
       if (run.lost_t < 0) run.lost_t = scan.t_end;
-      version = engine.Best().map.Version();
+      version = rig.engine.Best().map.Version();
     }
-    if (r.relocalization && !r.relocated && engine.Best().map.Version() != version) {
+    if (r.relocalization && !r.relocated && rig.engine.Best().map.Version() != version) {
       run.mapped_while_lost = true;
     }
     if (r.relocated && run.relocated_t < 0) run.relocated_t = scan.t_end;
-    const std::optional<Pose2> truth = PoseAt(out.ground_truth, scan.t_end);
-    if (kidnap_s > 0 && scan.t_end > kidnap_s && run.reacquired_t < 0 && r.record && truth) {
-      const Pose2 p = engine.Best().pose;
-      const double error_m = (map_to_world.Apply(p.translation()) - truth->translation()).norm();
-      const double error_deg =
-          std::abs(RadToDeg(NormalizeAngle(p.theta + map_to_world.rotation_rad - truth->theta)));
+    if (kidnap_s > 0 && scan.t_end > kidnap_s && run.reacquired_t < 0 && r.record &&
+        PoseAt(rig.out.ground_truth, scan.t_end)) {
+      const auto [error_m, error_deg] = rig.Error(scan.t_end);
       if (error_m < 0.05 && error_deg < 3.0) run.reacquired_t = scan.t_end;
     }
   }
-  run.precision =
-      sim::EvaluateMap(engine.Best().map, map_to_world, world, out.ground_truth).precision;
+  run.precision = rig.Precision();
   return run;
 }
 
@@ -292,41 +328,19 @@ WatchRun RunWatched(double jump_s) {
   sim::ScenarioConfig config;
   config.duration_s = 130.0;
   config.seed = 4;
-  const sim::World world = *sim::BuiltinWorld("rooms");
-  const sim::ScenarioOutput out = sim::RunScenario(world, ShippedRobot(), config);
-  const std::vector<Scan> scans = sim::BuildScans(ShippedRobot(), out.odometry, out.scanner);
-  constexpr int64_t kBudget = 65000;
-  BudgetSettings settings;
-  settings.rays_per_scan = kBudget;
-  RayBudgetScheduler scheduler(settings);
-  const ParamsChoice choice;
-  SlamConfig slam_config;
-  slam_config.parallel = false;
-  slam_config.history_samples = false;
-  Slam engine(ShippedRobot(), choice.For(kBudget).params, slam_config);
-  BudgetedStep step(engine, scheduler, choice, choice.For(kBudget), CpuClock::kThread);
-  Relocalizer relocalizer;
-  LossDetector detector;
-  step.SetRelocalizer(&relocalizer);
-  step.SetLossDetector(&detector);
-  step.EnableWatch(WatchConfig{});
-  const Pose2 origin = *PoseAt(out.ground_truth, scans.front().t_begin);
-  const RigidTransform2 map_to_world{origin.theta, origin.translation()};
+  RoomsThroughTheBudget rig(config, 65000);
+  rig.step.EnableWatch(WatchConfig{});
   WatchRun run;
   bool jumped = false;
-  for (const Scan& scan : scans) {
+  for (const Scan& scan : rig.scans) {
     if (jump_s > 0.0 && !jumped && scan.t_begin >= jump_s) {
       jumped = true;
-      const Pose2 p = engine.Best().pose;
-      EXPECT_TRUE(engine.Relocate(Pose2{p.x + 3.0, p.y - 3.0, p.theta + 1.5}));
-      step.RestartWatch();
+      const Pose2 p = rig.engine.Best().pose;
+      EXPECT_TRUE(rig.engine.Relocate(Pose2{p.x + 3.0, p.y - 3.0, p.theta + 1.5}));
+      rig.step.RestartWatch();
     }
-    const BudgetedStep::Result r = step.Run(scan);
-    const int64_t rays = r.record ? r.record->used_rays : 0;
-    const int64_t lookups =
-        (r.loss_check ? r.loss_check->lookups : 0) +
-        (r.relocalization ? r.relocalization->lookups : (r.watch ? r.watch->lookups : 0));
-    if (rays * kLookupsPerRay + lookups > (kBudget + 64) * kLookupsPerRay) ++run.over_quota_scans;
+    const BudgetedStep::Result r = rig.step.Run(scan);
+    if (rig.OverQuota(r)) ++run.over_quota_scans;
     if (r.watch) run.watch_lookups += r.watch->lookups;
     run.losses += r.lost ? 1 : 0;
     run.confirmed += r.watch && r.watch->found && !r.watch_relocated ? 1 : 0;
@@ -335,11 +349,7 @@ WatchRun RunWatched(double jump_s) {
       EXPECT_TRUE(r.relocalization && r.relocalization->found);
       if (run.watch_relocations++ == 0) {
         run.relocated_t = scan.t_end;
-        const Pose2 p = engine.Best().pose;
-        const Pose2 truth = *PoseAt(out.ground_truth, scan.t_end);
-        run.error_after_m = (map_to_world.Apply(p.translation()) - truth.translation()).norm();
-        run.error_after_deg =
-            std::abs(RadToDeg(NormalizeAngle(p.theta + map_to_world.rotation_rad - truth.theta)));
+        std::tie(run.error_after_m, run.error_after_deg) = rig.Error(scan.t_end);
       }
     }
   }
