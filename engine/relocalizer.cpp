@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <utility>
 
 namespace slam {
@@ -23,6 +24,7 @@ void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region,
   region_ = region;
   region_odom_ = region.whole_map ? std::nullopt : region_odom;
   rival_.reset();
+  leader_.reset();
   entries_.clear();
   search_.reset();
   pending_.reset();
@@ -33,6 +35,7 @@ void Relocalizer::Start(const OccupancyGrid& map, const GlobalRegion& region,
 
 void Relocalizer::Cancel() {
   pending_.reset();
+  leader_.reset();
   build_.reset();
   fine_build_.reset();
   field_.reset();
@@ -41,9 +44,10 @@ void Relocalizer::Cancel() {
   search_.reset();
 }
 
-std::vector<Vec2> Relocalizer::Query() const {
+std::vector<Vec2> Relocalizer::Query(double window_s) const {
+  const double since = entries_.back().t - window_s;
   size_t total = 0;
-  for (const Entry& e : entries_) total += e.points.size();
+  for (const Entry& e : entries_) total += e.t >= since ? e.points.size() : 0;
   const Pose2& newest = entries_.back().odom;
   const size_t keep = std::min(total, static_cast<size_t>(config_.max_points));
   std::vector<Vec2> query;
@@ -52,6 +56,7 @@ std::vector<Vec2> Relocalizer::Query() const {
   // starts a new share of total / keep.
   size_t k = 0;
   for (const Entry& e : entries_) {
+    if (e.t < since) continue;
     const Pose2 to_newest = Between(newest, e.odom);
     for (const Vec2& p : e.points) {
       if ((k * keep) / total != ((k + 1) * keep) / total) query.push_back(to_newest.Transform(p));
@@ -87,6 +92,31 @@ std::optional<GlobalMatch> Relocalizer::Decide() const {
     }
   }
   return *best;
+}
+
+std::optional<GlobalMatch> Relocalizer::Lead() {
+  const auto best =
+      std::max_element(checked_.begin(), checked_.end(),
+                       [](const GlobalMatch& a, const GlobalMatch& b) { return a.raw < b.raw; });
+  if (best == checked_.end() || best->score < config_.accept_score) {
+    leader_.reset();
+    return std::nullopt;
+  }
+  double other = 0.0;
+  for (const GlobalMatch& c : checked_) {
+    if (Distinct(c, *best, config_.search)) other = std::max(other, c.score);
+  }
+  GlobalMatch carried;
+  if (leader_) carried.pose = Compose(leader_->pose, Between(leader_->odom, query_odom_));
+  if (!leader_ || Distinct(carried, *best, config_.search)) leader_ = Leader{};
+  leader_->pose = best->pose;
+  leader_->odom = query_odom_;
+  ++leader_->searches;
+  leader_->lead += best->score - other;
+  if (leader_->searches >= config_.lead_searches && leader_->lead >= config_.lead_sum) {
+    return *best;
+  }
+  return std::nullopt;
 }
 
 namespace {
@@ -154,6 +184,7 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
       candidates_.clear();  // not confirmed: start over
       checked_.clear();
       pending_.reset();
+      leader_.reset();
       break;
   }
   if (stage_ != Stage::kConfirm && checked_.size() < candidates_.size()) {
@@ -164,7 +195,13 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
     return;
   }
   if (stage_ == Stage::kCheck) {
-    if (const std::optional<GlobalMatch> answer = Decide()) {
+    std::optional<GlobalMatch> answer = Decide();
+    if (answer) {
+      leader_.reset();
+    } else {
+      answer = Lead();
+    }
+    if (answer) {
       // The next distinct candidate's fine score: how far the answer stood out.
       runner_up_ = 0.0;
       rival_score_ = 0.0;
@@ -176,7 +213,7 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
           rival_score_ = std::max(rival_score_, other.score);
       }
       // Carried to the newest scan and confirmed there with the newest multiscan.
-      StartSearch(Stage::kConfirm, Query(), odom_end,
+      StartSearch(Stage::kConfirm, Query(config_.window_s), odom_end,
                   Around(Compose(answer->pose, Between(query_odom_, odom_end)),
                          config_.confirm_half_width_m, config_.confirm_half_angle_deg));
       return;
@@ -239,7 +276,7 @@ RelocalizerStep Relocalizer::Add(const std::vector<Vec2>& points, const Pose2& o
     if (t_end < pending_due_t_) return step;
     const Pose2 carried = Compose(*pending_, Between(pending_odom_, odom_end));
     pending_.reset();
-    StartSearch(Stage::kConfirm, Query(), odom_end,
+    StartSearch(Stage::kConfirm, Query(config_.window_s), odom_end,
                 Around(carried, config_.confirm_half_width_m, config_.confirm_half_angle_deg));
   }
   if (!search_) {
@@ -253,7 +290,7 @@ RelocalizerStep Relocalizer::Add(const std::vector<Vec2>& points, const Pose2& o
       region.center = carried.translation();
       region.heading = carried.theta;
     }
-    StartSearch(Stage::kCoarse, Query(), odom_end, region);
+    StartSearch(Stage::kCoarse, Query(std::numeric_limits<double>::infinity()), odom_end, region);
   }
   // The confirming search starts where the global one ends, on the same share.
   while (search_ && step.lookups < max_lookups) {

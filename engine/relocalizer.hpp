@@ -54,6 +54,13 @@ struct RelocalizerConfig {
   double check_half_angle_deg = 5.0;
   double accept_score = 0.8;    // a fine score at least this
   double unique_margin = 0.05;  // ... and no distinct candidate's fine score within this of it
+  /// ... or, where twins of a place score nearly alike (rooms alike, a corridor), the same
+  /// place (carried by the odometry from search to search) the best of at least
+  /// `lead_searches` checks in a row, each scoring at least accept_score, its leads over the
+  /// best distinct candidate adding up to `lead_sum`: evidence gathered as the robot drives
+  /// (the multiscans overlap, so the sum asks for more than one search's margin).
+  int lead_searches = 3;
+  double lead_sum = 0.1;
   double confirm_half_width_m = 0.3;
   double confirm_half_angle_deg = 8.0;
   /// Confirmations wanted, each `confirm_spacing_s` after the last with the multiscan of
@@ -131,8 +138,9 @@ class Relocalizer {
     Pose2 odom;
     std::vector<Vec2> points;
   };
-  /// The multiscan in the newest scan's frame, at most max_points readings.
-  std::vector<Vec2> Query() const;
+  /// The multiscan in the newest scan's frame, at most max_points readings, of the scans at
+  /// most `window_s` older than the newest.
+  std::vector<Vec2> Query(double window_s) const;
   enum class Stage { kCoarse, kCheck, kConfirm };
   /// Starts a search of `query` (taken at odometry `odom`) over `region`.
   void StartSearch(Stage stage, std::vector<Vec2> query, const Pose2& odom,
@@ -141,6 +149,9 @@ class Relocalizer {
   void EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep& step);
   /// The checks ended: the unique fine answer, if any.
   std::optional<GlobalMatch> Decide() const;
+  /// The checks ended without a unique answer: the place that led them goes on leading (or a
+  /// new lead starts); the place, once it led as RelocalizerConfig::lead_searches asks.
+  std::optional<GlobalMatch> Lead();
   /// The rival (SetRival) carried by the odometry to the time of the query; call with one set.
   GlobalMatch RivalAtQuery() const;
 
@@ -157,6 +168,12 @@ class Relocalizer {
     Pose2 pose, odom;
   };
   std::optional<Rival> rival_;
+  struct Leader {
+    Pose2 pose, odom;   // the leading place, where the odometry read `odom`
+    int searches = 0;   // checks in a row it led
+    double lead = 0.0;  // its leads over the best distinct candidate, summed
+  };
+  std::optional<Leader> leader_;
   std::deque<Entry> entries_;
   std::unique_ptr<GlobalSearch> search_;
   Stage stage_ = Stage::kCoarse;         // search_'s
