@@ -223,8 +223,24 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
   ++rejected_;
   std::sort(checked_.begin(), checked_.end(),
             [](const GlobalMatch& a, const GlobalMatch& b) { return a.raw > b.raw; });
-  step.rejected_best = checked_.empty() ? best : std::optional<GlobalMatch>(checked_.front());
-  step.rejected_runner_up = checked_.size() > 1 ? checked_[1].score : 0.0;
+  // Each place once (the better of two checks that found the same place), carried to now.
+  const Pose2 to_now = Between(query_odom_, odom_end);
+  step.rejected_candidates.clear();
+  for (const GlobalMatch& c : checked_) {
+    if (std::all_of(step.rejected_candidates.begin(), step.rejected_candidates.end(),
+                    [&](const GlobalMatch& kept) { return Distinct(kept, c, config_.search); })) {
+      step.rejected_candidates.push_back(c);
+    }
+  }
+  for (GlobalMatch& c : step.rejected_candidates) c.pose = Compose(c.pose, to_now);
+  if (step.rejected_candidates.empty()) {
+    step.rejected_best = best;
+    if (step.rejected_best) step.rejected_best->pose = Compose(step.rejected_best->pose, to_now);
+  } else {
+    step.rejected_best = step.rejected_candidates.front();
+  }
+  step.rejected_runner_up =
+      step.rejected_candidates.size() > 1 ? step.rejected_candidates[1].score : 0.0;
   search_.reset();
 }
 

@@ -88,9 +88,13 @@ struct RelocalizerStep {
   bool searching = false;
   std::optional<Relocalization> found;
   /// A search ended without an answer taken: the best candidate's fine check (the coarse
-  /// best when none was checked) and the next distinct one's fine score (0: none), for logs.
+  /// best when none was checked) and the next distinct one's fine score (0: none), for logs;
+  /// the pose carried by the odometry to the end of the step's scan.
   std::optional<GlobalMatch> rejected_best;
   double rejected_runner_up = 0.0;
+  /// ... and every distinct place the checks scored, best first (rejected_best among them),
+  /// carried likewise: where the robot may be (none when nothing was checked).
+  std::vector<GlobalMatch> rejected_candidates;
 };
 
 class Relocalizer {

@@ -231,9 +231,17 @@ json RecordJson(const RelocalizationRecord& r) {
 }  // namespace
 
 json RelocalizationJson(const SlamSnapshot& s) {
+  json places = json::array();
+  for (const GlobalMatch& p : s.relocalization_places) {
+    places.push_back(
+        {{"x", p.pose.x}, {"y", p.pose.y}, {"theta", p.pose.theta}, {"score", p.score}});
+  }
   return {{"active", s.relocalizing.has_value()},
           {"cause", s.relocalizing ? json(ToString(*s.relocalizing)) : json(nullptr)},
-          {"last", s.last_relocalization ? RecordJson(*s.last_relocalization) : json(nullptr)}};
+          {"last", s.last_relocalization ? RecordJson(*s.last_relocalization) : json(nullptr)},
+          {"places", std::move(places)},
+          {"places_t",
+           s.relocalization_places.empty() ? json(nullptr) : json(s.relocalization_places_t)}};
 }
 
 json MetricsEventJson(const SlamSnapshot& s) {

@@ -242,6 +242,7 @@ void SlamService::BuildEngine() {
 void SlamService::StartRelocalizing(RelocalizationCause cause, const GlobalRegion& region) {
   relocalizer_.Start(engine_->Best().map, region, last_odom_);
   relocalizing_ = cause;
+  places_.clear();
   relocalizing_since_t_ = -1.0;
   relocalizing_scans_ = 0;
   MutexLock lock(mutex_);
@@ -541,8 +542,10 @@ void SlamService::ProcessScan(const Scan& scan, int64_t receive_ns) {
   FollowPeriod(period);
   const BudgetedStep::Result step = step_->Run(scan);
   last_odom_ = scan.odom_end;
+  last_t_end_ = scan.t_end;
   if (step.lost) {
     relocalizing_ = RelocalizationCause::kLost;
+    places_.clear();
     relocalizing_since_t_ = -1.0;
     relocalizing_scans_ = 0;
     {
@@ -683,6 +686,10 @@ void SlamService::ProcessRelocalizingScan(const BudgetedStep::Result& step, cons
   if (relocalizing_since_t_ < 0.0) relocalizing_since_t_ = scan.t_begin;
   ++relocalizing_scans_;
   const RelocalizationCause cause = relocalizing_.value_or(RelocalizationCause::kRequest);
+  if (r.rejected_best) {
+    places_ = r.rejected_candidates;
+    places_odom_ = scan.odom_end;
+  }
   if (r.found && step.relocated) {
     RelocalizationRecord record;
     record.cause = cause;
@@ -762,6 +769,12 @@ void SlamService::Publish(const std::optional<ScanMetrics>& metrics) {
   s->last = metrics;
   s->relocalizing = relocalizing_;
   s->last_relocalization = last_relocalization_;
+  if (!relocalizing_) places_.clear();
+  for (GlobalMatch place : places_) {
+    if (last_odom_) place.pose = Compose(place.pose, Between(places_odom_, *last_odom_));
+    s->relocalization_places.push_back(place);
+  }
+  if (!places_.empty()) s->relocalization_places_t = last_t_end_ + time_offset_s_;
   if (world_to_map_ && s->has_pose) {
     if (const auto truth = PoseAt(truth_world_, s->pose.t - time_offset_s_)) {
       const Vec2 p = world_to_map_->Apply(truth->translation());

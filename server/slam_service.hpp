@@ -126,6 +126,11 @@ struct SlamSnapshot {
   /// map is not changed): why.
   std::optional<RelocalizationCause> relocalizing;
   std::optional<RelocalizationRecord> last_relocalization;
+  /// While relocalising, after a search that ended unsure: the distinct places it scored, best
+  /// first, carried by the odometry to the latest scan (RelocalizerStep::rejected_candidates):
+  /// where the robot may be. Empty otherwise.
+  std::vector<GlobalMatch> relocalization_places;
+  double relocalization_places_t = 0.0;  // robot time (as `pose.t`) of the scan they are at
 
   /// Tile version as reported (0 for a missing tile).
   uint64_t ReportedVersion(const Tile& tile) const { return version_base + tile.version; }
@@ -363,6 +368,10 @@ class SlamService {
   int relocalizing_scans_ = 0;
   std::optional<RelocalizationRecord> last_relocalization_;
   std::optional<Pose2> last_odom_;  // the latest scan's odometry at its end
+  double last_t_end_ = 0.0;         // ... and its end (engine time)
+  std::vector<GlobalMatch>
+      places_;  // the last unsure search's, where the odometry read places_odom_
+  Pose2 places_odom_;
 
   // Shared with readers.
   mutable Mutex mutex_;

@@ -207,5 +207,38 @@ TEST_F(ResumeTest, AResumedMapTakenFromAWrongPoseIsFoundLostAndStaysOneMap) {
   EXPECT_LT(run.heading_error_deg, 3.0);
 }
 
+TEST(ResumeInAStudio, WhileUnsureThePlacesTheRobotMayBeAreReportedTheTruthAmongThem) {
+  // The studio is square with its furniture in the middle: turned by 90 degrees it looks much
+  // the same, and the relocaliser stays unsure. The snapshot (status and the relocalization
+  // event) carries the places its last search scored, best first, carried to the latest scan:
+  // the robot is at one of them (the last search's multiscan, 30 s of a drifting odometry,
+  // places it to some centimetres).
+  const sim::World world = *sim::BuiltinWorld("studio");
+  const TempDir dir("relocalization_studio");
+  const FirstRun first = MapFirstRun(world, 1, dir);
+  ASSERT_GT(first.precision, 0.8) << "precondition: the first run mapped well";
+  const SecondRun run = ResumeOn(world, 1, first, std::nullopt);
+  ASSERT_TRUE(run.last->relocalizing) << "precondition: still unsure at the end";
+  EXPECT_GT(run.counters.relocalization_searches_unsure, 0);
+  const std::vector<GlobalMatch>& places = run.last->relocalization_places;
+  ASSERT_GE(places.size(), 2u);
+  for (size_t i = 1; i < places.size(); ++i) EXPECT_LE(places[i].score, places[i - 1].score);
+  const std::optional<Pose2> truth =
+      PoseAt(run.truth, run.last->relocalization_places_t - run.last->time_offset_s);
+  ASSERT_TRUE(truth);
+  double nearest_m = 1e9, its_heading_deg = 0.0;
+  for (const GlobalMatch& p : places) {
+    const double d = (first.map_to_world.Apply(p.pose.translation()) - truth->translation()).norm();
+    if (d < nearest_m) {
+      nearest_m = d;
+      its_heading_deg = std::abs(
+          RadToDeg(NormalizeAngle(p.pose.theta + first.map_to_world.rotation_rad - truth->theta)));
+    }
+  }
+  // Nearer than two distinct places ever are (GlobalSearchConfig::distinct_m): this place.
+  EXPECT_LT(nearest_m, 0.25);
+  EXPECT_LT(its_heading_deg, 5.0);
+}
+
 }  // namespace
 }  // namespace slam::server

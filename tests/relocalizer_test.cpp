@@ -161,6 +161,29 @@ TEST(Relocalizer, AnAmbiguousSearchIsNotTakenAndAnInactiveOneDoesNothing) {
   EXPECT_TRUE(relocalizer.active());
 }
 
+// The places an unsure search reports in the twin rooms (robot at (1, 0.7, 0)): both rooms,
+// best first, each place once.
+void ExpectEveryPlaceOnceBestFirstInBothRooms(const RelocalizerStep& step,
+                                              const RelocalizerConfig& config) {
+  const std::vector<GlobalMatch>& places = step.rejected_candidates;
+  ASSERT_GE(places.size(), 2u);
+  ASSERT_TRUE(step.rejected_best);
+  EXPECT_EQ(places[0].pose.x, step.rejected_best->pose.x);
+  EXPECT_EQ(places[1].score, step.rejected_runner_up);
+  for (size_t i = 1; i < places.size(); ++i) {
+    EXPECT_LE(places[i].score, places[i - 1].score);
+    for (size_t j = 0; j < i; ++j) EXPECT_TRUE(Distinct(places[i], places[j], config.search));
+  }
+  for (const double x : {1.0, 4.0}) {
+    EXPECT_TRUE(std::any_of(places.begin(), places.end(),
+                            [&](const GlobalMatch& p) {
+                              return (p.pose.translation() - Vec2{x, 0.7}).norm() < 0.05 &&
+                                     std::abs(NormalizeAngle(p.pose.theta)) < DegToRad(3.0);
+                            }))
+        << "no place in the room at x = " << x;
+  }
+}
+
 TEST(Relocalizer, APlaceThatLeadsItsTwinSearchAfterSearchIsTakenAnExactTwinNever) {
   // The robot stands in the first room, whose short wall is 20 cm long; the second room's is
   // 12 cm: 4 of the 10 readings of the wall miss there. Each search finds both rooms, the first
@@ -178,6 +201,7 @@ TEST(Relocalizer, APlaceThatLeadsItsTwinSearchAfterSearchIsTakenAnExactTwinNever
         EXPECT_TRUE(step.rejected_best);
         EXPECT_GT(step.rejected_runner_up, step.rejected_best->score - config.unique_margin);
         EXPECT_LE(step.rejected_runner_up, step.rejected_best->score);
+        ExpectEveryPlaceOnceBestFirstInBothRooms(step, config);
       }
       drive.found = step.found;
     }

@@ -1549,6 +1549,10 @@ TEST_F(LocalizationSlamd, ARelocalisationRequestedMapsNothingPaysFromTheQuotaAnd
   const auto running = After(10.0);
   while (status()["state"] != "running" && Clock::now() < running) Nap();
   EXPECT_EQ(status()["state"], "running");
+  // No search under way: no places where the robot may be.
+  const json done = status()["relocalization"]["state"];
+  EXPECT_EQ(done["places"], json::array()) << done.dump();
+  EXPECT_TRUE(done["places_t"].is_null()) << done.dump();
   const size_t before = GetJson(http(), "/api/v1/trajectory")["slam"].size();
   WaitForTrajectory(http(), before + 2);
   const auto samples = GetMetrics(http());
