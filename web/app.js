@@ -182,8 +182,34 @@ function showRelocalization(state, counts) {
                  `${number(counts.scans)}`);
   }
   element.title = details.join('\n');
-  if (state) showLocalized(!state.active);
+  if (state) {
+    showLocalized(!state.active);
+    showPlaces(state.active ? state.places ?? [] : []);
+  }
   relocalizationSeen(state);
+}
+
+/** Where the robot may be while slamd is unsure: on the map and listed, each a hint to send. */
+function showPlaces(places) {
+  map.setPlaces(places);
+  $('reloc-places').hidden = places.length === 0;
+  $('legend-places').hidden = places.length === 0;
+  $('reloc-places-list').replaceChildren(...places.map((place, i) => {
+    const item = document.createElement('li');
+    const heading = place.theta * 180 / Math.PI;
+    item.append(`x ${fixed(place.x, 2)} m, y ${fixed(place.y, 2)} m, heading ` +
+                `${fixed(heading, 0)}°, score ${fixed(place.score, 2)} `);
+    const button = document.createElement('button');
+    button.type = 'button';
+    button.className = 'secondary small';
+    button.dataset.place = String(i + 1);
+    button.textContent = 'Search here';
+    button.title = 'Let slamd search around this place (±0.3 m, ±15°)';
+    button.addEventListener('click', () => sendPose({ x: place.x, y: place.y, theta_deg: heading },
+                                                    true));
+    item.append(button);
+    return item;
+  }));
 }
 
 /** The parameter set in use: a shipped one follows the budget, a given one holds. */
@@ -337,11 +363,13 @@ function poseCancelled(why) {
   }
 }
 
-/** POST /api/v1/pose with `{x, y, theta_deg}` and the sigmas of the mode chosen. */
-async function sendPose(pose) {
+/**
+ * POST /api/v1/pose with `{x, y, theta_deg}` and the sigmas of the mode chosen (`around`: a
+ * hint whatever the mode).
+ */
+async function sendPose(pose, around = poseForm.elements.namedItem('mode').value === 'around') {
   if (poseSending) return;
   clearFieldErrors(poseForm);
-  const around = poseForm.elements.namedItem('mode').value === 'around';
   const request = around ? { ...pose, ...kAround } : { ...pose };
   poseSending = true;
   setPoseState('sending');

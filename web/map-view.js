@@ -24,6 +24,7 @@ const kColours = {
   robot: '#1565c0',
   stale: '#757575',              // the robot's last known pose while slamd relocalises
   pose: '#8e24aa',               // the pose tool's arrow
+  place: '#2e7d32',              // where the robot may be while slamd is unsure
   scale: '#222',
 };
 
@@ -83,6 +84,7 @@ export class MapView {
     this.tool = null;       // 'pose' while the set-pose tool is active
     this.poseDrag = null;   // {id, from: {x, y}, to: {x, y}, fromPx: [px, py], toPx} (world, CSS px)
     this.pendingPose = null;  // {x, y, theta}: sent to slamd, not yet answered
+    this.places = [];  // where the robot may be while slamd is unsure (setPlaces)
 
     this.centre = { x: 0, y: 0 };
     this.scale = 100;     // CSS px per metre
@@ -329,6 +331,15 @@ export class MapView {
     this.hooks.onPoseDrag?.(null);
     this.hooks.onPoseCancelled?.(why);
     return true;
+  }
+
+  /**
+   * The places the robot may be while slamd is unsure (`{x, y, theta, score}`, best first; empty:
+   * none), drawn as numbered rings.
+   */
+  setPlaces(places) {
+    this.places = places;
+    this.requestRender();
   }
 
   /** Shows a pose sent to slamd and not yet answered (null: none), as a dashed arrow. */
@@ -595,6 +606,8 @@ export class MapView {
     } else if (this.robot) {
       this.drawStaleRobot(this.robot, sx, sy, s, ratio);
     }
+    const places = this.places;
+    places.forEach((place, i) => this.drawPlace(place, i + 1, sx, sy, s, ratio));
     if (this.pendingPose) this.drawPoseArrow(this.pendingPose, null, sx, sy, s, ratio, true);
     if (this.poseDrag) {
       this.drawPoseArrow(MapView.poseOfDrag(this.poseDrag), this.poseDrag.to, sx, sy, s, ratio,
@@ -610,6 +623,17 @@ export class MapView {
     data.truthPoints = String(this.truth.length);
     data.mapScale = this.scale.toFixed(2);
     data.localized = String(this.localized);
+    data.places = String(places.length);
+  }
+
+  /** A place the robot may be: a ring with its heading and its rank beside it. */
+  drawPlace(place, rank, sx, sy, s, ratio) {
+    const ctx = this.ctx;
+    this.drawRobot(place, sx, sy, s, ratio, kColours.place, false);
+    const r = Math.max(kRobotRadiusM * s, 6 * ratio);
+    ctx.font = `bold ${12 * ratio}px system-ui, sans-serif`;
+    ctx.fillStyle = kColours.place;
+    ctx.fillText(String(rank), sx(place.x) + r + 2 * ratio, sy(place.y) + r + 10 * ratio);
   }
 
   drawPath(points, sx, sy, colour, lineWidth) {

@@ -24,7 +24,9 @@
 // shows the link and SLAM as unknown, not running; when another slamd starts on the same port
 // (another world, its versions numbered afresh), the page keeps no tile of the first, even when
 // the new slamd's `tiles` event comes before its map index (the index reply is delayed on
-// purpose). Exit 1 with a message on the first failure.
+// purpose); a studio mapped, then resumed without a pose, leaves slamd unsure: the page lists
+// and draws the places its status reports (slamd-places.png), and "Search here" sends one as a
+// hint that slamd searches around. Exit 1 with a message on the first failure.
 
 import { spawn } from 'node:child_process';
 import { createRequire } from 'node:module';
@@ -615,6 +617,79 @@ async function runRestart(browser) {
   await stopSlamd(second.child);
 }
 
+/**
+ * A studio (square, its furniture in the middle: turned by 90 degrees it looks much the same)
+ * mapped for a while and resumed without a pose: slamd stays unsure, and the page lists and
+ * draws the places its status reports; "Search here" on one sends it as a hint.
+ */
+async function runUnsurePlaces(browser) {
+  const stateDir = fs.mkdtempSync(path.join(artifactDir, 'studio-state-'));
+  const port = await freePort();
+  const mapping = await startSlamd(port, ['--source', 'sim:studio', '--speed', '10',
+                                          '--state-dir', stateDir]);
+  await waitFor('slamd maps the studio for 100 scans', 30000, async (seen) => {
+    seen.value = (await (await fetch(`${mapping.url}api/v1/status`)).json()).slam.scans;
+    return seen.value >= 100;
+  });
+  await stopSlamd(mapping.child);  // saves the map
+  const resumed = await startSlamd(port, ['--source', 'sim:studio', '--state-dir', stateDir]);
+  const status = async () => (await (await fetch(`${resumed.url}api/v1/status`)).json())
+    .slam.relocalization.state;
+  const context = await browser.newContext({ viewport: { width: 1000, height: 800 } });
+  page = await context.newPage();
+  page.setDefaultTimeout(10000);
+  watch(page);
+  await page.goto(resumed.url, { waitUntil: 'load', timeout: 15000 });
+  const shown = await waitFor('the page lists and draws the places slamd reports', 20000,
+    async (seen) => {
+      const state = await status();
+      const onPage = await page.evaluate(() => ({
+        drawn: Number(document.body.dataset.places ?? 0),
+        listed: document.querySelectorAll('#reloc-places-list li').length,
+        hidden: document.getElementById('reloc-places').hidden,
+        first: document.querySelector('#reloc-places-list li')?.textContent ?? '',
+      }));
+      seen.value = { active: state.active, places: state.places.length, onPage };
+      return state.active && state.places.length > 0 && onPage.drawn === state.places.length &&
+             onPage.listed === state.places.length && !onPage.hidden ? { state, onPage } : null;
+    });
+  const first = shown.state.places[0];
+  check(shown.onPage.first.startsWith(`x ${first.x.toFixed(2)} m, y ${first.y.toFixed(2)} m`),
+        `the first place listed ("${shown.onPage.first}") is not the status's first ` +
+        `(${JSON.stringify(first)})`);
+  const shot = path.join(artifactDir, 'slamd-places.png');
+  await page.screenshot({ path: shot });
+  log(`resumed on the studio without a pose: slamd is unsure and the page shows its ` +
+      `${shown.state.places.length} places (${shot})`);
+
+  // "Search here" on the second place: a hint around it, as the pose tool's "search around".
+  const second = shown.state.places[1] ?? first;
+  const sent = page.waitForRequest((request) => request.method() === 'POST' &&
+                                               request.url().endsWith('/api/v1/pose'));
+  await page.click(`#reloc-places-list button[data-place="${shown.state.places[1] ? 2 : 1}"]`);
+  const body = JSON.parse((await sent).postData());
+  const listedNow = await page.textContent('#reloc-places-list');
+  check(Math.abs(body.x - second.x) < 0.01 && Math.abs(body.y - second.y) < 0.01 &&
+        Math.abs(wrapAngle(body.theta_deg / 57.29577951308232 - second.theta)) < 0.01 &&
+        body.sigma_m === 0.1 && body.sigma_deg === 5,
+        `Search here sent ${JSON.stringify(body)} for the place ${JSON.stringify(second)} ` +
+        `(the list said "${listedNow}")`);
+  const hinted = await waitFor('slamd searches around the place (cause "hint")', 10000,
+    async (seen) => {
+      const state = await status();
+      seen.value = { active: state.active, cause: state.cause, last: state.last?.cause };
+      return (state.active && state.cause === 'hint') || state.last?.cause === 'hint' ? state
+        : null;
+    });
+  log(`Search here sent the place as a hint: ${hinted.active ? 'slamd searches around it'
+    : 'slamd relocalised around it'}`);
+  checkNoProblems('the unsure places');
+  await context.close();
+  page = null;
+  await stopSlamd(resumed.child);
+  fs.rmSync(stateDir, { recursive: true, force: true });
+}
+
 let browser;
 let exitCode = 0;
 try {
@@ -626,8 +701,12 @@ try {
     timeout: 20000,
   });
   await run(browser);
-  if (process.env.SLAMD_BIN && process.env.WEB_ROOT) await runRestart(browser);
-  else log('SLAMD_BIN or WEB_ROOT not set: the restart part is skipped');
+  if (process.env.SLAMD_BIN && process.env.WEB_ROOT) {
+    await runRestart(browser);
+    await runUnsurePlaces(browser);
+  } else {
+    log('SLAMD_BIN or WEB_ROOT not set: the restart and unsure-places parts are skipped');
+  }
   log('PASS');
 } catch (error) {
   const why = error instanceof TestFailure ? error.message : error.stack;
