@@ -80,10 +80,13 @@ void Relocalizer::StartSearch(Stage stage, std::vector<Vec2> query, const Pose2&
   ++searches_;
 }
 
+std::vector<GlobalMatch>::const_iterator Relocalizer::BestChecked() const {
+  return std::max_element(checked_.begin(), checked_.end(),
+                          [](const GlobalMatch& a, const GlobalMatch& b) { return a.raw < b.raw; });
+}
+
 std::optional<GlobalMatch> Relocalizer::Decide() const {
-  const auto best =
-      std::max_element(checked_.begin(), checked_.end(),
-                       [](const GlobalMatch& a, const GlobalMatch& b) { return a.raw < b.raw; });
+  const auto best = BestChecked();
   if (best == checked_.end() || best->score < config_.accept_score) return std::nullopt;
   for (const GlobalMatch& other : checked_) {
     if (&other != &*best && Distinct(other, *best, config_.search) &&
@@ -95,9 +98,7 @@ std::optional<GlobalMatch> Relocalizer::Decide() const {
 }
 
 std::optional<GlobalMatch> Relocalizer::Lead() {
-  const auto best =
-      std::max_element(checked_.begin(), checked_.end(),
-                       [](const GlobalMatch& a, const GlobalMatch& b) { return a.raw < b.raw; });
+  const auto best = BestChecked();
   if (best == checked_.end() || best->score < config_.accept_score) {
     leader_.reset();
     return std::nullopt;

@@ -151,6 +151,8 @@ class Relocalizer {
                    const GlobalRegion& region);
   /// A search ended: the step's answer, or the next search (none: start over).
   void EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep& step);
+  /// The check that scored best (raw), checked_.end() with none.
+  std::vector<GlobalMatch>::const_iterator BestChecked() const;
   /// The checks ended: the unique fine answer, if any.
   std::optional<GlobalMatch> Decide() const;
   /// The checks ended without a unique answer: the place that led them goes on leading (or a

@@ -769,12 +769,13 @@ void SlamService::Publish(const std::optional<ScanMetrics>& metrics) {
   s->last = metrics;
   s->relocalizing = relocalizing_;
   s->last_relocalization = last_relocalization_;
-  if (!relocalizing_) places_.clear();
-  for (GlobalMatch place : places_) {
-    if (last_odom_) place.pose = Compose(place.pose, Between(places_odom_, *last_odom_));
-    s->relocalization_places.push_back(place);
+  if (relocalizing_ && !places_.empty()) {  // a new search clears them (StartRelocalizing, a loss)
+    for (GlobalMatch place : places_) {
+      if (last_odom_) place.pose = Compose(place.pose, Between(places_odom_, *last_odom_));
+      s->relocalization_places.push_back(place);
+    }
+    s->relocalization_places_t = last_t_end_ + time_offset_s_;
   }
-  if (!places_.empty()) s->relocalization_places_t = last_t_end_ + time_offset_s_;
   if (world_to_map_ && s->has_pose) {
     if (const auto truth = PoseAt(truth_world_, s->pose.t - time_offset_s_)) {
       const Vec2 p = world_to_map_->Apply(truth->translation());

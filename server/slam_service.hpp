@@ -369,8 +369,9 @@ class SlamService {
   std::optional<RelocalizationRecord> last_relocalization_;
   std::optional<Pose2> last_odom_;  // the latest scan's odometry at its end
   double last_t_end_ = 0.0;         // ... and its end (engine time)
-  std::vector<GlobalMatch>
-      places_;  // the last unsure search's, where the odometry read places_odom_
+  // The last unsure search's places (RelocalizerStep::rejected_candidates) since the search
+  // under way started, where the odometry read places_odom_; published while relocalising.
+  std::vector<GlobalMatch> places_;
   Pose2 places_odom_;
 
   // Shared with readers.
