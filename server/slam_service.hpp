@@ -323,6 +323,9 @@ class SlamService {
   void ProcessScan(const Scan& scan, int64_t receive_ns);
   ScanMetrics MetricsOf(const BudgetedStep::Result& step, double period, int64_t wall_start,
                         int64_t receive_ns) const;
+  /// A scan's times and CPU account: busy, latency, CPU share, late.
+  static void Time(ScanMetrics& m, const BudgetedStep::Result& step, double period,
+                   int64_t wall_start, int64_t receive_ns);
   /// The ground truth's poses not yet in truth_map_, in the map frame (the world aligned to it
   /// at the first scan's start); none without a simulated source.
   std::vector<TimedPose> NewlyMappedTruth();
@@ -336,6 +339,9 @@ class SlamService {
   void StartRelocalizing(RelocalizationCause cause, const GlobalRegion& region = {});
   /// Applies a pose request between scans.
   void ApplyPose(const PoseRequest& request);
+  /// The loss detector found the tracker lost (the step has started relocalising): counted,
+  /// logged, the search's bookkeeping begun.
+  void NoteLoss(const LossCheck& check);
   /// A scan that went to the relocaliser: counted, logged when it ends, published.
   void ProcessRelocalizingScan(const BudgetedStep::Result& step, const Scan& scan, double period,
                                int64_t wall_start, int64_t receive_ns);
