@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "engine/cell_encoding.hpp"
+#include "engine/grid_traversal.hpp"
 
 namespace slam {
 
@@ -20,6 +21,15 @@ ConfigErrors LossDetectorConfig::Validate() const {
   if (min_known < 1) errors.push_back({"/min_known", "must be at least 1"});
   if (!(lost_share > 0.0 && lost_share <= 1.0)) {
     errors.push_back({"/lost_share", "must be in (0, 1]"});
+  }
+  if (!(through_above_logodds > occupied_above_logodds)) {
+    errors.push_back({"/through_above_logodds", "must be above occupied_above_logodds"});
+  }
+  if (!(through_margin_m >= 0.0 && through_margin_m <= 1.0)) {
+    errors.push_back({"/through_margin_m", "must be in [0, 1] m"});
+  }
+  if (!(through_reach_m >= 0.0 && through_reach_m <= 10.0)) {
+    errors.push_back({"/through_reach_m", "must be in [0, 10] m"});
   }
   if (history_scans < window_scans) {
     errors.push_back({"/history_scans", "must be at least window_scans"});
@@ -40,7 +50,10 @@ int RadiusCells(double radius_m, double resolution_m) {
 int64_t LossDetector::MaxLookups() const {
   // A resolution of 1 cm is the finest the engine maps at; coarser maps read fewer cells.
   const int r = RadiusCells(config_.agree_radius_m, 0.01);
-  return int64_t{config_.max_points} * (2 * r + 1) * (2 * r + 1);
+  // A traversal over a length of n cells visits at most sqrt(2) n + 2 of them.
+  const auto through =
+      static_cast<int64_t>(std::ceil(std::sqrt(2.0) * config_.through_reach_m / 0.01)) + 2;
+  return int64_t{config_.max_points} * ((2 * r + 1) * (2 * r + 1) + through);
 }
 
 LossCheck LossDetector::Check(const OccupancyGrid& map, const Pose2& pose,
@@ -50,6 +63,24 @@ LossCheck LossDetector::Check(const OccupancyGrid& map, const Pose2& pose,
   const int r = RadiusCells(config_.agree_radius_m, geometry.resolution());
   const LogOdds free_below = EncodeLogOdds(config_.free_below_logodds);
   const LogOdds occupied_above = EncodeLogOdds(config_.occupied_above_logodds);
+  const LogOdds through_above = EncodeLogOdds(config_.through_above_logodds);
+  // Whether the ray to reading `p` passes through a sure wall before its end (see the file
+  // comment); counts its lookups.
+  const auto seen_through = [&](const Vec2& p) {
+    const Vec2 origin = pose.translation(), end = pose.Transform(p);
+    const double length = (end - origin).norm() - config_.through_margin_m;
+    if (!(length > 0.0)) return false;
+    const Vec2 direction = (end - origin) / (end - origin).norm();
+    const double skip = std::max(0.0, length - config_.through_reach_m);
+    bool wall = false;
+    TraverseCells(geometry, origin + direction * skip, direction, length - skip,
+                  [&](CellIndex cell, double, double) {
+                    ++check.lookups;
+                    wall = map.At(cell) > through_above;
+                    return !wall;
+                  });
+    return wall;
+  };
   const size_t total = points.size();
   const size_t keep = std::min(total, static_cast<size_t>(config_.max_points));
   for (size_t k = 0; k < total && keep > 0; ++k) {
@@ -70,6 +101,9 @@ LossCheck LossDetector::Check(const OccupancyGrid& map, const Pose2& pose,
       ++check.agree;
     } else if (all_free) {
       ++check.contradict;
+    } else if (seen_through(p)) {
+      ++check.contradict;
+      ++check.through;
     } else {
       ++check.unknown;
     }

@@ -7,6 +7,13 @@
 // prediction, before the scan changes the map, and counts those that land in known free space
 // against those next to an occupied cell; over a window of scans, a share of contradictions
 // above `lost_share` is a loss (docs/design.md, relocalisation).
+//
+// A reading that lands in unknown space contradicts the map too when its ray passes through a
+// wall the map is sure of: seen through it. A robot set down in the middle of a room sees
+// little at first, and what it sees, placed where it wrongly is, lands beyond the room's walls,
+// where the map knows nothing; such readings said nothing, and the tracker mapped a second,
+// turned copy of the room outside the first unchallenged. A reading that ends next to an
+// occupied cell agrees whatever its ray crossed (a ray grazing the wall it ends on).
 
 #include <cstdint>
 #include <deque>
@@ -27,6 +34,12 @@ struct LossDetectorConfig {
   /// (natural log-odds): seen free several times.
   double free_below_logodds = -2.0;
   double occupied_above_logodds = 0.0;  // as the matching rays' obstacles
+  /// A reading in unknown space was seen through a wall when a cell above this log odds (seen
+  /// occupied several times) lies on its ray, from the robot's centre to `through_margin_m`
+  /// before its end, within the last `through_reach_m` of that (the check's cost).
+  double through_above_logodds = 2.0;
+  double through_margin_m = 0.10;
+  double through_reach_m = 1.0;
   int window_scans = 6;     // the scans a verdict is drawn over (about 4 s at 1.5 scans/s)
   int min_known = 60;       // readings on known cells over the window for a verdict
   double lost_share = 0.5;  // contradicting share of those that is a loss
@@ -42,7 +55,8 @@ struct LossDetectorConfig {
 /// One scan's check.
 struct LossCheck {
   int agree = 0;              // readings next to an occupied cell
-  int contradict = 0;         // readings in known free space
+  int contradict = 0;         // readings in known free space, or seen through a wall
+  int through = 0;            // of those, seen through a wall
   int unknown = 0;            // neither
   int64_t lookups = 0;        // cells read (the check's cost)
   double window_share = 0.0;  // contradicting share over the window (0 without a verdict)
@@ -59,7 +73,7 @@ class LossDetector {
   LossCheck Check(const OccupancyGrid& map, const Pose2& pose, const std::vector<Vec2>& points);
   /// Forgets the window (after a relocalisation, a reset).
   void Reset() { window_.clear(); }
-  /// Upper bound of one Check's lookups: what a plan reserves for it.
+  /// Upper bound of one Check's lookups (a plan is charged what a check spent: LossCheck).
   int64_t MaxLookups() const;
   int window_scans() const { return config_.window_scans; }
   const LossDetectorConfig& config() const { return config_; }

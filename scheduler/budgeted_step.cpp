@@ -84,12 +84,14 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
     return *points;
   };
   if (detector_ != nullptr && relocalizer_ != nullptr && !relocalizer_->active() && refine) {
-    reserved = (detector_->MaxLookups() + kLookupsPerRay - 1) / kLookupsPerRay;
     const Pose2 predicted = Compose(engine_.Best().pose, Between(scan.odom_begin, scan.odom_end));
     // Checked against the map as it was some scans ago: a lost tracker maps what it sees where
     // it wrongly thinks it is, and its next scans would agree with that.
     const OccupancyGrid& reference = history_.empty() ? engine_.Best().map : history_.front();
     result.loss_check = detector_->Check(reference, predicted, readings());
+    // What it spent is taken from the plan's rays (as the watch's below): a check costs from a
+    // few cells a reading (one next to a wall) to a ray's traversal (one seen through a wall).
+    reserved = (result.loss_check->lookups + kLookupsPerRay - 1) / kLookupsPerRay;
     history_.push_back(engine_.Best().map);
     while (history_.size() > static_cast<size_t>(detector_->config().history_scans)) {
       history_.pop_front();
