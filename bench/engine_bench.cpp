@@ -19,6 +19,7 @@
 #include "bench/bench_support.hpp"
 #include "engine/cell_encoding.hpp"
 #include "engine/global_matcher.hpp"
+#include "engine/loss_detector.hpp"
 #include "engine/match_window.hpp"
 #include "engine/matching_rays.hpp"
 #include "engine/occupancy_grid.hpp"
@@ -611,6 +612,45 @@ void BM_MatchFieldBuild(benchmark::State& state) {
   state.counters["tiles"] = static_cast<double>(warm.Best().map.TileCount());
 }
 BENCHMARK(BM_MatchFieldBuild)->ArgName("cell_mm")->Arg(30)->Arg(100)->Unit(benchmark::kMillisecond);
+
+// The loss detector's check (LossDetector::Check) of one scan's readings on the warmed-up
+// engine's map: placed at the tracked pose (range(0) 0: readings next to walls, a few cells
+// each) or 1 m and 150 degrees off (1: a kidnapped tracker's, many traversed to a wall they
+// were seen through). Items are the lookups it is charged (LossCheck::lookups): their time
+// against a ray's (BM_Scan's) says whether kLookupsPerRay fits the check too.
+void BM_LossCheck(benchmark::State& state) {
+  const Slam& warm = WarmEngine(1);
+  const std::vector<Scan>& scans = RoomsRun(300.0).scans;
+  // The last scan the engine took, in the frame of its end: where the best pose is.
+  const std::vector<Vec2> readings = warm.ReadingPoints(warm.Prepare(scans[kWarmScans - 1]));
+  LossDetector detector;
+  Pose2 pose = warm.Best().pose;
+  if (state.range(0) != 0) {
+    // Of eight poses 1 m away (turned by 150 degrees), the one that sees most readings through
+    // a wall: a kidnapped tracker's worst case.
+    int most = -1;
+    for (int k = 0; k < 8; ++k) {
+      const double a = k * kPi / 4;
+      const Pose2 off = Compose(warm.Best().pose, Pose2{std::cos(a), std::sin(a), DegToRad(150)});
+      const int through = LossDetector().Check(warm.Best().map, off, readings).through;
+      if (through > most) {
+        most = through;
+        pose = off;
+      }
+    }
+  }
+  int64_t lookups = 0, through = 0;
+  for (auto _ : state) {
+    const LossCheck check = detector.Check(warm.Best().map, pose, readings);
+    lookups += check.lookups;
+    through += check.through;
+    benchmark::DoNotOptimize(check);
+  }
+  Items(state, lookups, "lookups");
+  state.counters["through_per_check"] =
+      static_cast<double>(through) / static_cast<double>(std::max<int64_t>(state.iterations(), 1));
+}
+BENCHMARK(BM_LossCheck)->ArgName("off")->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
 
 // A whole replay (Replay(): scheduler + engine, as slam-replay) of the rooms run of range(0)
 // seconds at 65000 rays/scan on range(1) threads, once. Counter realtime_factor = run

@@ -73,6 +73,14 @@ class LossDetector {
   LossCheck Check(const OccupancyGrid& map, const Pose2& pose, const std::vector<Vec2>& points);
   /// Forgets the window (after a relocalisation, a reset).
   void Reset() { window_.clear(); }
+  /// A check's lookups (cells read, a wall's neighbourhood or a ray's traversal, each a tile
+  /// lookup, with each reading's placing) per quota ray: a lookup costs 2.5 to 4 of the
+  /// global matcher's byte reads, a ray 8 to 22 of them (bench: BM_LossCheck against BM_Scan,
+  /// docs/performance.md); the rate errs low, so that a check is never charged less than it
+  /// costs.
+  static constexpr int64_t kLookupsPerRay = 8;
+  /// The quota rays a check of `lookups` is charged.
+  static int64_t RaysOf(int64_t lookups) { return (lookups + kLookupsPerRay - 1) / kLookupsPerRay; }
   /// Upper bound of one Check's lookups (a plan is charged what a check spent: LossCheck).
   int64_t MaxLookups() const;
   int window_scans() const { return config_.window_scans; }

@@ -91,7 +91,7 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
     result.loss_check = detector_->Check(reference, predicted, readings());
     // What it spent is taken from the plan's rays (as the watch's below): a check costs from a
     // few cells a reading (one next to a wall) to a ray's traversal (one seen through a wall).
-    reserved = (result.loss_check->lookups + kLookupsPerRay - 1) / kLookupsPerRay;
+    reserved = LossDetector::RaysOf(result.loss_check->lookups);
     history_.push_back(engine_.Best().map);
     while (history_.size() > static_cast<size_t>(detector_->config().history_scans)) {
       history_.pop_front();
@@ -147,9 +147,10 @@ BudgetedStep::Result BudgetedStep::Run(const Scan& scan, bool refine) {
   if (relocalizer_ != nullptr && relocalizer_->active()) {
     if (watch_) watch_->Cancel();  // the map it watched may not be the engine's afterwards
     // The detector's check of a scan found lost came out of the same quota.
-    const int64_t checked = result.loss_check ? result.loss_check->lookups : 0;
-    RelocalizerStep step =
-        relocalizer_->Add(readings(), scan.odom_end, scan.t_end, quota * kLookupsPerRay - checked);
+    const int64_t checked =
+        result.loss_check ? LossDetector::RaysOf(result.loss_check->lookups) : 0;
+    RelocalizerStep step = relocalizer_->Add(readings(), scan.odom_end, scan.t_end,
+                                             (quota - checked) * kLookupsPerRay);
     if (step.found) {
       result.relocated = engine_.Relocate(step.found->pose);
       if (!result.relocated) relocalizer_->Start(engine_.Best().map);

@@ -221,13 +221,14 @@ struct RoomsThroughTheBudget {
     map_to_world = {origin.theta, origin.translation()};
   }
 
-  /// Whether the scan spent more than its quota (rays and the searches' lookups); a search's
-  /// last node may run past its share by one expansion (GlobalSearch::Continue).
+  /// Whether the scan spent more than its quota (rays, the loss check's lookups at its rate
+  /// and the searches' at theirs); a search's last node may run past its share by one
+  /// expansion (GlobalSearch::Continue).
   bool OverQuota(const BudgetedStep::Result& r) const {
-    const int64_t rays = r.record ? r.record->used_rays : 0;
+    const int64_t rays = (r.record ? r.record->used_rays : 0) +
+                         (r.loss_check ? LossDetector::RaysOf(r.loss_check->lookups) : 0);
     const int64_t lookups =
-        (r.loss_check ? r.loss_check->lookups : 0) +
-        (r.relocalization ? r.relocalization->lookups : (r.watch ? r.watch->lookups : 0));
+        r.relocalization ? r.relocalization->lookups : (r.watch ? r.watch->lookups : 0);
     return rays * kLookupsPerRay + lookups > (budget + 64) * kLookupsPerRay;
   }
   /// How far the engine's pose is from the truth at `t`: metres, degrees.
