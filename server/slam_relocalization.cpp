@@ -42,11 +42,15 @@ ConfigErrors ValidatePoseRequest(const PoseRequest& request, double resolution_m
   return errors;
 }
 
-void SlamService::NoteLoss(const LossCheck& check) {
-  relocalizing_ = RelocalizationCause::kLost;
+void SlamService::BeginSearch(RelocalizationCause cause) {
+  relocalizing_ = cause;
   places_.clear();
   relocalizing_since_t_ = -1.0;
   relocalizing_scans_ = 0;
+}
+
+void SlamService::NoteLoss(const LossCheck& check) {
+  BeginSearch(RelocalizationCause::kLost);  // the step has started the relocaliser
   {
     MutexLock lock(mutex_);
     ++counters_.losses;
@@ -60,10 +64,7 @@ void SlamService::NoteLoss(const LossCheck& check) {
 
 void SlamService::StartRelocalizing(RelocalizationCause cause, const GlobalRegion& region) {
   relocalizer_.Start(engine_->Best().map, region, last_odom_);
-  relocalizing_ = cause;
-  places_.clear();
-  relocalizing_since_t_ = -1.0;
-  relocalizing_scans_ = 0;
+  BeginSearch(cause);
   MutexLock lock(mutex_);
   counters_.state = SlamState::kRelocalizing;
 }

@@ -339,6 +339,8 @@ class SlamService {
   void StartRelocalizing(RelocalizationCause cause, const GlobalRegion& region = {});
   /// Applies a pose request between scans.
   void ApplyPose(const PoseRequest& request);
+  /// A search under way from now, for `cause`: its places, time and scans start afresh.
+  void BeginSearch(RelocalizationCause cause);
   /// The loss detector found the tracker lost (the step has started relocalising): counted,
   /// logged, the search's bookkeeping begun.
   void NoteLoss(const LossCheck& check);
