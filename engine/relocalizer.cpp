@@ -222,6 +222,7 @@ void Relocalizer::EndSearch(const Pose2& odom_end, double t_end, RelocalizerStep
   }
   // Not sure: gather the next scans' readings and search the whole region again with them.
   ++rejected_;
+  step.rejected_confirmation = stage_ == Stage::kConfirm;
   std::sort(checked_.begin(), checked_.end(),
             [](const GlobalMatch& a, const GlobalMatch& b) { return a.raw > b.raw; });
   // Each place once (the better of two checks that found the same place), carried to now.

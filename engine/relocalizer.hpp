@@ -95,6 +95,9 @@ struct RelocalizerStep {
   /// ... and every distinct place the checks scored, best first (rejected_best among them),
   /// carried likewise: where the robot may be (none when nothing was checked).
   std::vector<GlobalMatch> rejected_candidates;
+  /// The search that ended unsure was an answer's confirmation (rejected_best is its score
+  /// there): the answer found, then not confirmed from where the robot drove on.
+  bool rejected_confirmation = false;
 };
 
 class Relocalizer {

@@ -20,7 +20,8 @@ bool Dropped(const std::vector<TimeInterval>& drop, double t_s) {
 /// The replay's account of each relocalisation and of where the engine had no pose of its own.
 class LocalizationLog {
  public:
-  explicit LocalizationLog(double t_origin) : t_origin_(t_origin) {}
+  LocalizationLog(double t_origin, bool log_searches)
+      : t_origin_(t_origin), log_searches_(log_searches) {}
 
   /// A relocalisation starts (the relocaliser was just started) before the scan beginning at t.
   void Start(RelocalizationStart cause, double t) {
@@ -62,6 +63,21 @@ class LocalizationLog {
     ++scans_;
     ++scans_total_;
     if (!step.watch_relocated) lookups_ += r.lookups;  // the watch's are counted above
+    if (log_searches_ && (r.rejected_best || r.found)) {
+      ReplaySearch search;
+      search.t = scan.t_end;
+      if (r.found) {
+        search.outcome = SearchOutcome::kAnswer;
+        search.places.push_back({r.found->pose, 0, r.found->score});
+        search.points = r.found->points;
+      } else {
+        search.outcome =
+            r.rejected_confirmation ? SearchOutcome::kUnconfirmed : SearchOutcome::kUnsure;
+        search.places = r.rejected_candidates;
+        if (search.places.empty()) search.places.push_back(*r.rejected_best);
+      }
+      searches_.push_back(std::move(search));
+    }
     if (r.rejected_best) {
       ++unsure_;
       if (!best_unsure_ || r.rejected_best->score > best_unsure_->score) {
@@ -103,6 +119,7 @@ class LocalizationLog {
     result.best_unsure_runner_up = best_unsure_runner_up_;
     result.best_unsure_t = best_unsure_t_;
     result.relocalizing_scans = scans_total_;
+    result.searches = std::move(searches_);
     result.watch_lookups = watch_lookups_;
     result.watch_unsure = watch_unsure_;
     result.watch_confirmed = watch_confirmed_;
@@ -112,6 +129,8 @@ class LocalizationLog {
 
  private:
   double t_origin_;
+  bool log_searches_;
+  std::vector<ReplaySearch> searches_;
   bool relocalizing_ = false;
   RelocalizationStart cause_ = RelocalizationStart::kStart;
   double since_t_ = 0.0;
@@ -143,6 +162,18 @@ const char* ToString(RelocalizationStart start) {
       return "lost";
     case RelocalizationStart::kWatch:
       return "watch";
+  }
+  return "?";
+}
+
+const char* ToString(SearchOutcome outcome) {
+  switch (outcome) {
+    case SearchOutcome::kUnsure:
+      return "unsure";
+    case SearchOutcome::kUnconfirmed:
+      return "unconfirmed";
+    case SearchOutcome::kAnswer:
+      return "answer";
   }
   return "?";
 }
@@ -197,7 +228,7 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
     if (options.watch) stepper.EnableWatch(*options.watch);
   }
   const double t_origin = scans.empty() ? 0.0 : scans.front().t_begin;
-  LocalizationLog log(t_origin);
+  LocalizationLog log(t_origin, options.log_searches);
   bool relocalize_first = false;  // on `map`, from the first scan replayed
   if (options.map) {
     const bool placed = options.start_pose && engine.Restore(*options.map, *options.start_pose);

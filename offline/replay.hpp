@@ -95,6 +95,9 @@ struct ReplayOptions {
   /// With it and the loss detector, the background check as well (BudgetedStep::EnableWatch):
   /// a confirmed answer away from the tracked pose moves the engine there.
   std::optional<WatchConfig> watch;
+  /// Keep every relocaliser search's outcome in ReplayResult::searches (slam-replay
+  /// --log-searches): what a relocalisation saw before it answered, or why it never did.
+  bool log_searches = false;
 };
 
 /// Why a replay relocalised.
@@ -115,6 +118,25 @@ struct ReplayRelocalization {
   Relocalization found;    // its pose, score, runner-up, points, lookups and searches
   int64_t scans = 0;       // scans it was given, that one included
   bool taken = true;       // false: the engine refused the pose and the search started over
+};
+
+/// How a relocaliser search ended (ReplayOptions::log_searches).
+enum class SearchOutcome {
+  kUnsure,       // no unique place scoring accept_score: the robot gathers readings, searches again
+  kUnconfirmed,  // an answer that its confirmation from farther on did not score
+  kAnswer,       // the relocaliser's answer
+};
+/// "unsure", "unconfirmed", "answer".
+const char* ToString(SearchOutcome outcome);
+
+/// One relocaliser search that ended.
+struct ReplaySearch {
+  double t = 0.0;  // end of the scan it ended at (the scans' clock): the time of the poses
+  SearchOutcome outcome = SearchOutcome::kUnsure;
+  /// Unsure: every distinct place its checks scored, best first; unconfirmed: the
+  /// confirmation's best; an answer: the answer. Poses carried to `t`.
+  std::vector<GlobalMatch> places;
+  int points = 0;  // an answer's multiscan readings (0 otherwise)
 };
 
 struct ReplayResult {
@@ -160,6 +182,7 @@ struct ReplayResult {
   double best_unsure_runner_up = 0.0;
   double best_unsure_t = 0.0;
   int64_t relocalizing_scans = 0;
+  std::vector<ReplaySearch> searches;  // with ReplayOptions::log_searches, in order
   /// The background check's (ReplayOptions::watch): lookups spent, searches that ended unsure,
   /// answers at the tracked pose.
   int64_t watch_lookups = 0, watch_unsure = 0, watch_confirmed = 0;

@@ -80,6 +80,20 @@ std::string Centimetres(double metres) {
 
 Json PoseJson(const Pose2& p) { return {{"x", p.x}, {"y", p.y}, {"theta_deg", RadToDeg(p.theta)}}; }
 
+/// A pose of the run at time `t` (the scans' clock) against the ground truth there, in the
+/// frame the trajectory fits it best: error_m and heading_error_deg into `j` (nothing without
+/// ground truth at t).
+void AddErrorAgainstTruth(const offline::Experiment& experiment, const ReplayResult& run, double t,
+                          const Pose2& pose, Json& j) {
+  if (!run.quality) return;
+  const std::optional<Pose2> truth = PoseAt(experiment.ground_truth, t);
+  if (!truth) return;
+  const Pose2 seen =
+      TransformTrajectory(run.quality->alignment.Inverse(), {{t, *truth}}).front().pose;
+  j["error_m"] = (seen.translation() - pose.translation()).norm();
+  j["heading_error_deg"] = std::abs(RadToDeg(NormalizeAngle(seen.theta - pose.theta)));
+}
+
 /// Where the replay started and what it left out, and each relocalisation (against the ground
 /// truth, aligned, when there is one).
 void LocalizationSummary(const offline::Experiment& experiment, const ReplayResult& run,
@@ -121,15 +135,7 @@ void LocalizationSummary(const offline::Experiment& experiment, const ReplayResu
               {"lookups", r.found.lookups},
               {"searches", r.found.searches},
               {"taken", r.taken}};
-    if (run.quality) {
-      if (const std::optional<Pose2> truth = PoseAt(experiment.ground_truth, r.t)) {
-        const Pose2 seen =
-            TransformTrajectory(run.quality->alignment.Inverse(), {{r.t, *truth}}).front().pose;
-        a["error_m"] = (seen.translation() - r.found.pose.translation()).norm();
-        a["heading_error_deg"] =
-            std::abs(RadToDeg(NormalizeAngle(seen.theta - r.found.pose.theta)));
-      }
-    }
+    AddErrorAgainstTruth(experiment, run, r.t, r.found.pose, a);
     answers.push_back(a);
   }
   j["relocalizations"] = answers;
@@ -223,6 +229,26 @@ nlohmann::json ReplaySummary(const offline::Experiment& experiment, const Replay
   j["counters"] = CountersJson(experiment.counters);
   LocalizationSummary(experiment, run, options, j);
   return j;
+}
+
+std::string SearchLog(const offline::Experiment& experiment, const ReplayResult& run) {
+  const double t_origin = experiment.scans.empty() ? 0.0 : experiment.scans.front().t_begin;
+  std::string lines;
+  for (const ReplaySearch& search : run.searches) {
+    Json places = Json::array();
+    for (const GlobalMatch& place : search.places) {
+      Json p = {{"pose", PoseJson(place.pose)}, {"score", place.score}};
+      AddErrorAgainstTruth(experiment, run, search.t, place.pose, p);
+      places.push_back(p);
+    }
+    Json line = {{"t", search.t},
+                 {"t_s", search.t - t_origin},
+                 {"outcome", ToString(search.outcome)},
+                 {"places", places}};
+    if (search.outcome == SearchOutcome::kAnswer) line["points"] = search.points;
+    lines += line.dump() + "\n";
+  }
+  return lines;
 }
 
 ReplayOutputs WriteReplayOutputs(const std::string& dir, const offline::Experiment& experiment,

@@ -22,6 +22,12 @@ namespace slam::offline {
 nlohmann::json ReplaySummary(const offline::Experiment& experiment, const ReplayResult& run,
                              const ReplayOptions& options);
 
+/// Every relocaliser search of the run (ReplayOptions::log_searches) as JSON Lines, one per
+/// search in order: t (the scans' clock), t_s (after the first scan's start), outcome
+/// ("unsure", "unconfirmed", "answer"), places (pose, score, and with ground truth error_m and
+/// heading_error_deg, aligned as the relocalisations' errors), and an answer's points.
+std::string SearchLog(const offline::Experiment& experiment, const ReplayResult& run);
+
 struct ReplayOutputs {
   std::vector<std::string> errors;  // one per file that could not be written
 };

@@ -142,9 +142,33 @@ TEST_F(LocalizeTest, FromTheStartPoseTheTrackFollowsTheMappingAndTheMapStaysCell
 }
 
 TEST_F(LocalizeTest, WithoutAPoseItRelocalisesOnceWithinTwentySecondsThenTracks) {
-  const offline::ReplayResult run = Run(LocalizeOptions());
+  offline::ReplayOptions options = LocalizeOptions();
+  options.log_searches = true;
+  const offline::ReplayResult run = Run(options);
   ASSERT_EQ(run.relocalizations.size(), 1u);
   const offline::ReplayRelocalization& r = run.relocalizations.front();
+  // The searches logged: those that ended unsure (each with the places it scored, best first),
+  // then the answer, as the relocalisation reported it.
+  ASSERT_FALSE(run.searches.empty());
+  const offline::ReplaySearch& last = run.searches.back();
+  EXPECT_EQ(last.outcome, offline::SearchOutcome::kAnswer);
+  EXPECT_EQ(last.t, r.t);
+  ASSERT_EQ(last.places.size(), 1u);
+  EXPECT_EQ(last.places[0].pose.x, r.found.pose.x);
+  EXPECT_EQ(last.places[0].pose.theta, r.found.pose.theta);
+  EXPECT_EQ(last.places[0].score, r.found.score);
+  EXPECT_EQ(last.points, r.found.points);
+  EXPECT_EQ(static_cast<int64_t>(run.searches.size()) - 1, run.searches_unsure);
+  for (size_t i = 0; i + 1 < run.searches.size(); ++i) {
+    const offline::ReplaySearch& s = run.searches[i];
+    EXPECT_NE(s.outcome, offline::SearchOutcome::kAnswer) << i;
+    EXPECT_GE(s.t, Start());
+    EXPECT_LT(s.t, r.t);
+    EXPECT_LE(s.t, run.searches[i + 1].t);
+    ASSERT_FALSE(s.places.empty()) << i;
+    EXPECT_EQ(s.points, 0);
+    for (size_t k = 1; k < s.places.size(); ++k) EXPECT_LE(s.places[k].score, s.places[0].score);
+  }
   EXPECT_EQ(r.cause, offline::RelocalizationStart::kStart);
   EXPECT_TRUE(r.taken);
   EXPECT_EQ(r.started_t, Start());
@@ -202,6 +226,7 @@ TEST_F(LocalizeTest, AfterAStretchLeftOutTheRobotIsReacquired) {
   // ... unless the loss detector finds it lost: then it relocalises.
   options.loss_detector = LossDetectorConfig{};
   const offline::ReplayResult detected = Run(options);
+  EXPECT_TRUE(detected.searches.empty());  // not asked for
   EXPECT_EQ(detected.losses, 1);
   ASSERT_EQ(detected.relocalizations.size(), 1u);
   const offline::ReplayRelocalization& found = detected.relocalizations.front();
@@ -283,7 +308,8 @@ TEST_F(LocalizeTest, SlamReplayLocalisesOnAMapYamlAndOnSlamdsState) {
   EXPECT_TRUE(j["watch"].is_null());
   const CommandResult detected =
       RunCommand(tool + " --localize " + (root_ / "map" / "map.yaml").string() +
-                     " --pose 0,0,0 --drop 20:28 --no-relocalize --detect-loss --out " +
+                     " --pose 0,0,0 --drop 20:28 --no-relocalize --detect-loss --log-searches"
+                     " --out " +
                      (scratch / "lost").string(),
                  scratch);
   ASSERT_EQ(detected.status, 0) << detected.err;
@@ -300,6 +326,26 @@ TEST_F(LocalizeTest, SlamReplayLocalisesOnAMapYamlAndOnSlamdsState) {
   EXPECT_GE(lost["loss_share_max"]["share"].get<double>(), LossDetectorConfig{}.lost_share);
   EXPECT_LE(lost["loss_share_max"]["t_s"].get<double>(), lost["losses_s"][0].get<double>() + 2.0);
   EXPECT_TRUE(lost["watch"].is_null());  // not asked for
+  // --log-searches: a line a search, the last the answer, each place against the ground truth.
+  ASSERT_EQ(lost["searches_file"], (scratch / "lost" / "searches.jsonl").string());
+  std::ifstream log(lost["searches_file"].get<std::string>());
+  std::vector<Json> searches;
+  for (std::string line; std::getline(log, line);) searches.push_back(Json::parse(line));
+  ASSERT_FALSE(searches.empty());
+  EXPECT_EQ(static_cast<int64_t>(searches.size()) - 1, lost["searches_unsure"].get<int64_t>());
+  const Json& answer = searches.back();
+  EXPECT_EQ(answer["outcome"], "answer");
+  EXPECT_DOUBLE_EQ(answer["t_s"].get<double>(), lost["relocalizations"][0]["t_s"].get<double>());
+  EXPECT_EQ(answer["points"], lost["relocalizations"][0]["points"]);
+  ASSERT_EQ(answer["places"].size(), 1u);
+  EXPECT_DOUBLE_EQ(answer["places"][0]["error_m"].get<double>(),
+                   lost["relocalizations"][0]["error_m"].get<double>());
+  for (const Json& s : searches) {
+    EXPECT_TRUE(s["outcome"] == "unsure" || s["outcome"] == "unconfirmed" || &s == &answer)
+        << s.dump();
+    ASSERT_FALSE(s["places"].empty()) << s.dump();
+    EXPECT_TRUE(s["places"][0].contains("heading_error_deg")) << s.dump();
+  }
   // The background check, asked for: what it spent and found, in the summary.
   const CommandResult watched =
       RunCommand(std::string(SLAM_REPLAY_BIN) + " " + (root_ / "rooms").string() +

@@ -104,6 +104,7 @@ struct ReplayConfig {
   bool no_relocalize = false;
   bool detect_loss = false;
   bool watch = false;
+  bool log_searches = false;
 };
 
 constexpr char kTimeBase[] =
@@ -184,6 +185,10 @@ void AddOptions(CLI::App& app, ReplayConfig& c) {
                "the background from a tenth of each scan's rays (experimental, off in slamd): "
                "an answer that explains them far better than the tracked pose moves the SLAM "
                "there");
+  app.add_flag("--log-searches", c.log_searches,
+               "write every relocaliser search's outcome to searches.jsonl in the output "
+               "directory (one JSON object a line: t_s, outcome unsure/unconfirmed/answer, the "
+               "places it scored, and their errors against the ground truth when there is one)");
   app.add_option(
          "--from", c.from_s,
          std::string("replay only the scans that begin at or after this time, ") + kTimeBase)
@@ -266,6 +271,7 @@ std::optional<int> StretchOptions(const ReplayConfig& c, const CLI::App& app,
   if (c.watch && !c.detect_loss) return Usage("--watch needs --detect-loss");
   if (c.detect_loss) options.loss_detector = slam::LossDetectorConfig{};
   if (c.watch) options.watch = slam::WatchConfig{};
+  options.log_searches = c.log_searches;
   return std::nullopt;
 }
 
@@ -470,6 +476,15 @@ int main(int argc, char** argv) {
     summary["localize_map"] = {{"path", config.localize_path},
                                {"kind", localize->kind},
                                {"tiles", localize->grid.TileCount()}};
+  }
+  if (config.log_searches) {
+    const std::string path = (std::filesystem::path(out_dir) / "searches.jsonl").string();
+    const auto written = slam::io::WriteFileAtomic(path, slam::offline::SearchLog(experiment, run));
+    if (written.ok()) {
+      summary["searches_file"] = path;
+    } else {
+      outputs.errors.push_back(written.Message());
+    }
   }
   if (!config.relations_path.empty()) {
     summary["relations"] = ScoreRelations(config, relations, experiment, run, outputs.errors);
