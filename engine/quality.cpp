@@ -61,15 +61,59 @@ std::optional<Pose2> PoseAt(const std::vector<TimedPose>& trajectory, double t) 
   return Interpolate(before->pose, after->pose, span > 0 ? (t - before->t) / span : 0.0);
 }
 
-std::optional<TrajectoryQuality> EvaluateTrajectory(const std::vector<TimedPose>& estimate,
-                                                    const std::vector<TimedPose>& reference) {
-  std::vector<Vec2> source, target;
+namespace {
+
+/// Each reference pose within the estimate's span, with the estimate at its time.
+void Associate(const std::vector<TimedPose>& estimate, const std::vector<TimedPose>& reference,
+               std::vector<Vec2>& source, std::vector<Vec2>& target) {
   for (const TimedPose& ref : reference) {
     if (const auto pose = PoseAt(estimate, ref.t)) {
       source.push_back(pose->translation());
       target.push_back(ref.pose.translation());
     }
   }
+}
+
+}  // namespace
+
+std::optional<RigidTransform2> AlignOnMajority(const std::vector<TimedPose>& estimate,
+                                               const std::vector<TimedPose>& reference,
+                                               double floor_m) {
+  std::vector<Vec2> source, target;
+  Associate(estimate, reference, source, target);
+  if (source.size() < 2) return std::nullopt;
+  RigidTransform2 alignment = AlignRigid2D(source, target);
+  std::vector<bool> kept(source.size(), true);
+  std::vector<double> residuals(source.size());
+  for (int round = 0; round < 20; ++round) {
+    for (size_t i = 0; i < source.size(); ++i) {
+      residuals[i] = (alignment.Apply(source[i]) - target[i]).norm();
+    }
+    std::vector<double> sorted = residuals;
+    const auto middle = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2);
+    std::nth_element(sorted.begin(), middle, sorted.end());
+    const double bound = std::max(floor_m, 2.0 * *middle);
+    std::vector<bool> within(source.size());
+    std::vector<Vec2> s, t;
+    for (size_t i = 0; i < source.size(); ++i) {
+      within[i] = residuals[i] <= bound;
+      if (within[i]) {
+        s.push_back(source[i]);
+        t.push_back(target[i]);
+      }
+    }
+    // At least half the poses are within twice the median; two are needed for a fit.
+    if (within == kept || s.size() < 2) break;
+    kept = std::move(within);
+    alignment = AlignRigid2D(s, t);
+  }
+  return alignment;
+}
+
+std::optional<TrajectoryQuality> EvaluateTrajectory(const std::vector<TimedPose>& estimate,
+                                                    const std::vector<TimedPose>& reference) {
+  std::vector<Vec2> source, target;
+  Associate(estimate, reference, source, target);
   if (source.size() < 2) return std::nullopt;
   TrajectoryQuality quality;
   quality.alignment = AlignRigid2D(source, target);

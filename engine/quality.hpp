@@ -41,6 +41,17 @@ struct TrajectoryQuality {
 std::optional<TrajectoryQuality> EvaluateTrajectory(const std::vector<TimedPose>& estimate,
                                                     const std::vector<TimedPose>& reference);
 
+/// The alignment the most of `estimate` agrees with, against `reference` (associated as
+/// EvaluateTrajectory does): the least-squares fit, then fitted again on the poses it leaves
+/// within max(floor_m, twice the median residual), until that set no longer changes (20 rounds
+/// at most). The frame of the map a trajectory drew: one that was tracked off for a stretch (a
+/// kidnap found late, then re-found where it was) drew the map in the frame of the rest, which
+/// the least-squares fit of the whole misses by a share of the stretch's error. nullopt when
+/// fewer than two reference poses fall within the estimate's span.
+std::optional<RigidTransform2> AlignOnMajority(const std::vector<TimedPose>& estimate,
+                                               const std::vector<TimedPose>& reference,
+                                               double floor_m = 0.05);
+
 /// A lower bound on the e (eq. 9) of every trajectory that begins with `prefix` (the same poses
 /// up to its last, later poses after it), against `reference`: the later poses can only add
 /// residuals, the final alignment fits the prefix's poses no better than their own best

@@ -308,6 +308,7 @@ ReplayResult Replay(const RobotDescription& robot, const std::vector<Scan>& scan
       if (!Dropped(result.untracked, p.t - t_origin)) scored.push_back(p);
     }
     result.quality = EvaluateTrajectory(result.trajectory, scored);
+    result.map_alignment = AlignOnMajority(result.trajectory, scored);
   }
   result.scans = static_cast<int64_t>(done) - dropped;
   result.scans_dropped = dropped;

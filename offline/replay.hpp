@@ -144,6 +144,10 @@ struct ReplayResult {
   OccupancyGrid map;                  // best particle's
   /// Against the ground truth, when there is one (without its poses in `untracked`).
   std::optional<TrajectoryQuality> quality;
+  /// ... and the frame most of the trajectory agrees with (AlignOnMajority: a stretch tracked
+  /// off, then re-found, left out): the relocalisations' errors are judged in it, and the map's
+  /// quality in it or the ATE's alignment, whichever the map fits better.
+  std::optional<RigidTransform2> map_alignment;
   int64_t scans = 0;  // scans replayed (fewer than given when cancelled)
   bool cancelled = false;
   /// Stopped by `stop_above_e`; every e the full replay could score is at least `e_lower_bound`.

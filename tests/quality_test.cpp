@@ -108,6 +108,56 @@ TEST(ErrorLowerBound, NoPrefixScoresBelowItAndTheWholeRunMeetsIt) {
   EXPECT_EQ(ErrorLowerBound({estimate.front()}, reference), 0.0);  // fewer than two matched
 }
 
+/// A 200 s loop at 10 Hz; its estimate in `frame` with centimetre noise, and from 100 s to
+/// 135 s (a kidnap found late) carried off by `off` as well.
+struct LostStretch {
+  std::vector<TimedPose> reference, estimate;
+};
+LostStretch MakeLostStretch(const Pose2& frame, const Pose2& off) {
+  Rng rng(11);
+  LostStretch run;
+  for (int i = 0; i <= 2000; ++i) {
+    const double t = 0.1 * i;
+    const Pose2 p{3.0 * std::cos(t / 20.0), 2.0 * std::sin(t / 10.0), t / 20.0};
+    run.reference.push_back({t, p});
+    Pose2 e = Compose(frame, t >= 100.0 && t < 135.0 ? Compose(off, p) : p);
+    e.x += 0.01 * rng.Gaussian();
+    e.y += 0.01 * rng.Gaussian();
+    run.estimate.push_back({t, e});
+  }
+  return run;
+}
+
+double ShiftAt(const RigidTransform2& a, const RigidTransform2& b, const Vec2& p) {
+  return (a.Apply(p) - b.Apply(p)).norm();
+}
+
+TEST(AlignOnMajority, ALostStretchIsLeftOutWhereLeastSquaresSplitsTheDifference) {
+  const Pose2 frame{0.4, -0.7, 0.9};
+  const RigidTransform2 truth = RigidTransform2{frame.theta, frame.translation()}.Inverse();
+  const LostStretch lost = MakeLostStretch(frame, Pose2{0.8, -0.3, 0.4});
+  const auto least_squares = EvaluateTrajectory(lost.estimate, lost.reference);
+  const auto majority = AlignOnMajority(lost.estimate, lost.reference);
+  ASSERT_TRUE(least_squares && majority);
+  for (const Vec2& p : {Vec2(0.0, 0.0), Vec2(3.0, 2.0), Vec2(-3.0, -2.0)}) {
+    EXPECT_LT(ShiftAt(*majority, truth, p), 0.005) << p.transpose();
+    EXPECT_GT(ShiftAt(least_squares->alignment, truth, p), 0.05) << p.transpose();
+  }
+  EXPECT_NEAR(NormalizeAngle(majority->rotation_rad - truth.rotation_rad), 0.0, 0.002);
+
+  // Without the stretch, the poses agree throughout: the least-squares fit, all but the tail.
+  const LostStretch tracked = MakeLostStretch(frame, Pose2{});
+  const auto fit = EvaluateTrajectory(tracked.estimate, tracked.reference);
+  const auto kept = AlignOnMajority(tracked.estimate, tracked.reference);
+  ASSERT_TRUE(fit && kept);
+  EXPECT_LT(ShiftAt(*kept, fit->alignment, {3.0, 2.0}), 0.002);
+  EXPECT_LT(ShiftAt(*kept, truth, {3.0, 2.0}), 0.003);
+
+  // Fewer than two poses to fit: none.
+  EXPECT_FALSE(AlignOnMajority({{5.0, Pose2{}}}, lost.reference));
+  EXPECT_FALSE(AlignOnMajority(lost.estimate, {}));
+}
+
 }  // namespace
 }  // namespace slam
 

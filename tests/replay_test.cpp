@@ -417,6 +417,10 @@ TEST_F(ReplayTest, SummaryHasTheContractKeysAndMapQuality) {
   EXPECT_GT(m["precision"].get<double>(), 0.8);
   EXPECT_GT(m["recall"].get<double>(), 0.8);
   EXPECT_LE(m["recall"].get<double>(), 1.0);
+  // Tracked throughout: the majority's frame is the ATE's, near enough.
+  EXPECT_TRUE(m["frame"] == "trajectory" || m["frame"] == "majority") << m["frame"];
+  EXPECT_LT(m["frame_shift_m"].get<double>(), 0.02);
+  EXPECT_LT(m["frame_rotation_deg"].get<double>(), 1.0);
 }
 
 TEST_F(ReplayTest, WrittenMapFilesReadBackWithTheDocumentedValues) {
