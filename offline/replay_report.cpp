@@ -215,16 +215,21 @@ nlohmann::json ReplaySummary(const offline::Experiment& experiment, const Replay
     // the whole trajectory: a drifting track has no frame of its own) or the majority's (a
     // track off for a stretch, then re-found, drew the map in the frame of the rest).
     const RigidTransform2& ate = run.quality->alignment;
+    const RigidTransform2& most = *run.map_alignment;
     const sim::MapQuality by_ate =
         sim::EvaluateMap(run.map, ate, *experiment.world, experiment.ground_truth);
-    const sim::MapQuality by_majority =
-        sim::EvaluateMap(run.map, *run.map_alignment, *experiment.world, experiment.ground_truth);
-    const bool majority = by_majority.precision > by_ate.precision;
-    const sim::MapQuality& m = majority ? by_majority : by_ate;
-    const Pose2 between =
-        Between(Pose2{ate.translation.x(), ate.translation.y(), ate.rotation_rad},
-                Pose2{run.map_alignment->translation.x(), run.map_alignment->translation.y(),
-                      run.map_alignment->rotation_rad});
+    // A track that every pose agrees with leaves the least-squares fit as it was: one score.
+    const bool same = most.rotation_rad == ate.rotation_rad && most.translation == ate.translation;
+    const std::optional<sim::MapQuality> by_majority =
+        same ? std::nullopt
+             : std::optional(
+                   sim::EvaluateMap(run.map, most, *experiment.world, experiment.ground_truth));
+    const bool majority = by_majority && by_majority->precision > by_ate.precision;
+    const sim::MapQuality& m = majority ? *by_majority : by_ate;
+    const auto as_pose = [](const RigidTransform2& a) {
+      return Pose2{a.translation.x(), a.translation.y(), a.rotation_rad};
+    };
+    const Pose2 between = Between(as_pose(ate), as_pose(most));
     j["map_quality"] = {{"frame", majority ? "majority" : "trajectory"},
                         {"frame_shift_m", between.translation().norm()},
                         {"frame_rotation_deg", std::abs(RadToDeg(between.theta))},
