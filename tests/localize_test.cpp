@@ -25,6 +25,7 @@
 #include "engine/quality.hpp"
 #include "offline/replay.hpp"
 #include "server/state_store.hpp"
+#include "tests/command_support.hpp"
 #include "tests/experiment_support.hpp"
 #include "tests/map_file_support.hpp"
 
@@ -33,6 +34,8 @@ namespace {
 
 namespace fs = std::filesystem;
 using Json = nlohmann::json;
+using testing::CommandResult;
+using testing::RunCommand;
 
 constexpr int64_t kBudget = 16250;
 
@@ -256,23 +259,6 @@ TEST_F(LocalizeTest, AStretchLeftOutWhileMappingRelocalisesOnTheMapSoFar) {
   EXPECT_TRUE(cut.relocalizations.empty());
   ASSERT_FALSE(cut.trajectory.empty());
   EXPECT_GE(cut.trajectory.front().t, Start() + 9.0);
-}
-
-/// Runs a command; its exit status, stdout and stderr.
-struct CommandResult {
-  int status = -1;
-  std::string out;
-  std::string err;
-};
-
-CommandResult RunCommand(const std::string& command, const fs::path& scratch) {
-  const std::string out = (scratch / "stdout").string(), err = (scratch / "stderr").string();
-  const int raw = std::system((command + " >" + out + " 2>" + err).c_str());
-  CommandResult result;
-  result.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-  result.out = testing::ReadFile(out);
-  result.err = testing::ReadFile(err);
-  return result;
 }
 
 TEST_F(LocalizeTest, SlamReplayLocalisesOnAMapYamlAndOnSlamdsState) {

@@ -1,31 +1,16 @@
 // slamd-load against a real slamd: its report counts what it sent and what slamd did, the
 // PATCHes pass with the token, and it says clearly when it cannot start.
 
-#include <sys/wait.h>
-
-#include <cstdlib>
 #include <string>
 
+#include "tests/command_support.hpp"
 #include "tests/slamd_harness.hpp"
 
 namespace slamd_test {
 namespace {
 
-struct CommandResult {
-  int status = -1;
-  std::string out;
-  std::string err;
-};
-
-CommandResult RunCommand(const std::string& command, const fs::path& scratch) {
-  const fs::path out = scratch / "stdout", err = scratch / "stderr";
-  const int raw = std::system((command + " >" + out.string() + " 2>" + err.string()).c_str());
-  CommandResult result;
-  result.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-  result.out = ReadFile(out);
-  result.err = ReadFile(err);
-  return result;
-}
+using slam::testing::CommandResult;
+using slam::testing::RunCommand;
 
 class LoadSlamd : public SlamdSuite {
  protected:
