@@ -33,6 +33,7 @@ class LocalizationLog {
     cause_ = cause;
     since_t_ = t;
     scans_ = 0;
+    search_lookups_ = search_scans_ = 0;
   }
   /// A scan was left out.
   void Dropped() { untracked_since_ = tracked_; }
@@ -63,9 +64,13 @@ class LocalizationLog {
     ++scans_;
     ++scans_total_;
     if (!step.watch_relocated) lookups_ += r.lookups;  // the watch's are counted above
+    search_lookups_ += r.lookups;
+    ++search_scans_;
     if (log_searches_ && (r.rejected_best || r.found)) {
       ReplaySearch search;
       search.t = scan.t_end;
+      search.lookups = search_lookups_;
+      search.scans = search_scans_;
       if (r.found) {
         search.outcome = SearchOutcome::kAnswer;
         search.places.push_back({r.found->pose, 0, r.found->score});
@@ -78,6 +83,7 @@ class LocalizationLog {
       }
       searches_.push_back(std::move(search));
     }
+    if (r.rejected_best || r.found) search_lookups_ = search_scans_ = 0;
     if (r.rejected_best) {
       ++unsure_;
       if (!best_unsure_ || r.rejected_best->score > best_unsure_->score) {
@@ -136,6 +142,7 @@ class LocalizationLog {
   double since_t_ = 0.0;
   int64_t scans_ = 0, scans_total_ = 0, lookups_ = 0, unsure_ = 0, losses_ = 0;
   int64_t watch_lookups_ = 0, watch_unsure_ = 0, watch_confirmed_ = 0;
+  int64_t search_lookups_ = 0, search_scans_ = 0;  // since the last search ended
   std::optional<GlobalMatch> best_unsure_;
   double best_unsure_runner_up_ = 0.0, best_unsure_t_ = 0.0;
   double share_max_ = 0.0, share_max_t_ = 0.0;

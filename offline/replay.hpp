@@ -137,6 +137,10 @@ struct ReplaySearch {
   /// confirmation's best; an answer: the answer. Poses carried to `t`.
   std::vector<GlobalMatch> places;
   int points = 0;  // an answer's multiscan readings (0 otherwise)
+  /// What it cost: the relocaliser's lookups (fields' builds included) and the scans it took,
+  /// since the search logged before it (or since the relocaliser started).
+  int64_t lookups = 0;
+  int64_t scans = 0;
 };
 
 struct ReplayResult {

@@ -263,6 +263,8 @@ std::string SearchLog(const offline::Experiment& experiment, const ReplayResult&
     Json line = {{"t", search.t},
                  {"t_s", search.t - t_origin},
                  {"outcome", ToString(search.outcome)},
+                 {"lookups", search.lookups},
+                 {"scans", search.scans},
                  {"places", places}};
     if (search.outcome == SearchOutcome::kAnswer) line["points"] = search.points;
     lines += line.dump() + "\n";
