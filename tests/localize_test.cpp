@@ -162,6 +162,17 @@ TEST_F(LocalizeTest, WithoutAPoseItRelocalisesOnceWithinTwentySecondsThenTracks)
   EXPECT_EQ(last.places[0].score, r.found.score);
   EXPECT_EQ(last.points, r.found.points);
   EXPECT_EQ(static_cast<int64_t>(run.searches.size()) - 1, run.searches_unsure);
+  // Each line's cost runs from the line before: together, what the relocalisation spent, over
+  // the scans it took.
+  int64_t lookups = 0, scans = 0;
+  for (const offline::ReplaySearch& s : run.searches) {
+    EXPECT_GT(s.lookups, 0);
+    EXPECT_GT(s.scans, 0);
+    lookups += s.lookups;
+    scans += s.scans;
+  }
+  EXPECT_EQ(lookups, r.found.lookups);
+  EXPECT_EQ(scans, r.scans);
   for (size_t i = 0; i + 1 < run.searches.size(); ++i) {
     const offline::ReplaySearch& s = run.searches[i];
     EXPECT_NE(s.outcome, offline::SearchOutcome::kAnswer) << i;
@@ -331,6 +342,8 @@ TEST_F(LocalizeTest, SlamReplayLocalisesOnAMapYamlAndOnSlamdsState) {
         << s.dump();
     ASSERT_FALSE(s["places"].empty()) << s.dump();
     EXPECT_TRUE(s["places"][0].contains("heading_error_deg")) << s.dump();
+    EXPECT_GT(s["lookups"].get<int64_t>(), 0) << s.dump();
+    EXPECT_GT(s["scans"].get<int64_t>(), 0) << s.dump();
   }
   // The background check, asked for: what it spent and found, in the summary.
   const CommandResult watched =
