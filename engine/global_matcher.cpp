@@ -236,10 +236,16 @@ GlobalSearch::GlobalSearch(std::shared_ptr<const MatchField> field, std::vector<
   const double res = field_->resolution();
   // Field cells as the grid's (GridGeometry::CellOf: floor, saturated far beyond the map).
   const GridGeometry field_cells(res);
+  if (config_.turn_about_centroid && region.whole_map && !points.empty()) {
+    for (const Vec2& p : points) pivot_ += p;
+    pivot_ /= static_cast<double>(points.size());
+    for (Vec2& p : points) p -= pivot_;
+  }
   double reach = res;
   for (const Vec2& p : points) reach = std::max(reach, p.norm());
   // Headings spaced so that the farthest point moves by about a cell (Olson's, Hess et al.'s).
-  const double step = std::acos(std::clamp(1.0 - res * res / (2.0 * reach * reach), -1.0, 1.0));
+  const double moved = res * std::max(config_.heading_step_cells, 1e-3);
+  const double step = std::acos(std::clamp(1.0 - moved * moved / (2.0 * reach * reach), -1.0, 1.0));
   if (region.half_angle_rad >= kPi) {
     const auto n = static_cast<size_t>(std::ceil(2.0 * kPi / step));
     for (size_t i = 0; i < n; ++i) {
@@ -279,7 +285,10 @@ GlobalSearch::GlobalSearch(std::shared_ptr<const MatchField> field, std::vector<
 
 Pose2 GlobalSearch::CandidatePose(size_t h, CellIndex offset) const {
   const double res = field_->resolution();
-  return {offset.x * res, offset.y * res, headings_[h]};
+  // The pivot sits at the offset: the query frame's origin is the pivot's turn back from it.
+  const double theta = headings_[h], c = std::cos(theta), si = std::sin(theta);
+  return {offset.x * res - (c * pivot_.x() - si * pivot_.y()),
+          offset.y * res - (si * pivot_.x() + c * pivot_.y()), theta};
 }
 
 int64_t GlobalSearch::Bound(const Node& node) {

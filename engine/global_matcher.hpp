@@ -180,6 +180,17 @@ struct GlobalSearchConfig {
   /// Distinct candidates kept, the best included (at least 1): a caller that checks them
   /// otherwise (finer, later) wants more than the runner-up.
   int candidates = 2;
+  /// The headings' spacing: how many field cells it moves the farthest point by. One is the
+  /// exhaustive spacing (every answer within a cell's turn); a caller that checks the candidates
+  /// over a range of headings (the relocaliser) may take more, for a search that many times
+  /// cheaper.
+  double heading_step_cells = 1.0;
+  /// A whole-map search turns the query about its points' centroid instead of its own origin:
+  /// the points lie closer to what it turns about, so fewer headings move them by a cell (a
+  /// multiscan's origin is its newest scan's end, at one end of the path it spans). The answers
+  /// are the query frame's poses as ever; the candidates tried are the same headings and
+  /// translations of the centroid.
+  bool turn_about_centroid = false;
 };
 
 /// Whether two candidates are distinct places: at least distinct_m apart on an axis, or
@@ -226,8 +237,12 @@ class GlobalSearch {
   CellIndex min_offset() const { return min_offset_; }
   CellIndex max_offset() const { return max_offset_; }
 
-  /// The pose of a candidate: heading index `h`, translation `offset` in field cells.
+  /// The pose of a candidate: heading index `h`, translation `offset` in field cells (of the
+  /// point it turns about: the query frame's origin, or the centroid).
   Pose2 CandidatePose(size_t h, CellIndex offset) const;
+  /// What the search turns the query about, in the query's frame (zero but for a whole-map
+  /// search with GlobalSearchConfig::turn_about_centroid).
+  const Vec2& pivot() const { return pivot_; }
   /// The cells the points fall into under heading `h` with a zero translation: a candidate's
   /// cells are these plus its offset.
   const std::vector<CellIndex>& PointCells(size_t h) const { return cells_[h]; }
@@ -247,7 +262,8 @@ class GlobalSearch {
   GlobalSearchConfig config_;
   size_t point_count_ = 0;
   std::vector<double> headings_;
-  std::vector<std::vector<CellIndex>> cells_;  // per heading
+  Vec2 pivot_ = Vec2::Zero();
+  std::vector<std::vector<CellIndex>> cells_;  // per heading, of the points less the pivot
   CellIndex min_offset_{0, 0}, max_offset_{-1, -1};
   int64_t min_raw_ = 0;
   std::vector<Node> stack_;

@@ -44,6 +44,22 @@ void Relocalizer::Cancel() {
   search_.reset();
 }
 
+namespace {
+
+/// `keep` of `points` (all of them when there are no more), evenly spaced in their order.
+std::vector<Vec2> EvenlySpaced(const std::vector<Vec2>& points, size_t keep) {
+  const size_t total = points.size();
+  if (total <= keep) return points;
+  std::vector<Vec2> kept;
+  kept.reserve(keep);
+  for (size_t k = 0; k < total; ++k) {
+    if ((k * keep) / total != ((k + 1) * keep) / total) kept.push_back(points[k]);
+  }
+  return kept;
+}
+
+}  // namespace
+
 std::vector<Vec2> Relocalizer::Query(double window_s) const {
   const double since = entries_.back().t - window_s;
   size_t total = 0;
@@ -74,9 +90,17 @@ void Relocalizer::StartSearch(Stage stage, std::vector<Vec2> query, const Pose2&
   query_odom_ = odom;
   query_points_ = static_cast<int>(query_.size());
   GlobalSearchConfig config = config_.search;
-  if (stage != Stage::kCoarse) config.min_score = 0.0;  // a fine score is always wanted
-  search_ = std::make_unique<GlobalSearch>(stage == Stage::kCoarse ? field_ : fine_field_, query_,
-                                           region, config);
+  if (stage != Stage::kCoarse) {
+    config.min_score = 0.0;           // a fine score is always wanted
+    config.heading_step_cells = 1.0;  // ... at every heading: it decides
+  }
+  if (stage == Stage::kCoarse) {
+    search_ = std::make_unique<GlobalSearch>(
+        field_, EvenlySpaced(query_, static_cast<size_t>(std::max(config_.coarse_points, 1))),
+        region, config);
+  } else {
+    search_ = std::make_unique<GlobalSearch>(fine_field_, query_, region, config);
+  }
   ++searches_;
 }
 

@@ -44,12 +44,19 @@ struct RelocalizerConfig {
   int min_points = 120;  // a search starts once the multiscan holds this many readings
   /// Readings of a multiscan kept at most (evenly spaced): the search's cost per candidate.
   int max_points = 400;
+  /// ... of which the whole-map search scores at most this many (evenly spaced): its cost is
+  /// headings x translations x points, and it only nominates candidates, which the checks
+  /// score with every reading.
+  int coarse_points = 200;
   /// The whole-map search's field is coarse (fewer translations and headings to try), the
   /// checks' and the confirmation's fine (small regions).
   MatchFieldConfig field{0.10, 0.10, 6, 0};
   MatchFieldConfig fine_field{0.03, 0.03, 4, 0};
-  /// The coarse search's: its candidates (and unique_ratio) are the ones checked.
-  GlobalSearchConfig search{0.3, 0.7, 0.3, DegToRad(20.0), 4};
+  /// The coarse search's: its candidates (and unique_ratio) are the ones checked. It takes
+  /// headings two cells apart and turns the multiscan about its centroid (GlobalSearchConfig):
+  /// a candidate's heading is then within a degree or two of the best, which its check, over
+  /// check_half_angle_deg, finds at every heading.
+  GlobalSearchConfig search{0.3, 0.7, 0.3, DegToRad(20.0), 4, 2.0, true};
   double check_half_width_m = 0.15;
   double check_half_angle_deg = 5.0;
   double accept_score = 0.8;    // a fine score at least this
@@ -61,8 +68,10 @@ struct RelocalizerConfig {
   /// (the multiscans overlap, so the sum asks for more than one search's margin).
   int lead_searches = 3;
   double lead_sum = 0.1;
-  double confirm_half_width_m = 0.3;
-  double confirm_half_angle_deg = 8.0;
+  /// The answer carried by the odometry over a few seconds is off by centimetres: the
+  /// confirmation looks no wider than the check did.
+  double confirm_half_width_m = 0.15;
+  double confirm_half_angle_deg = 4.0;
   /// Confirmations wanted, each `confirm_spacing_s` after the last with the multiscan of
   /// then: a place that only looked right from where the robot was is seldom right from
   /// where it drove on to.

@@ -38,8 +38,10 @@ int64_t ScoreAt(const MatchField& field, const GlobalSearch& search, const Globa
   for (size_t h = 0; h < search.headings(); ++h) {
     const Pose2 first = search.CandidatePose(h, {0, 0});
     if (std::abs(NormalizeAngle(first.theta - m.pose.theta)) > 1e-12) continue;
-    const CellIndex offset{static_cast<int32_t>(std::lround(m.pose.x / field.resolution())),
-                           static_cast<int32_t>(std::lround(m.pose.y / field.resolution()))};
+    // The candidate's offset is where the pivot lands.
+    const Vec2 pivot = m.pose.Transform(search.pivot());
+    const CellIndex offset{static_cast<int32_t>(std::lround(pivot.x() / field.resolution())),
+                           static_cast<int32_t>(std::lround(pivot.y() / field.resolution()))};
     int64_t sum = 0;
     for (const CellIndex& c : search.PointCells(h)) {
       sum += field.At(0, {c.x + offset.x, c.y + offset.y});
@@ -212,6 +214,10 @@ TEST(GlobalSearchTest, EqualsAnExhaustiveSearchOnRandomFields) {
     config.unique_ratio = 0.6;
     config.distinct_m = 0.2;
     config.candidates = 1 + static_cast<int>(seed % 5);
+    // Every third seed turns the query about its centroid, every fourth takes headings twice
+    // as far apart: still exact over the candidates it has.
+    config.turn_about_centroid = seed % 3 == 0;
+    config.heading_step_cells = seed % 4 == 3 ? 2.0 : 1.0;
     GlobalSearch search(field, points, region, config);
     search.Finish();
     const int64_t expected = BruteForceBest(*field, search);
@@ -257,6 +263,45 @@ TEST(GlobalSearchTest, PlacesAViewOfAnLShapedRoomAnywhereInIt) {
     // Nothing else in an L-shaped room looks nearly like it.
     EXPECT_FALSE(search.runner_up()) << search.runner_up()->score << " vs " << m.score;
   }
+}
+
+TEST(GlobalSearchTest, TurningAboutTheCentroidTriesFewerHeadingsAndPlacesTheSameFrame) {
+  const std::vector<Vec2> outline = LRoom();
+  const OccupancyGrid grid = DrawnGrid(outline);
+  auto field = std::make_shared<const MatchField>(MatchField::FromGrid(grid, {}));
+  const Pose2 truth{0.2, -0.3, 2.5};
+  // A multiscan's frame lies at one end of what it holds: here 0.8 m from the robot (still in
+  // the room: a search about the origin tries only origins on the field).
+  const Pose2 behind{-0.6, -0.5, 0.3};
+  const Pose2 frame = Compose(truth, behind);
+  std::vector<Vec2> query;
+  for (const Vec2& p : SeenFrom(outline, truth, 1.5, 3))
+    query.push_back(Inverse(behind).Transform(p));
+  GlobalSearchConfig about_origin, about_centroid;
+  about_centroid.turn_about_centroid = true;
+  GlobalSearch a(field, query, GlobalRegion{}, about_origin);
+  GlobalSearch b(field, query, GlobalRegion{}, about_centroid);
+  a.Finish();
+  b.Finish();
+  EXPECT_EQ(a.pivot(), Vec2::Zero());
+  EXPECT_GT(b.pivot().norm(), 0.3);
+  EXPECT_LT(b.headings() * 4, a.headings() * 3);
+  EXPECT_LT(b.lookups(), a.lookups());
+  for (const GlobalSearch* search : {&a, &b}) {
+    ASSERT_TRUE(search->best());
+    const Pose2 found = search->best()->pose;
+    EXPECT_LT((found.translation() - frame.translation()).norm(), 0.08)
+        << found.x << " " << found.y;
+    EXPECT_LT(std::abs(NormalizeAngle(found.theta - frame.theta)), DegToRad(3.0));
+  }
+  // A search in a region never turns about anything but the query's origin.
+  GlobalRegion region;
+  region.whole_map = false;
+  region.center = frame.translation();
+  region.half_width_m = 0.2;
+  region.heading = frame.theta;
+  region.half_angle_rad = DegToRad(5.0);
+  EXPECT_EQ(GlobalSearch(field, query, region, about_centroid).pivot(), Vec2::Zero());
 }
 
 TEST(GlobalSearchTest, ASymmetricRoomGivesARunnerUpAsGoodAsTheBest) {
