@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "engine/cell_encoding.hpp"
+#include "engine/even_spacing.hpp"
 #include "engine/grid_traversal.hpp"
 
 namespace slam {
@@ -84,7 +85,7 @@ LossCheck LossDetector::Check(const OccupancyGrid& map, const Pose2& pose,
   const size_t total = points.size();
   const size_t keep = std::min(total, static_cast<size_t>(config_.max_points));
   for (size_t k = 0; k < total && keep > 0; ++k) {
-    if ((k * keep) / total == ((k + 1) * keep) / total) continue;  // evenly spaced
+    if (!KeptEvenly(k, keep, total)) continue;
     const Vec2& p = points[k];
     if (!p.allFinite()) continue;
     const CellIndex c = geometry.CellOf(pose.Transform(p));

@@ -5,6 +5,8 @@
 #include <limits>
 #include <utility>
 
+#include "engine/even_spacing.hpp"
+
 namespace slam {
 
 Relocalizer::Relocalizer(const RelocalizerConfig& config) : config_(config) {}
@@ -53,7 +55,7 @@ std::vector<Vec2> EvenlySpaced(const std::vector<Vec2>& points, size_t keep) {
   std::vector<Vec2> kept;
   kept.reserve(keep);
   for (size_t k = 0; k < total; ++k) {
-    if ((k * keep) / total != ((k + 1) * keep) / total) kept.push_back(points[k]);
+    if (KeptEvenly(k, keep, total)) kept.push_back(points[k]);
   }
   return kept;
 }
@@ -68,15 +70,13 @@ std::vector<Vec2> Relocalizer::Query(double window_s) const {
   const size_t keep = std::min(total, static_cast<size_t>(config_.max_points));
   std::vector<Vec2> query;
   query.reserve(keep);
-  // Evenly spaced over the readings in time order: reading k of `total` is kept when it
-  // starts a new share of total / keep.
+  // Evenly spaced over the readings in time order.
   size_t k = 0;
   for (const Entry& e : entries_) {
     if (e.t < since) continue;
     const Pose2 to_newest = Between(newest, e.odom);
     for (const Vec2& p : e.points) {
-      if ((k * keep) / total != ((k + 1) * keep) / total) query.push_back(to_newest.Transform(p));
-      ++k;
+      if (KeptEvenly(k++, keep, total)) query.push_back(to_newest.Transform(p));
     }
   }
   return query;
@@ -90,15 +90,13 @@ void Relocalizer::StartSearch(Stage stage, std::vector<Vec2> query, const Pose2&
   query_odom_ = odom;
   query_points_ = static_cast<int>(query_.size());
   GlobalSearchConfig config = config_.search;
-  if (stage != Stage::kCoarse) {
-    config.min_score = 0.0;           // a fine score is always wanted
-    config.heading_step_cells = 1.0;  // ... at every heading: it decides
-  }
   if (stage == Stage::kCoarse) {
     search_ = std::make_unique<GlobalSearch>(
         field_, EvenlySpaced(query_, static_cast<size_t>(std::max(config_.coarse_points, 1))),
         region, config);
   } else {
+    config.min_score = 0.0;           // a fine score is always wanted
+    config.heading_step_cells = 1.0;  // ... at every heading: it decides
     search_ = std::make_unique<GlobalSearch>(fine_field_, query_, region, config);
   }
   ++searches_;

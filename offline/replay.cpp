@@ -66,7 +66,8 @@ class LocalizationLog {
     if (!step.watch_relocated) lookups_ += r.lookups;  // the watch's are counted above
     search_lookups_ += r.lookups;
     ++search_scans_;
-    if (log_searches_ && (r.rejected_best || r.found)) {
+    const bool search_ended = r.rejected_best || r.found;
+    if (log_searches_ && search_ended) {
       ReplaySearch search;
       search.t = scan.t_end;
       search.lookups = search_lookups_;
@@ -83,7 +84,7 @@ class LocalizationLog {
       }
       searches_.push_back(std::move(search));
     }
-    if (r.rejected_best || r.found) search_lookups_ = search_scans_ = 0;
+    if (search_ended) search_lookups_ = search_scans_ = 0;
     if (r.rejected_best) {
       ++unsure_;
       if (!best_unsure_ || r.rejected_best->score > best_unsure_->score) {
